@@ -1,0 +1,450 @@
+"""Scenario description: one small TOML file says everything a simulation needs.
+
+A scenario names the tower and its signal, the walk, the receiver front end and
+clock, the propagation scene, the IMU and the GNSS start fix, plus the seed. The
+four reference walks of ``shared/spec/scenarios.md`` ship as package data
+(``park-loop-cw``, ``park-loop-ccw``, ``street-out``, ``street-back``; the aliases
+``park-loop`` and ``street`` name the first run of each).
+
+Every field has a default, so a scenario file only states what differs. The
+parsed :class:`Scenario` round-trips to TOML text (:func:`scenario_to_toml`),
+which is stored verbatim in every truth file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+#: Short names that resolve to a packaged scenario.
+ALIASES = {"park-loop": "park-loop-cw", "street": "street-out"}
+
+
+@dataclass(frozen=True)
+class TowerConfig:
+    """The DTMB transmitter.
+
+    Attributes
+    ----------
+    x_m, y_m : float
+        Tower position in the local ENU frame, m.
+    height_m : float
+        Antenna height above the walker's plane, m.
+    carrier_hz : float
+        RF centre frequency, Hz.
+    pn_mode : str
+        Header mode, ``"PN420"``, ``"PN595"`` or ``"PN945"``.
+    rotating_phase : bool
+        Variable (frame-to-frame rotating) header phase; ignored for PN595.
+    si_index : int
+        SI word sent in every frame (1..24).
+    si_polarity : int
+        +1: SI chip 0 -> +(1+j); -1 the opposite convention.
+    si_power_db : float
+        SI symbol power relative to data, dB.
+    """
+
+    x_m: float = 2000.0
+    y_m: float = 2200.0
+    height_m: float = 150.0
+    carrier_hz: float = 666e6
+    pn_mode: str = "PN420"
+    rotating_phase: bool = True
+    si_index: int = 15
+    si_polarity: int = 1
+    si_power_db: float = 0.0
+
+
+@dataclass(frozen=True)
+class Pause:
+    """The walker stands still at a waypoint.
+
+    Attributes
+    ----------
+    at_waypoint : int
+        Index of the waypoint where the pause happens.
+    duration_s : float
+        Time spent standing, s.
+    """
+
+    at_waypoint: int
+    duration_s: float
+
+
+@dataclass(frozen=True)
+class PaceChange:
+    """From ``after_m`` metres of walked distance on, walk at another pace.
+
+    Attributes
+    ----------
+    after_m : float
+        Walked distance at which the pace changes, m.
+    speed_mps : float
+        New mean speed, m/s.
+    step_frequency_hz : float
+        New cadence, steps/s.
+    """
+
+    after_m: float
+    speed_mps: float
+    step_frequency_hz: float
+
+
+@dataclass(frozen=True)
+class WalkConfig:
+    """The walker's path and gait.
+
+    Attributes
+    ----------
+    waypoints_m : list of [x, y]
+        Polyline of the path, ENU metres; the first point is the start P0.
+    closed : bool
+        Return to the first waypoint at the end (a loop).
+    start_still_s : float
+        Standing still before the walk, s (oscillator calibration window).
+    end_still_s : float
+        Standing still after the walk, s.
+    speed_mps : float
+        Mean walking speed, m/s.
+    step_frequency_hz : float
+        Mean cadence, steps/s.
+    step_length_jitter : float
+        Relative standard deviation of individual step lengths.
+    corner_radius_m : float
+        Radius with which corners are rounded, m.
+    pauses : list of Pause
+    pace_changes : list of PaceChange
+    """
+
+    waypoints_m: list[list[float]] = field(default_factory=lambda: [[0.0, 0.0], [0.0, 50.0]])
+    closed: bool = False
+    start_still_s: float = 10.0
+    end_still_s: float = 2.0
+    speed_mps: float = 1.3
+    step_frequency_hz: float = 1.85
+    step_length_jitter: float = 0.04
+    corner_radius_m: float = 1.5
+    pauses: list[Pause] = field(default_factory=list)
+    pace_changes: list[PaceChange] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class ClockConfig:
+    """Receiver reference oscillator (drives both the LO and the ADC clock).
+
+    Attributes
+    ----------
+    preset : str
+        ``"gnss-disciplined"``, ``"free-running"`` (TCXO) or ``"custom"``.
+    offset_ppb : float or None
+        Constant fractional frequency offset, parts per 1e9; None draws one
+        from the preset's range using the seed.
+    drift_adev : float or None
+        Allan deviation of the random-walk frequency wander at 1 s; None uses
+        the preset's value.
+    """
+
+    preset: str = "gnss-disciplined"
+    offset_ppb: float | None = None
+    drift_adev: float | None = None
+
+
+@dataclass(frozen=True)
+class ReceiverConfig:
+    """The SDR front end that records the capture.
+
+    Attributes
+    ----------
+    sample_rate_hz : float
+        Recording rate, samples/s.
+    sample_format : str
+        ``"cf32"``, ``"ci16"``, ``"ci8"`` or ``"cu8"``.
+    cn_db : float
+        Carrier-to-noise ratio in the 7.56 MHz band with the direct path
+        unobstructed, dB.
+    bulk_cfo_hz : float
+        Extra frequency error of the tuner, Hz (a cheap SDR's kHz-level offset;
+        it is not part of the method's f_s and is removed by acquisition).
+    iq_conjugate : bool
+        The front end swaps I and Q (spectrum inverted).
+    agc_backoff_db : float
+        Headroom of the quantiser's full scale above the signal RMS, dB.
+    start_offset_s : float
+        Transmitter time at the first sample, s (where in a superframe the
+        recording starts).
+    clock : ClockConfig
+    """
+
+    sample_rate_hz: float = 7.56e6
+    sample_format: str = "ci8"
+    cn_db: float = 15.0
+    bulk_cfo_hz: float = 0.0
+    iq_conjugate: bool = False
+    agc_backoff_db: float = 12.0
+    start_offset_s: float = 0.0371
+    clock: ClockConfig = field(default_factory=ClockConfig)
+
+
+@dataclass(frozen=True)
+class Scatterer:
+    """A point scatterer (e.g. a building corner or face) in the scene.
+
+    Attributes
+    ----------
+    x_m, y_m : float
+        Position, m.
+    gain_db : float
+        Path power relative to the unobstructed direct path, dB.
+    """
+
+    x_m: float
+    y_m: float
+    gain_db: float
+
+
+@dataclass(frozen=True)
+class Building:
+    """A building footprint that blocks the line of sight.
+
+    Attributes
+    ----------
+    polygon_m : list of [x, y]
+        Footprint vertices, m.
+    attenuation_db : float
+        Direct-path loss when the line of sight crosses the footprint, dB.
+    """
+
+    polygon_m: list[list[float]]
+    attenuation_db: float = 20.0
+
+
+@dataclass(frozen=True)
+class ChannelConfig:
+    """Propagation scene.
+
+    Attributes
+    ----------
+    ground_reflection : bool
+        Add the flat-earth ground-reflected ray.
+    ground_reflection_db : float
+        Its power relative to the direct path, dB.
+    antenna_height_m : float
+        Receiver antenna height above ground, m.
+    rician_k_db : float or None
+        K factor of a diffuse (Rayleigh) component added to the specular
+        paths; None for no diffuse component.
+    diffuse_doppler_hz : float
+        Maximum Doppler of the diffuse component, Hz.
+    diffuse_delay_s : float
+        Mean excess delay of the diffuse component, s.
+    scatterers : list of Scatterer
+    buildings : list of Building
+    """
+
+    ground_reflection: bool = True
+    ground_reflection_db: float = -10.0
+    antenna_height_m: float = 1.2
+    rician_k_db: float | None = 10.0
+    diffuse_doppler_hz: float = 3.0
+    diffuse_delay_s: float = 0.3e-6
+    scatterers: list[Scatterer] = field(default_factory=list)
+    buildings: list[Building] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class ImuConfig:
+    """Handheld or foot-mounted IMU.
+
+    Attributes
+    ----------
+    preset : str
+        ``"phone"`` or ``"foot-mems"``.
+    rate_hz : float
+        Sample rate, Hz.
+    gyro_bias_dps : float or None
+        Initial z-gyro bias, deg/s; None draws one from the preset's range.
+    step_gain_error : float
+        Relative error of the walker's step-length gain seen by PDR
+        (e.g. 0.15 makes PDR steps 15 % too long).
+    heading_drift_start_s : float or None
+        Time from which an extra gyro bias ``heading_drift_dps`` acts
+        (late heading drift); None for none.
+    heading_drift_dps : float
+        Extra z-gyro bias after ``heading_drift_start_s``, deg/s.
+    mag_disturbance_ut : float
+        Peak magnetic disturbance near buildings, uT.
+    """
+
+    preset: str = "phone"
+    rate_hz: float = 100.0
+    gyro_bias_dps: float | None = None
+    step_gain_error: float = 0.0
+    heading_drift_start_s: float | None = None
+    heading_drift_dps: float = 0.0
+    mag_disturbance_ut: float = 5.0
+
+
+@dataclass(frozen=True)
+class GnssConfig:
+    """GNSS fixes available to the walker.
+
+    Attributes
+    ----------
+    start_fix_sigma_m : float
+        Horizontal error (1 sigma per axis) of the start fix P0, m.
+    rate_hz : float
+        Fix rate for the per-epoch GNSS log, Hz.
+    open_sky_cn0_dbhz : float
+        Mean C/N0 under open sky, dB-Hz.
+    blocked_cn0_drop_db : float
+        C/N0 loss where buildings block the sky, dB.
+    """
+
+    start_fix_sigma_m: float = 1.5
+    rate_hz: float = 1.0
+    open_sky_cn0_dbhz: float = 44.0
+    blocked_cn0_drop_db: float = 12.0
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A complete simulation scenario (see the module docstring)."""
+
+    name: str = "custom"
+    description: str = ""
+    seed: int = 1
+    tower: TowerConfig = field(default_factory=TowerConfig)
+    walk: WalkConfig = field(default_factory=WalkConfig)
+    receiver: ReceiverConfig = field(default_factory=ReceiverConfig)
+    channel: ChannelConfig = field(default_factory=ChannelConfig)
+    imu: ImuConfig = field(default_factory=ImuConfig)
+    gnss: GnssConfig = field(default_factory=GnssConfig)
+
+    def replace(self, **sections: dict[str, Any]) -> "Scenario":
+        """Return a copy with fields of named sections changed.
+
+        ``scn.replace(receiver={"cn_db": 10}, seed=3)`` changes one receiver
+        field and the seed; top-level scalars are passed as plain values.
+        """
+        updates: dict[str, Any] = {}
+        for key, value in sections.items():
+            current = getattr(self, key)
+            if dataclasses.is_dataclass(current) and isinstance(value, dict):
+                updates[key] = _build(type(current), {**_to_dict(current), **value}, key)
+            else:
+                updates[key] = value
+        return dataclasses.replace(self, **updates)
+
+
+def _build(cls: type, data: dict[str, Any], where: str) -> Any:
+    """Instantiate dataclass ``cls`` from a TOML table, checking the keys."""
+    known = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = set(data) - set(known)
+    if unknown:
+        raise ValueError(f"scenario [{where}]: unknown key(s) {sorted(unknown)}; known: {sorted(known)}")
+    kwargs: dict[str, Any] = {}
+    nested = {
+        "clock": ClockConfig, "pauses": Pause, "pace_changes": PaceChange,
+        "scatterers": Scatterer, "buildings": Building,
+    }
+    for key, value in data.items():
+        sub = nested.get(key)
+        if sub is not None and isinstance(value, list):
+            kwargs[key] = [v if isinstance(v, sub) else _build(sub, v, f"{where}.{key}") for v in value]
+        elif sub is not None and isinstance(value, dict):
+            kwargs[key] = _build(sub, value, f"{where}.{key}")
+        else:
+            kwargs[key] = value
+    return cls(**kwargs)
+
+
+def _to_dict(obj: Any) -> dict[str, Any]:
+    return {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
+
+
+_SECTIONS = {
+    "tower": TowerConfig, "walk": WalkConfig, "receiver": ReceiverConfig,
+    "channel": ChannelConfig, "imu": ImuConfig, "gnss": GnssConfig,
+}
+
+
+def scenario_from_dict(data: dict[str, Any]) -> Scenario:
+    """Build a :class:`Scenario` from a parsed TOML document."""
+    top = {k: v for k, v in data.items() if k not in _SECTIONS}
+    unknown = set(top) - {"name", "description", "seed"}
+    if unknown:
+        raise ValueError(f"scenario: unknown top-level key(s) {sorted(unknown)}")
+    sections = {k: _build(cls, data.get(k, {}), k) for k, cls in _SECTIONS.items()}
+    return Scenario(**top, **sections)
+
+
+def packaged_scenarios() -> list[str]:
+    """Names of the scenarios shipped with the package."""
+    files = resources.files("sim") / "scenarios"
+    return sorted(p.name.removesuffix(".toml") for p in files.iterdir() if p.name.endswith(".toml"))
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """Load a packaged scenario by name (or alias) or a scenario TOML file.
+
+    Parameters
+    ----------
+    name_or_path : str or Path
+        ``"park-loop"``, ``"street-back"``, ... or a path to a ``.toml`` file.
+
+    Raises
+    ------
+    ValueError
+        Unknown name, or a file that is not a valid scenario (the message names it).
+    """
+    text_path = Path(name_or_path)
+    if text_path.suffix == ".toml" or text_path.exists():
+        if not text_path.is_file():
+            raise ValueError(f"scenario file {text_path} does not exist")
+        source = text_path.read_text()
+        where = str(text_path)
+    else:
+        name = ALIASES.get(str(name_or_path), str(name_or_path))
+        res = resources.files("sim") / "scenarios" / f"{name}.toml"
+        if not res.is_file():
+            raise ValueError(
+                f"unknown scenario {name_or_path!r}; packaged: {', '.join(packaged_scenarios())} "
+                f"(aliases: {', '.join(ALIASES)}), or give a .toml path"
+            )
+        source = res.read_text()
+        where = name
+    try:
+        return scenario_from_dict(tomllib.loads(source))
+    except (tomllib.TOMLDecodeError, TypeError, ValueError) as exc:
+        raise ValueError(f"scenario {where}: {exc}") from exc
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if dataclasses.is_dataclass(value):
+        items = {k: v for k, v in _to_dict(value).items() if v is not None}
+        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in items.items()) + " }"
+    raise TypeError(f"cannot write {type(value).__name__} to TOML")
+
+
+def scenario_to_toml(scn: Scenario) -> str:
+    """Serialise a scenario to TOML text that :func:`scenario_from_dict` reads back."""
+    lines = [f"name = {_toml_value(scn.name)}", f"description = {_toml_value(scn.description)}",
+             f"seed = {scn.seed}"]
+    for section in _SECTIONS:
+        lines.append(f"\n[{section}]")
+        for key, value in _to_dict(getattr(scn, section)).items():
+            if value is not None:
+                lines.append(f"{key} = {_toml_value(value)}")
+    return "\n".join(lines) + "\n"
