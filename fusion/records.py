@@ -105,3 +105,71 @@ class RangeSeries(ColumnRecord):
     range_change_m: np.ndarray
     snr_db: np.ndarray
     valid: np.ndarray
+
+
+@dataclass
+class ImuLog(ColumnRecord):
+    """Inertial and magnetic samples of one IMU.
+
+    The sensor (body) frame is the device's own: for the handheld phone
+    x = right, y = forward (towards the top of the phone), z = out of the
+    screen; for the foot-mounted unit x = right, y = forward along the foot,
+    z = up out of the instep. Each writer states its frame in the file.
+
+    Attributes
+    ----------
+    t_s : ndarray
+        Sample time since the start of the capture, s.
+    acc_mps2 : ndarray, shape (N, 3)
+        Specific force (acceleration minus gravity; reads +9.8 m/s^2 up at
+        rest), m/s^2, sensor frame.
+    gyro_radps : ndarray, shape (N, 3)
+        Angular rate, rad/s, sensor frame (right-handed).
+    mag_ut : ndarray, shape (N, 3)
+        Magnetic flux density, uT, sensor frame.
+    """
+
+    t_s: np.ndarray
+    acc_mps2: np.ndarray
+    gyro_radps: np.ndarray
+    mag_ut: np.ndarray
+
+
+@dataclass
+class GnssLog(ColumnRecord):
+    """Per-epoch GNSS position fixes with their signal strength.
+
+    Attributes
+    ----------
+    t_s : ndarray
+        Epoch time since the start of the capture, s.
+    x_m, y_m : ndarray
+        Fixed east and north position, m.
+    cn0_dbhz : ndarray
+        Mean carrier-to-noise density of the satellites used, dB-Hz.
+    """
+
+    t_s: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    cn0_dbhz: np.ndarray
+
+
+@dataclass(frozen=True)
+class StartFix:
+    """The GNSS fix P0 where the PDR starts (the last fix before GNSS is given up).
+
+    Attributes
+    ----------
+    t_s : float
+        Time of the fix, s.
+    x_m, y_m : float
+        Fixed east and north position, m.
+    sigma_m : float
+        Stated 1-sigma horizontal error per axis, m.
+    """
+
+    t_s: float
+    x_m: float
+    y_m: float
+    sigma_m: float

@@ -1,0 +1,118 @@
+"""The PDR chain: IMU log -> steps -> step lengths -> heading -> positions (method.md §3).
+
+The Weinberg gain K is never assumed: either the caller passes one calibrated
+beforehand with :func:`calibrate_weinberg_k_from_walk` (a walk of known
+length by the same person and device), or chooses the linear frequency model,
+which needs no calibration.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fusion.pdr.attitude import AttitudeConfig, relative_heading
+from fusion.pdr.dead_reckoning import dead_reckon, mean_heading_over_windows, resample_steps
+from fusion.pdr.step_length import calibrate_weinberg_k, frequency_length, weinberg_length
+from fusion.pdr.steps import StepDetectorConfig, detect_steps
+from fusion.records import ImuLog, PdrSteps, Track
+
+STEP_MODELS = ("weinberg", "frequency")
+
+
+@dataclass(frozen=True)
+class PdrConfig:
+    """Settings of the PDR chain.
+
+    Attributes
+    ----------
+    step_model : str
+        ``"weinberg"`` (needs ``weinberg_k_m``) or ``"frequency"`` (L = 0.4 f - 0.01).
+    weinberg_k_m : float or None
+        Calibrated Weinberg gain, m.
+    output_rate_hz : float
+        Rate of the resampled track, Hz.
+    steps : StepDetectorConfig
+    attitude : AttitudeConfig
+    """
+
+    step_model: str = "weinberg"
+    weinberg_k_m: float | None = None
+    output_rate_hz: float = 10.0
+    steps: StepDetectorConfig = field(default_factory=StepDetectorConfig)
+    attitude: AttitudeConfig = field(default_factory=AttitudeConfig)
+
+
+@dataclass(frozen=True)
+class PdrResult:
+    """PDR output: one row per step, and the same resampled at ``output_rate_hz``.
+
+    Both are in the PDR frame: start at (0, 0), heading relative to the initial one.
+    """
+
+    steps: PdrSteps
+    track: Track
+
+
+def _check_imu(imu: ImuLog) -> None:
+    for name in ("acc_mps2", "gyro_radps", "mag_ut"):
+        values = getattr(imu, name)
+        if values.ndim != 2 or values.shape[1] != 3:
+            raise ValueError(f"imu.{name} must be N x 3, got shape {values.shape}")
+        if not np.all(np.isfinite(values)):
+            raise ValueError(f"imu.{name} contains NaN or inf")
+
+
+def run_pdr(imu: ImuLog, config: PdrConfig) -> PdrResult:
+    """Run pedestrian dead reckoning on an IMU log.
+
+    Parameters
+    ----------
+    imu : ImuLog
+        Uniformly sampled accelerometer, gyro and magnetometer, sensor frame
+        x right, y forward, z up.
+    config : PdrConfig
+
+    Returns
+    -------
+    PdrResult
+
+    Raises
+    ------
+    ValueError
+        Malformed IMU data, an unknown step model, or the Weinberg model without a gain.
+    """
+    _check_imu(imu)
+    if config.step_model not in STEP_MODELS:
+        raise ValueError(f"PdrConfig.step_model: unknown {config.step_model!r}; known: {STEP_MODELS}")
+    if config.step_model == "weinberg" and config.weinberg_k_m is None:
+        raise ValueError("PdrConfig.weinberg_k_m is required by the Weinberg model; calibrate it with "
+                         "calibrate_weinberg_k_from_walk on a walk of known length, or use step_model='frequency'")
+    if config.output_rate_hz <= 0:
+        raise ValueError(f"PdrConfig.output_rate_hz must be > 0, got {config.output_rate_hz}")
+    detected = detect_steps(imu.t_s, imu.acc_mps2, config.steps)
+    first_step = detected.t_s[0] if len(detected.t_s) else imu.t_s[-1]
+    heading = relative_heading(imu.t_s, imu.acc_mps2, imu.gyro_radps, imu.mag_ut, first_step, config.attitude)
+    if config.step_model == "weinberg":
+        lengths = weinberg_length(detected.acc_max_mps2, detected.acc_min_mps2, config.weinberg_k_m)
+    else:
+        lengths = frequency_length(1.0 / detected.duration_s)
+    step_heading = mean_heading_over_windows(heading.t_s, heading.heading_rad, detected.start_t_s, detected.t_s)
+    steps = dead_reckon(detected.t_s, detected.start_t_s, lengths, step_heading)
+    n_out = int(np.floor((imu.t_s[-1] - imu.t_s[0]) * config.output_rate_hz)) + 1
+    track = resample_steps(steps, detected.start_t_s, imu.t_s[0] + np.arange(n_out) / config.output_rate_hz)
+    return PdrResult(steps=steps, track=track)
+
+
+def calibrate_weinberg_k_from_walk(imu: ImuLog, distance_m: float, config: PdrConfig | None = None) -> float:
+    """Weinberg gain K from a recording of a walk of known length (same person and device), m.
+
+    Every step detected in ``imu`` is assumed to belong to the ``distance_m``
+    walked; the detector settings of ``config`` are used so that K matches
+    the smoothing that :func:`run_pdr` will apply.
+    """
+    _check_imu(imu)
+    detector = (config or PdrConfig()).steps
+    detected = detect_steps(imu.t_s, imu.acc_mps2, detector)
+    return calibrate_weinberg_k(detected.acc_max_mps2, detected.acc_min_mps2, distance_m)
