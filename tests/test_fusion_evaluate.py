@@ -1,0 +1,71 @@
+"""Monte Carlo evaluation: the table's numbers against a chain with known PDR errors."""
+
+import json
+
+import numpy as np
+import pytest
+
+from dtmbnav import evaluate as ev
+from fusion.metrics import error_stats, place_pdr, position_errors_m
+from fusion.run import FusionConfig
+from fusion_synth import make_pdr, polyline_truth
+
+
+def synthetic_chain(scenario, range_source, foot_imu=False):
+    """Truth along the scenario's waypoints; PDR 15 % long with 2 deg heading noise; exact start fix."""
+    walk = scenario.walk
+    truth = polyline_truth(walk.waypoints_m + ([walk.waypoints_m[0]] if walk.closed else []),
+                           speed_mps=walk.speed_mps, still_s=walk.start_still_s)
+    pdr, _ = make_pdr(truth, walk.start_still_s, gain=1.15, heading_noise_rad=np.deg2rad(2.0), length_noise=0.03,
+                      seed=scenario.seed)
+    return ev.ChainOutput(truth=truth, pdr=pdr, start_fix_xy_m=(0.0, 0.0), walk_start_t_s=walk.start_still_s,
+                          ranges=range_source(scenario, truth))
+
+
+@pytest.fixture(scope="module")
+def park_rows():
+    return ev.evaluate("park-loop-ccw", seeds=2, filters=("pf", "ukf"), config=FusionConfig(n_particles=500),
+                       chain=synthetic_chain)
+
+
+def test_rows_hold_pdr_then_filters_with_paper_figures(park_rows):
+    assert [r.filter for r in park_rows] == ["pdr", "pdr@fix", "pf", "ukf"]
+    pdr, at_fix, pf, ukf = park_rows
+    assert at_fix.reduction_95 is None and at_fix.paper_p95_m is None
+    assert pdr.reduction_95 is None and pdr.paper_p95_m == 9.19
+    assert pf.paper_p95_m == 5.41 and pf.paper_reduction_95 == 0.41
+    assert ukf.paper_p95_m is None
+    assert pf.reduction_95 == pytest.approx(1 - pf.p95_m / pdr.p95_m)
+    assert all(r.seeds == 2 and r.p68_m <= r.p95_m <= r.max_m for r in park_rows)
+
+
+def test_pdr_row_is_the_true_start_true_heading_baseline(park_rows):
+    scn = ev.load_scenario("park-loop-ccw")
+    p95 = []
+    for k in range(2):
+        out = synthetic_chain(scn.replace(seed=1000 * scn.seed + k), ev.obs_range_source)
+        placed = place_pdr(out.pdr, 0.0, 0.0, ev.true_initial_heading_rad(out.truth, out.walk_start_t_s))
+        p95.append(error_stats(position_errors_m(placed, out.truth)).p95_m)
+    assert park_rows[0].p95_m == pytest.approx(np.mean(p95))
+
+
+def test_fusion_beats_the_pdr_on_a_gain_error(park_rows):
+    pdr, _, pf, _ = park_rows
+    assert pf.reduction_95 > 0.3
+    assert pf.heading_error_median_deg < 5.0
+
+
+def test_table_and_json(park_rows):
+    table = ev.format_table(park_rows)
+    assert "park-loop-ccw" in table and "9.19" in table and "41%" in table
+    decoded = json.loads(ev.rows_to_json(park_rows))
+    assert decoded[2]["filter"] == "pf" and decoded[2]["p95_m"] == pytest.approx(park_rows[2].p95_m)
+
+
+def test_arguments_are_checked():
+    with pytest.raises(ValueError, match="range_source"):
+        ev.evaluate("park-loop-cw", seeds=1, level="iq")
+    with pytest.raises(ValueError, match="seeds"):
+        ev.evaluate("park-loop-cw", seeds=0)
+    assert ev.expand_scenarios(["street", "x.toml"]) == ["street-out", "street-back", "x.toml"]
+    assert ev.paper_figures("street-back").reduction_95 == 0.30 and ev.paper_figures("custom") is None

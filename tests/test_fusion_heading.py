@@ -1,0 +1,92 @@
+"""Initial heading from the range constraint (eq. 14-15) against walks with a known heading."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fusion.heading_init import predicted_range_change, rotate_pdr, solve_initial_heading
+from fusion.metrics import heading_error_rad
+from fusion.model import Geometry
+from fusion_synth import make_pdr, park_like_walk, polyline_truth
+
+GEOMETRY = Geometry(0.0, 0.0, 2000.0, 2200.0, 150.0)
+
+
+def measured_range(walk_or_pdr_xy, heading_rad, geometry=GEOMETRY, scale=1.0):
+    """Exact range change of a relative track placed at P0 with a heading and scale."""
+    x, y = walk_or_pdr_xy
+    return predicted_range_change(heading_rad, scale * x, scale * y, geometry)
+
+
+def test_rotate_pdr_follows_the_clockwise_convention():
+    # A step north in the PDR frame becomes a step east after a +90 deg (clockwise) rotation.
+    x, y = rotate_pdr(np.array([0.0]), np.array([1.0]), np.pi / 2)
+    np.testing.assert_allclose([x[0], y[0]], [1.0, 0.0], atol=1e-12)
+
+
+@given(st.floats(0.0, 2 * np.pi - 1e-3))
+@settings(max_examples=25, deadline=None)
+def test_recovers_any_heading_from_an_error_free_pdr(true_heading):
+    walk = park_like_walk()
+    pdr = walk.pdr
+    sol = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, measured_range((pdr.x_m, pdr.y_m), true_heading),
+                                GEOMETRY, scale_bounds=None, max_duration_s=None)
+    assert heading_error_rad(sol.heading_rad, true_heading) < np.deg2rad(0.05)
+    assert sol.costs_m[0] < 1e-3
+
+
+def test_symmetric_walk_reports_both_mirror_minima():
+    """A straight walk: headings beta and 2*theta_b - beta give the same range change."""
+    truth = polyline_truth([[0, 0], [0, 60]])
+    pdr, _ = make_pdr(truth, 10.0)
+    bearing = np.arctan2(2000.0, 2200.0)  # tower bearing from P0, clockwise from north
+    flat = Geometry(0.0, 0.0, 2000.0, 2200.0, 0.0)
+    true_heading = bearing + np.deg2rad(50.0)
+    sol = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, measured_range((pdr.x_m, pdr.y_m), true_heading, flat),
+                                flat, scale_bounds=None, max_duration_s=None)
+    mirror = 2 * bearing - true_heading
+    best_two = sol.minima_rad[:2]
+    assert min(heading_error_rad(best_two, true_heading)) < np.deg2rad(0.1)
+    assert min(heading_error_rad(best_two, mirror)) < np.deg2rad(0.1)
+    assert sol.confidence < 0.05
+
+
+def test_asymmetric_loop_is_confident():
+    walk = park_like_walk()
+    pdr = walk.pdr
+    sol = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, measured_range((pdr.x_m, pdr.y_m), 1.0), GEOMETRY,
+                                max_duration_s=None)
+    assert sol.confidence > 0.5
+
+
+def test_joint_scale_removes_the_step_gain_bias():
+    """PDR steps 15 % too long: the literal eq. 15 is biased, the scale-aware solve is not."""
+    walk = park_like_walk(gain=1.15)
+    pdr = walk.pdr
+    true_heading = walk.initial_heading_rad
+    measured = measured_range((walk.pdr.x_m / 1.15, walk.pdr.y_m / 1.15), true_heading)
+    literal = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, measured, GEOMETRY, scale_bounds=None,
+                                    max_duration_s=None)
+    joint = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, measured, GEOMETRY, max_duration_s=None)
+    assert heading_error_rad(literal.heading_rad, true_heading) > np.deg2rad(3.0)
+    assert heading_error_rad(joint.heading_rad, true_heading) < np.deg2rad(0.2)
+    assert joint.scales[0] == pytest.approx(1 / 1.15, rel=0.01)
+
+
+def test_missing_ranges_are_skipped_and_window_limits_epochs():
+    walk = park_like_walk()
+    pdr = walk.pdr
+    measured = measured_range((pdr.x_m, pdr.y_m), 2.0)
+    measured[::3] = np.nan
+    sol = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, measured, GEOMETRY, max_duration_s=30.0)
+    assert heading_error_rad(sol.heading_rad, 2.0) < np.deg2rad(0.1)
+    within = (pdr.t_s <= pdr.t_s[0] + 30.0) & np.isfinite(measured)
+    assert sol.n_used == within.sum()
+
+
+def test_bad_input_raises():
+    with pytest.raises(ValueError, match="differ in length"):
+        solve_initial_heading(np.zeros(5), np.zeros(5), np.zeros(4), np.zeros(5), GEOMETRY)
+    with pytest.raises(ValueError, match=">= 3 epochs"):
+        solve_initial_heading(np.arange(5.0), np.zeros(5), np.zeros(5), np.full(5, np.nan), GEOMETRY)

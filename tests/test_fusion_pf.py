@@ -1,0 +1,193 @@
+"""Particle filter (eq. 16-23): kernels against their numpy twins, the resampler's bias, robustness, physics."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fusion import particle_filter as pf
+from fusion.metrics import error_stats, place_pdr, position_errors_m
+from fusion.model import Geometry, ModelNoise
+from fusion.observations import FilterEpochs, aggregate_ranges, build_epochs
+from fusion.records import RangeSeries
+from fusion_synth import park_like_walk
+
+
+def exact_ranges(walk, rate_hz=50.0):
+    """Noise-free range change along the truth, at ``rate_hz``."""
+    t = np.arange(walk.truth.t_s[0], walk.truth.t_s[-1], 1.0 / rate_hz)
+    x = np.interp(t, walk.truth.t_s, walk.truth.x_m)
+    y = np.interp(t, walk.truth.t_s, walk.truth.y_m)
+    g = walk.geometry
+    return RangeSeries(t, g.range_m(x, y) - g.start_range_m(), np.full(len(t), 20.0), np.ones(len(t), bool))
+
+
+def epochs_for(walk, ranges):
+    return build_epochs(walk.pdr, aggregate_ranges(ranges, walk.pdr.t_s), walk.initial_heading_rad)
+
+
+# --- kernels == numpy references ------------------------------------------------------------
+
+def random_particles(n, seed):
+    rng = np.random.default_rng(seed)
+    p = np.column_stack([rng.normal(0, 5, n), rng.normal(0, 5, n), rng.normal(0, 0.01, n),
+                         rng.uniform(-4, 4, n), rng.normal(1.3, 0.2, n)])
+    return p, rng
+
+
+def test_propagate_kernel_matches_reference():
+    a, rng = random_particles(500, 1)
+    b = a.copy()
+    noise = rng.standard_normal(a.shape) * 0.1
+    pf.propagate_kernel(a, 0.55, 0.3, 1.1, noise)
+    pf.propagate_reference(b, 0.55, 0.3, 1.1, noise)
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("range_obs", [3.2, np.nan])
+def test_log_likelihood_kernel_matches_reference(range_obs):
+    p, rng = random_particles(500, 2)
+    start = 2900.0 + rng.normal(0, 1, 500)
+    tower = np.array([2000.0, 2200.0, 150.0])
+    obs = np.array([range_obs, 3.1, 1.2])  # heading near +pi exercises the wrap
+    sigma = np.array([1.0, 0.3, 0.2])
+    outlier = np.array([np.log(0.99 / np.sqrt(2 * np.pi)), np.log(0.01 / 100.0)])
+    a, b = np.zeros(500), np.zeros(500)
+    pf.log_likelihood_kernel(p, start, tower, obs, sigma, outlier, a)
+    pf.log_likelihood_reference(p, start, tower, obs, sigma, outlier, b)
+    np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-9)
+
+
+@given(st.lists(st.floats(-1e6, 10.0), min_size=2, max_size=60))
+@settings(max_examples=60, deadline=None)
+def test_normalise_kernel_matches_reference(log_w):
+    a = np.array(log_w)
+    b = a.copy()
+    wa, wb = np.empty_like(a), np.empty_like(b)
+    ess_a = pf.normalise_kernel(a, wa)
+    ess_b = pf.normalise_reference(b, wb)
+    np.testing.assert_allclose(wa, wb, rtol=1e-12, atol=1e-300)
+    assert ess_a == pytest.approx(ess_b, rel=1e-12)
+    assert wa.sum() == pytest.approx(1.0, abs=1e-12)
+    assert 1.0 <= ess_a <= len(a) + 1e-9
+
+
+@given(st.lists(st.floats(0.0, 1.0), min_size=1, max_size=80), st.floats(0.0, 0.999999))
+@settings(max_examples=100, deadline=None)
+def test_resample_kernel_matches_reference(weights, u):
+    w = np.array(weights) + 1e-12
+    assert np.array_equal(pf.systematic_resample_kernel(w, u), pf.systematic_resample_reference(w, u))
+
+
+# --- resampler bias -------------------------------------------------------------------------
+
+def test_systematic_resampler_is_unbiased_and_stratified():
+    """E[count_i] = N w_i, and every draw gives floor or ceil of N w_i (systematic sampling)."""
+    rng = np.random.default_rng(7)
+    n = 50
+    w = rng.gamma(0.5, size=n)
+    w /= w.sum()
+    draws = 20000
+    counts = np.zeros(n)
+    for u in rng.random(draws):
+        c = np.bincount(pf.systematic_resample_kernel(w, u), minlength=n)
+        assert np.all((c >= np.floor(n * w) - 1e-9) & (c <= np.ceil(n * w) + 1e-9))
+        counts += c
+    mean = counts / draws
+    # A count is floor or ceil of N w, so its std is <= 0.5; 6 sigma of the mean of 20000 draws.
+    np.testing.assert_allclose(mean, n * w, atol=6 * 0.5 / np.sqrt(draws))
+
+
+def test_resampler_survives_weights_summing_below_one():
+    """filterpy's resamplers assume sum(w) == 1; ours places pointers on the actual total."""
+    n = 10
+    w = np.full(n, 0.5 / (n - 1))
+    w[-1] = 0.5
+    w *= 1 - 1e-9  # sums slightly below 1: filterpy's last pointer (u + 9) / 10 would pass the cumsum's end
+    for u in np.linspace(0.0, 0.999999999, 101):
+        idx = pf.systematic_resample_kernel(w, u)
+        assert idx.min() >= 0 and idx.max() <= n - 1
+    # The heavy last particle is drawn N w = 5 times whatever u is, not one fewer.
+    assert [np.sum(pf.systematic_resample_kernel(w, u) == n - 1) for u in (0.25, 0.5, 0.75, 0.999999999)] == [5] * 4
+
+
+# --- robustness -----------------------------------------------------------------------------
+
+def test_normalise_survives_total_underflow():
+    log_w = np.full(100, -1e6)
+    log_w[3] = -1e6 + 1.0
+    w = np.empty(100)
+    ess = pf.normalise_kernel(log_w, w)
+    assert np.isfinite(w).all() and w.sum() == pytest.approx(1.0)
+    assert w.argmax() == 3 and 1.0 < ess < 100.0
+    all_impossible = np.full(100, -np.inf)
+    assert pf.normalise_kernel(all_impossible, w) == 100.0
+    np.testing.assert_allclose(w, 0.01)
+
+
+def test_filter_survives_an_outlier_range():
+    walk = park_like_walk(gain=1.0, seed=3)
+    ranges = exact_ranges(walk)
+    epochs = epochs_for(walk, ranges)
+    epochs.range_change_m[60] += 1e5  # every particle's likelihood underflows
+    track = pf.run_particle_filter(epochs, walk.geometry, n_particles=500, seed=1)
+    assert np.isfinite(track.x_m).all() and np.isfinite(track.y_m).all()
+    errors = position_errors_m(track, walk.truth)
+    assert errors[70:].max() < 3.0  # the filter recovers after the outlier
+
+
+def test_circular_mean_heading_across_north():
+    geometry = Geometry(0.0, 0.0, 2000.0, 2200.0)
+    f = pf.ParticleFilter(geometry, n_particles=1000, seed=0)
+    f.initialise(0.0, 1.3)
+    f.particles[:, 3] = np.where(np.arange(1000) % 2 == 0, np.deg2rad(359.0), np.deg2rad(1.0))
+    heading = f.estimate()[3]
+    assert min(heading, 2 * np.pi - heading) < np.deg2rad(0.01)
+
+
+# --- determinism and backends ---------------------------------------------------------------
+
+def test_numba_and_numpy_filters_agree_and_seed_fixes_the_result():
+    walk = park_like_walk(gain=1.15, seed=2)
+    epochs = epochs_for(walk, exact_ranges(walk))
+    a = pf.run_particle_filter(epochs, walk.geometry, n_particles=400, seed=5, backend="numba")
+    b = pf.run_particle_filter(epochs, walk.geometry, n_particles=400, seed=5, backend="numpy")
+    c = pf.run_particle_filter(epochs, walk.geometry, n_particles=400, seed=5, backend="numba")
+    d = pf.run_particle_filter(epochs, walk.geometry, n_particles=400, seed=6, backend="numba")
+    np.testing.assert_allclose(a.x_m, b.x_m, atol=1e-8)
+    np.testing.assert_allclose(a.heading_rad, b.heading_rad, atol=1e-10)
+    assert np.array_equal(a.x_m, c.x_m)
+    assert not np.array_equal(a.x_m, d.x_m)
+
+
+def test_bad_arguments_raise():
+    g = Geometry(0.0, 0.0, 1.0, 1.0)
+    with pytest.raises(ValueError, match="backend"):
+        pf.ParticleFilter(g, backend="cuda")
+    with pytest.raises(ValueError, match="n_particles"):
+        pf.ParticleFilter(g, n_particles=1)
+
+
+# --- physics: the range corrects the PDR ----------------------------------------------------
+
+def test_range_corrects_a_step_length_gain_error():
+    """PDR 15 % too long: with the range the 95 % error drops well below the PDR's; without it, not."""
+    walk = park_like_walk(gain=1.15, seed=4)
+    epochs = epochs_for(walk, exact_ranges(walk))
+    pdr95 = error_stats(position_errors_m(place_pdr(walk.pdr, 0.0, 0.0, walk.initial_heading_rad), walk.truth)).p95_m
+    fused95 = error_stats(position_errors_m(pf.run_particle_filter(epochs, walk.geometry, seed=1), walk.truth)).p95_m
+    no_range = FilterEpochs(**{**epochs.columns(), "range_change_m": np.full(len(epochs), np.nan),
+                               "range_sigma_m": np.full(len(epochs), np.nan)})
+    blind95 = error_stats(position_errors_m(pf.run_particle_filter(no_range, walk.geometry, seed=1),
+                                            walk.truth)).p95_m
+    assert fused95 < 0.6 * pdr95
+    assert blind95 > 0.8 * pdr95
+
+
+def test_benchmark_reports_a_rate():
+    assert pf.particle_updates_per_second(1000, "numba", n_epochs=3) > 1e4
+    assert pf.particle_updates_per_second(1000, "numpy", n_epochs=3) > 1e3
+
+
+def test_model_noise_defaults_are_positive():
+    assert np.all(ModelNoise().process_sigmas() > 0) and np.all(ModelNoise().initial_sigmas() > 0)
