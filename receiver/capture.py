@@ -1,0 +1,259 @@
+"""Open an IQ capture and read it in chunks with flat memory.
+
+Accepted inputs (``conventions.md``):
+
+- **SigMF**: ``name.sigmf-meta`` or ``name.sigmf-data`` (either file name);
+  the metadata (read with the ``sigmf`` package) gives the datatype, sample
+  rate, centre frequency and start time of the first capture segment.
+- **Raw + sidecar**: a raw interleaved file ``name.<fmt>`` with the project's
+  JSON sidecar ``name.<fmt>.json`` (``sample_rate_hz``, ``sample_format``,
+  ``center_hz``, ``start_utc_unix_ns``).
+- **Plain raw**: any file, given ``sample_format`` and ``sample_rate_hz``.
+- ``"-"``: a binary stream on stdin, given ``sample_format`` and ``sample_rate_hz``.
+
+Values given on the command line must agree with the file's metadata (a
+mismatch is an error, never a silent choice). Every problem (unknown
+datatype, missing metadata, a file that is empty or ends in half an IQ pair,
+NaN/inf samples) raises ``ValueError`` naming the file.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import math
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from receiver.iqformat import IqFormat, decode, from_sigmf_datatype, get_format
+
+
+@dataclass
+class CaptureSource:
+    """An opened capture (see :func:`open_capture`).
+
+    Attributes
+    ----------
+    path : str
+        Data file path, or ``"-"`` for stdin.
+    sample_rate_hz : float
+        Samples/s.
+    center_hz : float or None
+        RF centre frequency, Hz, when known.
+    sample_format : str
+        ``cu8``, ``ci8``, ``ci16`` or ``cf32``.
+    num_samples : int or None
+        Complex samples in the file; None for a stream.
+    start_utc_unix_ns : int or None
+        UTC time of the first sample, ns since the Unix epoch, when known.
+    metadata : dict
+        The file's metadata as read (SigMF global object or the sidecar).
+    header_bytes : int
+        Bytes to skip at the start of the data file (SigMF ``core:header_bytes``).
+    """
+
+    path: str
+    sample_rate_hz: float
+    center_hz: float | None
+    sample_format: str
+    num_samples: int | None
+    start_utc_unix_ns: int | None = None
+    metadata: dict[str, Any] = field(default_factory=dict)
+    header_bytes: int = 0
+
+    @property
+    def format(self) -> IqFormat:
+        """The :class:`receiver.iqformat.IqFormat` of the samples."""
+        return get_format(self.sample_format)
+
+    def chunks(self, chunk_samples: int) -> Iterator[np.ndarray]:
+        """Yield the samples as complex64 arrays of ``chunk_samples`` (the last may be shorter).
+
+        Raises
+        ------
+        ValueError
+            Truncated data (half an IQ pair at the end), NaN/inf in cf32, an empty stream.
+        """
+        if chunk_samples <= 0:
+            raise ValueError(f"chunk_samples must be positive, got {chunk_samples}")
+        if self.path == "-":
+            yield from self._read(sys.stdin.buffer, chunk_samples)
+            return
+        with open(self.path, "rb") as stream:
+            stream.seek(self.header_bytes)
+            yield from self._read(stream, chunk_samples)
+
+    def _read(self, stream: IO[bytes], chunk_samples: int) -> Iterator[np.ndarray]:
+        fmt = self.format
+        want = chunk_samples * fmt.bytes_per_sample
+        position = 0
+        while True:
+            data = _read_exactly(stream, want)
+            if not data:
+                break
+            if len(data) % fmt.bytes_per_sample:
+                raise ValueError(f"{self.path}: truncated data: the last {len(data) % fmt.bytes_per_sample} "
+                                 f"byte(s) after sample {position + len(data) // fmt.bytes_per_sample} are "
+                                 f"half an IQ pair of {fmt.name}")
+            yield decode(data, fmt, where=f"{self.path} (block from sample {position})")
+            position += len(data) // fmt.bytes_per_sample
+            if len(data) < want:
+                break
+        if position == 0:
+            raise ValueError(f"{self.path}: no samples (empty capture)")
+
+
+def _read_exactly(stream: IO[bytes], size: int) -> bytes:
+    """Read ``size`` bytes, fewer only at the end of the stream (pipes return short reads)."""
+    parts = []
+    remaining = size
+    while remaining:
+        part = stream.read(remaining)
+        if not part:
+            break
+        parts.append(part)
+        remaining -= len(part)
+    return b"".join(parts)
+
+
+def _agree(where: str, what: str, from_file: Any, given: Any) -> Any:
+    """The file's value, after checking that a given one matches it."""
+    if from_file is None:
+        return given
+    if given is not None:
+        same = (math.isclose(float(from_file), float(given), rel_tol=1e-9) if isinstance(given, (int, float))
+                else str(from_file) == str(given))
+        if not same:
+            raise ValueError(f"{where}: {what} in the metadata is {from_file} but {given} was given")
+    return from_file
+
+
+def _parse_utc(where: str, text: str) -> int:
+    try:
+        stamp = dt.datetime.fromisoformat(text.replace("Z", "+00:00"))
+    except ValueError:
+        raise ValueError(f"{where}: bad core:datetime {text!r}") from None
+    if stamp.tzinfo is None:
+        stamp = stamp.replace(tzinfo=dt.timezone.utc)
+    delta = stamp - dt.datetime(1970, 1, 1, tzinfo=dt.timezone.utc)
+    return (delta.days * 86400 + delta.seconds) * 1_000_000_000 + delta.microseconds * 1000
+
+
+def _file_samples(path: Path, fmt: IqFormat, header_bytes: int = 0) -> int:
+    if not path.is_file():
+        raise ValueError(f"{path}: no such capture file")
+    size = path.stat().st_size - header_bytes
+    if size <= 0:
+        raise ValueError(f"{path}: no samples (empty capture)")
+    if size % fmt.bytes_per_sample:
+        raise ValueError(f"{path}: {size} bytes is not a whole number of {fmt.name} IQ pairs "
+                         f"({fmt.bytes_per_sample} bytes each): truncated data (half an IQ pair at the end)")
+    return size // fmt.bytes_per_sample
+
+
+def _open_sigmf(path: Path, sample_format: str | None, sample_rate_hz: float | None,
+                center_hz: float | None) -> CaptureSource:
+    from sigmf import SigMFFile
+
+    base = path.with_suffix("")
+    meta_path, data_path = base.with_suffix(".sigmf-meta"), base.with_suffix(".sigmf-data")
+    if not meta_path.is_file():
+        raise ValueError(f"{meta_path}: SigMF metadata file not found")
+    if not data_path.is_file():
+        raise ValueError(f"{data_path}: SigMF data file not found")
+    try:
+        meta = json.loads(meta_path.read_text())
+        # Schema check only: SigMFFile.fromfile would also map the data, which must
+        # first pass this module's own size checks.
+        SigMFFile(metadata=meta, skip_checksum=True).validate()
+    except Exception as exc:  # json and the sigmf package raise their own error types
+        raise ValueError(f"{meta_path}: invalid SigMF metadata: {str(exc).splitlines()[0]}") from exc
+    info = meta.get("global", {})
+    where = str(meta_path)
+    if "core:datatype" not in info or "core:sample_rate" not in info:
+        raise ValueError(f"{where}: core:datatype and core:sample_rate are required")
+    try:
+        fmt = from_sigmf_datatype(info["core:datatype"])
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
+    if info.get("core:num_channels", 1) != 1:
+        raise ValueError(f"{where}: {info['core:num_channels']} channels; only single-channel captures are read")
+    _agree(where, "sample format", fmt.name, get_format(sample_format).name if sample_format else None)
+    rate = _agree(where, "sample rate", float(info["core:sample_rate"]), sample_rate_hz)
+    captures = meta.get("captures") or [{}]
+    first = captures[0]
+    centre = _agree(where, "centre frequency", first.get("core:frequency"), center_hz)
+    start = _parse_utc(where, first["core:datetime"]) if "core:datetime" in first else None
+    header = int(first.get("core:header_bytes", 0))
+    return CaptureSource(str(data_path), rate, None if centre is None else float(centre), fmt.name,
+                         _file_samples(data_path, fmt, header), start, info, header)
+
+
+def _open_raw(path: Path, sample_format: str | None, sample_rate_hz: float | None,
+              center_hz: float | None) -> CaptureSource:
+    sidecar_path = path.with_name(path.name + ".json")
+    meta: dict[str, Any] = {}
+    where = str(path)
+    if sidecar_path.is_file():
+        where = str(sidecar_path)
+        try:
+            meta = json.loads(sidecar_path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{where}: invalid JSON sidecar: {exc}") from None
+        for key in ("sample_rate_hz", "sample_format"):
+            if key not in meta:
+                raise ValueError(f"{where}: sidecar lacks {key!r}")
+    fmt_name = _agree(where, "sample format", meta.get("sample_format"), sample_format)
+    rate = _agree(where, "sample rate", meta.get("sample_rate_hz"), sample_rate_hz)
+    centre = _agree(where, "centre frequency", meta.get("center_hz"), center_hz)
+    if fmt_name is None or rate is None:
+        raise ValueError(f"{path}: raw capture without a sidecar ({sidecar_path.name}): give the sample format "
+                         "and the sample rate")
+    try:
+        fmt = get_format(fmt_name)
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
+    if float(rate) <= 0:
+        raise ValueError(f"{where}: sample rate must be positive, got {rate}")
+    return CaptureSource(str(path), float(rate), None if centre is None else float(centre), fmt.name,
+                         _file_samples(path, fmt), meta.get("start_utc_unix_ns"), meta)
+
+
+def open_capture(path: str | Path, *, sample_format: str | None = None, sample_rate_hz: float | None = None,
+                 center_hz: float | None = None) -> CaptureSource:
+    """Open a capture (module docstring for the accepted kinds).
+
+    Parameters
+    ----------
+    path : str or Path
+        SigMF meta/data file, raw file (with or without sidecar), or ``"-"`` for stdin.
+    sample_format : str, optional
+        ``cu8``, ``ci8``, ``ci16`` or ``cf32``; required for plain raw files and stdin.
+    sample_rate_hz : float, optional
+        Samples/s; required for plain raw files and stdin.
+    center_hz : float, optional
+        RF centre frequency, Hz.
+
+    Raises
+    ------
+    ValueError
+        Missing, unknown or inconsistent metadata, missing or empty file,
+        truncated data (the message names the file).
+    """
+    if str(path) == "-":
+        if sample_format is None or sample_rate_hz is None:
+            raise ValueError("stdin capture: give the sample format and the sample rate")
+        if sample_rate_hz <= 0:
+            raise ValueError(f"stdin capture: sample rate must be positive, got {sample_rate_hz}")
+        return CaptureSource("-", float(sample_rate_hz), center_hz, get_format(sample_format).name, None)
+    path = Path(path)
+    if path.suffix in (".sigmf-meta", ".sigmf-data"):
+        return _open_sigmf(path, sample_format, sample_rate_hz, center_hz)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such capture file")
+    return _open_raw(path, sample_format, sample_rate_hz, center_hz)
