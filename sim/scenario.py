@@ -223,6 +223,23 @@ class Building:
 
 
 @dataclass(frozen=True)
+class Wall:
+    """A vertical building face that reflects the tower's signal specularly.
+
+    Attributes
+    ----------
+    start_m, end_m : [x, y]
+        End points of the face's 2-D footprint segment, m.
+    gain_db : float
+        Reflected power relative to the unobstructed direct path, dB.
+    """
+
+    start_m: list[float]
+    end_m: list[float]
+    gain_db: float
+
+
+@dataclass(frozen=True)
 class ChannelConfig:
     """Propagation scene.
 
@@ -242,6 +259,7 @@ class ChannelConfig:
     diffuse_delay_s : float
         Mean excess delay of the diffuse component, s.
     scatterers : list of Scatterer
+    walls : list of Wall
     buildings : list of Building
     """
 
@@ -252,6 +270,7 @@ class ChannelConfig:
     diffuse_doppler_hz: float = 3.0
     diffuse_delay_s: float = 0.3e-6
     scatterers: list[Scatterer] = field(default_factory=list)
+    walls: list[Wall] = field(default_factory=list)
     buildings: list[Building] = field(default_factory=list)
 
 
@@ -349,7 +368,7 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
     kwargs: dict[str, Any] = {}
     nested = {
         "clock": ClockConfig, "pauses": Pause, "pace_changes": PaceChange,
-        "scatterers": Scatterer, "buildings": Building,
+        "scatterers": Scatterer, "walls": Wall, "buildings": Building,
     }
     for key, value in data.items():
         sub = nested.get(key)

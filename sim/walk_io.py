@@ -17,6 +17,7 @@ import numpy as np
 
 from fusion.records import GnssLog, ImuLog, StartFix, Track
 from receiver.h5io import read_attrs, read_columns, write_columns
+from sim.calibration import CALIBRATION_WALK_M, calibration_walk_k_m
 from sim.gnss import simulate_start_fix
 from sim.imu import PRESETS
 from sim.scenario import Scenario, scenario_to_toml
@@ -84,6 +85,7 @@ def write_walk_groups(h5file: h5py.File, scenario: Scenario, walk: Walk, imu: Im
     fix = simulate_start_fix(scenario, walk)
     write_columns(h5file, "truth/trajectory", walk.track, attrs={
         "tower_x_m": scenario.tower.x_m, "tower_y_m": scenario.tower.y_m,
+        "tower_height_above_receiver_m": scenario.tower.height_m - scenario.channel.antenna_height_m,
         "carrier_hz": scenario.tower.carrier_hz, "seed": scenario.seed,
         "scenario": scenario_to_toml(scenario), "rate_hz": walk.rate_hz,
         "walk_start_t_s": walk.walk_start_t_s, "walk_end_t_s": walk.walk_end_t_s,
@@ -93,7 +95,10 @@ def write_walk_groups(h5file: h5py.File, scenario: Scenario, walk: Walk, imu: Im
     mount = PRESETS[scenario.imu.preset].mount
     write_columns(h5file, "imu", imu, attrs={
         "rate_hz": scenario.imu.rate_hz, "preset": scenario.imu.preset, "frame": FRAME_DEFINITIONS[mount],
-        "units": "acc_mps2 m/s^2, gyro_radps rad/s, mag_ut uT"})
+        "units": "acc_mps2 m/s^2, gyro_radps rad/s, mag_ut uT",
+        # What the user's own calibration walk gave (not the simulator's true K).
+        "weinberg_k_m": calibration_walk_k_m(scenario),
+        "weinberg_k_source": f"{CALIBRATION_WALK_M:g} m straight calibration walk by the same walker and device"})
     write_columns(h5file, "gnss", gnss, attrs={"rate_hz": scenario.gnss.rate_hz, **_start_fix_attrs(fix)})
 
 

@@ -6,8 +6,8 @@ import pytest
 from fusion.metrics import interpolate_track
 from fusion.model import Geometry
 from receiver.gb20600 import PnMode
-from sim.obs_range import (ObsRangeConfig, segment_crosses_polygon, si_phase_steps_kernel, si_phase_steps_reference,
-                           simulate_obs_range)
+from sim.channel import segment_crosses_polygon
+from sim.obs_range import ObsRangeConfig, si_phase_steps_kernel, si_phase_steps_reference, simulate_obs_range
 from sim.scenario import load_scenario
 from fusion_synth import polyline_truth
 

@@ -1,0 +1,117 @@
+"""Receiver front end: tuner CFO, thermal noise, IQ swap, AGC and quantisation.
+
+Order (sim.rf applies it to the noise-free multipath signal):
+
+1. **Tuner CFO** ``exp(j 2 pi bulk_cfo_hz t)`` (t true time), a constant
+   scenario option separate from the reference-oscillator offset (it is folded
+   into the common phase of ``transmitter.multipath_kernel``, see
+   :meth:`FrontEnd.tuner_phase_rad`).
+2. **AWGN** at ``receiver.cn_db``: carrier power of the unobstructed direct
+   path over the noise power in the 7.56 MHz signal band. The noise is white at
+   the output rate ``fs``, so its total power is ``N * fs / 7.56 MHz``.
+   It is drawn per fixed block of ``NOISE_BLOCK`` absolute sample indices from
+   ``default_rng([seed, stream_id, block, 1])``, so any chunking gives the
+   same noise.
+3. **IQ conjugation** (``receiver.iq_conjugate``), which flips the sign of
+   every frequency.
+4. **AGC**: one fixed gain for the whole capture, putting the expected per-rail
+   RMS of (direct-path signal + noise) ``receiver.agc_backoff_db`` below the
+   quantiser's full scale (+-1 after ``receiver.iqformat.decode``).
+5. **Quantisation** with clipping to ``cu8``/``ci8``/``ci16``/``cf32``
+   (``receiver.iqformat.encode``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from receiver import gb20600
+from receiver.iqformat import encode, get_format
+from sim.frames import FrameConfig
+from sim.scenario import ReceiverConfig
+
+#: Samples per independently seeded noise block.
+NOISE_BLOCK = 1 << 16
+
+
+def mean_signal_power(config: FrameConfig) -> float:
+    """Mean power of the shaped signal of an unobstructed unit-gain path.
+
+    Header symbols have power ``header_power_ratio``; the body is unit-power
+    data plus 36 SI symbols at ``si_power_db`` relative to data. With a
+    unit-energy pulse the shaped signal has the mean symbol power.
+    """
+    mode = config.pn_mode.value
+    body = (gb20600.DATA_LENGTH + gb20600.SI_LENGTH * 10.0 ** (config.si_power_db / 10.0)) / gb20600.BODY_LENGTH
+    return (mode.header_length * mode.header_power_ratio + gb20600.BODY_LENGTH * body) / mode.frame_length
+
+
+class FrontEnd:
+    """The receiver front end of a scenario at one output rate.
+
+    Parameters
+    ----------
+    receiver : ReceiverConfig
+        ``cn_db``, ``bulk_cfo_hz``, ``iq_conjugate``, ``agc_backoff_db``,
+        ``sample_format``.
+    signal_power : float
+        Mean power of the unobstructed direct path's signal
+        (:func:`mean_signal_power`).
+    sample_rate_hz : float
+        Output rate, samples/s.
+    sample_format : str
+        Quantiser format.
+    seed, stream_id : int
+        Noise seed (module docstring).
+    """
+
+    def __init__(self, receiver: ReceiverConfig, signal_power: float, sample_rate_hz: float, sample_format: str,
+                 seed: int, stream_id: int) -> None:
+        self.receiver = receiver
+        self.format = get_format(sample_format)
+        self.seed = seed
+        self.stream_id = stream_id
+        band_noise = signal_power / 10.0 ** (receiver.cn_db / 10.0)
+        #: Complex noise power per output sample (total over fs).
+        self.noise_power = band_noise * sample_rate_hz / gb20600.SYMBOL_RATE_HZ
+        per_rail_rms = np.sqrt((signal_power + self.noise_power) / 2.0)
+        #: Fixed AGC gain (normalised full scale 1).
+        self.agc_gain = 10.0 ** (-receiver.agc_backoff_db / 20.0) / per_rail_rms
+        # Last noise block drawn: consecutive small chunks share a block.
+        self._block: tuple[int, np.ndarray] = (-1, np.zeros(0))
+
+    def tuner_phase_rad(self, true_time_s: np.ndarray) -> np.ndarray:
+        """Phase of the tuner's constant CFO at true times, ``2 pi bulk_cfo_hz t``, rad."""
+        return 2.0 * np.pi * self.receiver.bulk_cfo_hz * np.asarray(true_time_s, dtype=np.float64)
+
+    def noise(self, first_sample: int, count: int) -> np.ndarray:
+        """Complex AWGN for absolute samples ``first_sample .. first_sample + count - 1``."""
+        out = np.empty(count, dtype=np.complex128)
+        sigma = np.sqrt(self.noise_power / 2.0)
+        pos = first_sample
+        stop = first_sample + count
+        while pos < stop:
+            block, offset = divmod(pos, NOISE_BLOCK)
+            take = min(NOISE_BLOCK - offset, stop - pos)
+            rails = self._noise_block(block)[2 * offset: 2 * (offset + take)]
+            out[pos - first_sample: pos - first_sample + take] = sigma * rails.view(np.complex128)
+            pos += take
+        return out
+
+    def _noise_block(self, block: int) -> np.ndarray:
+        """Unit-variance rails (I, Q, ...) of one noise block."""
+        if self._block[0] != block:
+            rng = np.random.default_rng([self.seed, self.stream_id, block, 1])
+            self._block = (block, rng.standard_normal(2 * NOISE_BLOCK))
+        return self._block[1]
+
+    def apply(self, clean: np.ndarray, first_sample: int) -> np.ndarray:
+        """Noise, conjugation and AGC gain on noise-free samples; complex64 at full scale 1."""
+        z = clean + self.noise(first_sample, len(clean)) if self.receiver.cn_db < np.inf else clean
+        if self.receiver.iq_conjugate:
+            z = np.conj(z)
+        return (z * self.agc_gain).astype(np.complex64)
+
+    def quantise(self, samples: np.ndarray) -> np.ndarray:
+        """Interleaved rails of the capture's format (``.tobytes()`` is the file content)."""
+        return encode(samples, self.format)

@@ -1,0 +1,124 @@
+"""Simulate a scenario: the IQ capture and the truth file.
+
+:func:`simulate` writes into ``out_dir``:
+
+- the capture ``<scenario name>.sigmf-meta/.sigmf-data`` (or raw
+  ``<name>.<fmt>`` + ``.json`` sidecar), streamed chunk by chunk from
+  :class:`sim.rf.CaptureGenerator` (flat memory);
+- ``truth.h5`` (written atomically): the walk, IMU and GNSS groups of
+  ``sim.walk_io.write_walk_groups`` (whole scenario, times from the scenario
+  start) and ``/truth/frames`` (:class:`sim.rf.FrameTruth` of the captured
+  segment) with the attributes ``pn_mode``, ``si_index``,
+  ``sample_rate_hz``, ``carrier_hz``, ``seed``, ``sample_format``,
+  ``capture_start_s``, ``num_samples`` and ``scenario`` (TOML text).
+
+Segments: ``start_s``/``seconds`` select a window of the scenario. The
+capture's first sample is sample ``round(start_s * fs)`` of the full
+scenario's capture (bit-identical to it) and ``/truth/frames/t_s`` is seconds
+since that sample on the receiver clock. ``capture_start_s`` (= that sample
+index / fs) converts to scenario time: scenario time ~ ``t_s +
+capture_start_s`` (to the receiver clock's time error, microseconds).
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from tqdm import tqdm
+
+from receiver.h5io import atomic_h5, write_columns
+from sim.capture_writer import CaptureWriter
+from sim.gnss import simulate_gnss
+from sim.imu import simulate_imu
+from sim.rf import CaptureGenerator
+from sim.scenario import Scenario, scenario_to_toml
+from sim.walk import simulate_walk
+from sim.walk_io import write_walk_groups
+
+#: UTC time stamped on the scenario's first sample (2026-01-01T00:00:00Z), ns since the epoch:
+#: a fixed value so that the same scenario and seed give the same bytes.
+SIM_START_UTC_NS = 1_767_225_600 * 1_000_000_000
+
+#: Samples per generated chunk (about 0.13 s at 7.56 Msps).
+DEFAULT_CHUNK_SAMPLES = 1 << 20
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """Files written by :func:`simulate`.
+
+    Attributes
+    ----------
+    capture_path : Path or None
+        The capture (SigMF meta or raw data file); None with ``with_iq=False``.
+    truth_path : Path
+        ``truth.h5``.
+    """
+
+    capture_path: Path | None
+    truth_path: Path
+
+
+def simulate(scenario: Scenario, out_dir: str | Path, *, seconds: float | None = None, start_s: float = 0.0,
+             sample_rate_hz: float | None = None, sample_format: str | None = None, pn_mode: str | None = None,
+             seed: int | None = None, container: str = "sigmf", with_iq: bool = True,
+             chunk_samples: int = DEFAULT_CHUNK_SAMPLES, progress: bool = False) -> SimulationResult:
+    """Write the capture and ``truth.h5`` of a scenario (module docstring).
+
+    Parameters
+    ----------
+    scenario : Scenario
+    out_dir : path
+        Created if missing.
+    seconds, start_s : float
+        Segment length (default: to the end of the walk) and start, s.
+    sample_rate_hz, sample_format, pn_mode, seed : optional
+        Override the scenario's values (the seed also replaces ``scenario.seed``
+        for the walk, IMU and GNSS).
+    container : str
+        ``"sigmf"`` or ``"raw"`` (raw file + JSON sidecar).
+    with_iq : bool
+        Write the capture (False: truth file only).
+    chunk_samples : int
+        Generation chunk; the output does not depend on it.
+    progress : bool
+        Show a progress bar on stderr.
+    """
+    if seed is not None:
+        scenario = scenario.replace(seed=int(seed))
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    walk = simulate_walk(scenario)
+    imu = simulate_imu(scenario, walk)
+    gnss = simulate_gnss(scenario, walk)
+    generator = CaptureGenerator(scenario, walk.track, seconds=seconds, start_s=start_s,
+                                 sample_rate_hz=sample_rate_hz, sample_format=sample_format, pn_mode=pn_mode)
+    capture_start_s = generator.first_sample / generator.sample_rate_hz
+
+    capture_path = None
+    if with_iq:
+        writer = CaptureWriter(
+            out_dir / scenario.name, container, generator.sample_format, generator.sample_rate_hz,
+            generator.carrier_hz, start_utc_unix_ns=SIM_START_UTC_NS + round(capture_start_s * 1e9),
+            description=scenario.description,
+            project={"scenario": scenario.name, "seed": generator.seed, "pn_mode": generator.frame_config.pn_mode.name,
+                     "capture_start_s": capture_start_s})
+        with writer, tqdm(total=generator.num_samples, unit="S", unit_scale=True, disable=not progress,
+                          file=sys.stderr) as bar:
+            for rails in generator.quantised_chunks(chunk_samples):
+                writer.write(rails)
+                bar.update(rails.size // 2)
+        capture_path = writer.capture_path
+
+    truth_path = out_dir / "truth.h5"
+    with atomic_h5(truth_path) as h5:
+        write_walk_groups(h5, scenario, walk, imu, gnss)
+        write_columns(h5, "truth/frames", generator.frame_truth(), attrs={
+            "pn_mode": generator.frame_config.pn_mode.name, "si_index": scenario.tower.si_index,
+            "sample_rate_hz": generator.sample_rate_hz, "carrier_hz": generator.carrier_hz,
+            "seed": generator.seed, "sample_format": generator.sample_format,
+            "capture_start_s": capture_start_s, "num_samples": generator.num_samples,
+            "scenario": scenario_to_toml(scenario)})
+    return SimulationResult(capture_path, truth_path)
