@@ -59,6 +59,13 @@ class HeadingSolution:
     confidence: float
     n_used: int
 
+    def describe(self) -> str:
+        """One line for a person: chosen heading, confidence and the other minima, degrees."""
+        others = ", ".join(f"{np.rad2deg(h):.1f} deg ({c:.2f} m)"
+                           for h, c in zip(self.minima_rad[1:], self.costs_m[1:]))
+        return (f"{np.rad2deg(self.heading_rad):.1f} deg (cost {self.costs_m[0]:.2f} m, confidence "
+                f"{self.confidence:.2f}" + (f"; other minima: {others})" if others else ")"))
+
 
 def rotate_pdr(x_m: np.ndarray, y_m: np.ndarray, heading_rad: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rotate PDR-frame displacements clockwise by ``heading_rad``.

@@ -6,16 +6,12 @@ step epochs and summarised as 68 % / 95 % / max. Also reported: detected vs
 true step count, mean step length vs truth, and the heading drift (slope of a
 straight-line fit of the heading error over the walk, deg/min).
 
-``python -m fusion.pdr.evaluate [SCENARIO ...]`` prints these for the
-reference walks (all four by default). That entry point simulates the walks,
-so it imports ``sim`` inside :func:`main` only: the functions above it stay
-free of the simulator (package layering); the driver belongs in the CLI.
+``dtmbnav evaluate --pdr [SCENARIO ...]`` prints these for the reference
+walks (:mod:`dtmbnav.pdr_table`).
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -131,59 +127,3 @@ def predicted_gyro_drift_dpm(t_s: np.ndarray, acc_mps2: np.ndarray, gyro_bias_ra
     # The heading error grows as the integral of the residual; fit its slope like the measured drift.
     error = -np.cumsum(residual) * (t_s[1] - t_s[0])
     return heading_drift_dpm(t_s[walking], error)
-
-
-#: The paper's PDR rows (68 % / 95 % / max, m): Table 1 (LOS loop), Table 2 (street).
-PAPER_PDR_M = {"park-loop": (2.67, 9.19, 10.84), "street": (9.70, 13.27, 15.41)}
-#: Length of the straight calibration walk whose distance the user knows, m.
-CALIBRATION_DISTANCE_M = 60.0
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Print the PDR figures of the reference walks (see the module docstring)."""
-    # The simulator is needed only by this driver (the lead's CLI is its proper home).
-    from sim.imu import simulate_imu_with_errors
-    from sim.scenario import load_scenario, packaged_scenarios
-    from sim.walk import simulate_walk
-
-    from fusion.pdr.attitude import AttitudeConfig
-    from fusion.pdr.pipeline import PdrConfig, calibrate_weinberg_k_from_walk, run_pdr
-
-    parser = argparse.ArgumentParser(prog="python -m fusion.pdr.evaluate", description=__doc__.splitlines()[0])
-    parser.add_argument("scenarios", nargs="*", default=packaged_scenarios(), help="scenario names or .toml paths")
-    args = parser.parse_args(argv)
-    print("scenario        steps det/true  L err   K      drift deg/min (MARG | gyro-only | gyro predicted)"
-          "   PDR 68/95/max m   paper")
-    for name in args.scenarios:
-        scenario = load_scenario(name)
-        # K comes from a separate calibration walk of known length by the same walker and phone:
-        # straight, no step-gain error, no late gyro drift, no buildings.
-        calibration = scenario.replace(
-            walk={"waypoints_m": [[0.0, 0.0], [0.0, CALIBRATION_DISTANCE_M]], "closed": False, "pauses": [],
-                  "pace_changes": []},
-            imu={"step_gain_error": 0.0, "heading_drift_start_s": None}, channel={"buildings": []})
-        cal_imu, _ = simulate_imu_with_errors(calibration, simulate_walk(calibration))
-        k_m = calibrate_weinberg_k_from_walk(cal_imu, CALIBRATION_DISTANCE_M)
-
-        walk = simulate_walk(scenario)
-        imu, errors = simulate_imu_with_errors(scenario, walk)
-        config = PdrConfig(weinberg_k_m=k_m)
-        result = evaluate_pdr(run_pdr(imu, config), walk.track, walk.step_t_s, walk.step_length_m,
-                              walk.walk_start_t_s)
-        gyro_only = evaluate_pdr(run_pdr(imu, PdrConfig(weinberg_k_m=k_m, attitude=AttitudeConfig(
-            gain=config.attitude.gain, use_magnetometer=False))), walk.track, walk.step_t_s,
-            walk.step_length_m, walk.walk_start_t_s)
-        predicted = predicted_gyro_drift_dpm(imu.t_s, imu.acc_mps2, errors.gyro_bias_radps,
-                                             walk.walk_start_t_s, walk.walk_end_t_s)
-        paper = PAPER_PDR_M["park-loop" if "park" in scenario.name else "street"]
-        p = result.position
-        print(f"{scenario.name:15s} {result.steps_detected:4d}/{result.steps_true:<4d}     "
-              f"{100 * result.step_length_error:+5.1f}%  {k_m:.3f}  "
-              f"{result.heading_drift_dpm:+6.2f} | {gyro_only.heading_drift_dpm:+6.2f} | {predicted:+6.2f}"
-              f"                 {p.p68_m:5.2f}/{p.p95_m:5.2f}/{p.max_m:5.2f}   "
-              f"{paper[0]:.2f}/{paper[1]:.2f}/{paper[2]:.2f}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
