@@ -1,0 +1,158 @@
+"""Per-frame CFO estimators: the SI-carrier method (eq. 5-8) and the PN headers.
+
+**SI carriers (method.md §1).** The 36 SI carriers carry the same symbols in
+consecutive frames, so the phase of
+``Theta_m = sum_k conj(Y_m(k)) Y_{m-1}(k) exp(j 2 pi k (delta_m - delta_{m-1}) / N)``
+(eq. 6, written for the pair (m-1, m)) is ``-2 pi df (n_m - n_{m-1}) T_rx``.
+Here ``n_m`` is the integer start of frame m's FFT window and
+``delta_m = n_m - tau_m`` its offset from the tracked (fractional) frame
+timing: a body cut ``delta`` samples late gains ``exp(j 2 pi k delta / N)``
+on carrier k. This is the eq. 6 eta term in the form the tracker measures it:
+the paper's ``Ns * eta`` per frame is the drift ``delta_m - delta_{m-1}`` of
+our window offset; it also covers whole-sample window re-alignments. Then
+(eq. 5) ``df_m = -angle(Theta_m) / (2 pi (n_m - n_{m-1}) T_rx)`` with the
+receiver's sample period ``T_rx = T / (1 + eta)`` (eta from the tracked frame
+period); with eta = 0 and a constant window this is eq. 7-8. The estimate is
+unambiguous over +-1/(2 Ns T) (+-900 Hz for PN420): it measures the residual
+after the coarse CFO removal, and the total is coarse + residual.
+
+**PN headers.** The channel taps of consecutive headers (estimated against
+the known, phase-correct PN) rotate by the same residual CFO:
+``angle(sum_l conj(h_m[l]) h_{m-1}[l])`` gives an independent estimate from
+the header energy (840 symbols at power 2 per PN420 frame against 36 SI
+symbols at power 1).
+
+**SI word.** Equalising the SI carriers with the PN-based channel estimate and
+correlating with the 24 known words identifies the transmission mode; the sign
+is absolute (the PN estimate anchors it), as dtmb.md §3.2 asks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from receiver import gb20600
+from receiver.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ
+
+
+def si_carrier_numbers() -> np.ndarray:
+    """Signed carrier number k (-18..17) of each SI carrier, SI order."""
+    bins = np.asarray(gb20600.si_bins())
+    return np.where(bins < BODY_LENGTH // 2, bins, bins - BODY_LENGTH)
+
+
+@njit(cache=True)
+def si_theta_kernel(y_prev: np.ndarray, y: np.ndarray, k: np.ndarray, delta_prev: float,
+                    delta: np.ndarray) -> np.ndarray:
+    """Theta (eq. 6) of each frame of a batch with the one before it.
+
+    Parameters
+    ----------
+    y_prev : (36,) complex64
+        SI carriers of the frame before the batch.
+    y : (B, 36) complex64
+        SI carriers of the batch.
+    k : (36,) float64
+        Signed carrier numbers.
+    delta_prev : float
+        Window offset of the frame before the batch, samples.
+    delta : (B,) float64
+        Window offsets ``n_m - tau_m`` of the batch's frames.
+    """
+    count = y.shape[0]
+    theta = np.empty(count, dtype=np.complex128)
+    scale = 2.0 * np.pi / 3780.0
+    for b in range(count):
+        d_old = delta_prev if b == 0 else delta[b - 1]
+        step = scale * (delta[b] - d_old)
+        acc = 0j
+        for s in range(y.shape[1]):
+            old = y_prev[s] if b == 0 else y[b - 1, s]
+            acc += np.conj(np.complex128(y[b, s])) * old * np.exp(1j * step * k[s])
+        theta[b] = acc
+    return theta
+
+
+def si_theta_reference(y_prev: np.ndarray, y: np.ndarray, k: np.ndarray, delta_prev: float,
+                       delta: np.ndarray) -> np.ndarray:
+    """Plain-numpy :func:`si_theta_kernel`."""
+    both = np.vstack([y_prev[None, :], y]).astype(np.complex128)
+    d = np.concatenate([[delta_prev], delta])
+    phase = np.exp(1j * 2 * np.pi / BODY_LENGTH * np.diff(d)[:, None] * k[None, :])
+    return np.sum(np.conj(both[1:]) * both[:-1] * phase, axis=1)
+
+
+def pn_theta(taps_prev: np.ndarray, taps: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """``sum_l conj(h_m[l]) h_{m-1}[l + s_m]`` for each frame of a batch.
+
+    ``taps_prev`` are the taps of the frame before the batch. A path at a
+    fixed place in the frame sits ``s_m = (n_m - n_{m-1}) - round(period)``
+    taps later in frame m-1's estimate than in frame m's when the window
+    start stepped by one sample more (or less) than the frame period, so
+    the taps are aligned by ``s_m`` before they are compared.
+    """
+    both = np.vstack([taps_prev[None, :], taps]).astype(np.complex128)
+    n_taps = both.shape[1]
+    theta = np.empty(len(taps), dtype=np.complex128)
+    for s in np.unique(shift):
+        rows = np.flatnonzero(shift == s)
+        lo, hi = max(0, -s), min(n_taps, n_taps - s)
+        theta[rows] = np.sum(np.conj(both[rows + 1, lo:hi]) * both[rows, lo + s: hi + s], axis=1)
+    return theta
+
+
+def cfo_from_theta(theta: np.ndarray, window_step: np.ndarray, eta: np.ndarray | float, coarse_hz: float) -> np.ndarray:
+    """Total CFO (eq. 5): coarse + ``-angle(Theta) / (2 pi window_step T_rx)``, Hz.
+
+    Parameters
+    ----------
+    theta : ndarray, complex
+        Theta of each frame pair.
+    window_step : ndarray
+        ``n_m - n_{m-1}``, samples of the receiver clock.
+    eta : ndarray or float
+        Normalised sampling offset (receiver samples per nominal sample - 1).
+    coarse_hz : float
+        CFO removed before the FFT.
+    """
+    sample_period_s = 1.0 / (SYMBOL_RATE_HZ * (1.0 + np.asarray(eta)))
+    return coarse_hz - np.angle(theta) / (2 * np.pi * np.asarray(window_step) * sample_period_s)
+
+
+class SiWordDetector:
+    """Accumulates equalised SI carriers and names the SI word sent.
+
+    Parameters
+    ----------
+    taps_before : int
+        Delay of the first tap column, samples (the channel estimator's span).
+    n_taps : int
+        Tap columns.
+    polarity : {+1, -1}
+        SI chip polarity convention (gb20600.si_symbols).
+    """
+
+    def __init__(self, taps_before: int, n_taps: int, polarity: int = 1) -> None:
+        lags = np.arange(-taps_before, n_taps - taps_before)
+        # H(k) = sum_l h[l] exp(-j 2 pi k l / N) at the SI carriers.
+        self._dft = np.exp(-2j * np.pi * np.outer(lags, si_carrier_numbers()) / BODY_LENGTH)
+        self._words = np.array([gb20600.si_symbols(i, polarity=polarity) for i in sorted(gb20600.SI_WORDS)])
+        self._indices = np.array(sorted(gb20600.SI_WORDS))
+        self._sum = np.zeros(gb20600.SI_LENGTH, dtype=np.complex128)
+        self.frames = 0
+
+    def add(self, si: np.ndarray, taps: np.ndarray) -> None:
+        """Add frames: SI carriers ``(B, 36)`` and their channel taps ``(B, L)``."""
+        h = taps.astype(np.complex128) @ self._dft
+        self._sum += np.sum(np.conj(h) * si, axis=0)
+        self.frames += len(si)
+
+    def scores(self) -> np.ndarray:
+        """Normalised correlation of the accumulated SI with each word (words 1..24), -1..1."""
+        norm = np.linalg.norm(self._sum) * np.linalg.norm(self._words[0])
+        return np.real(self._words.conj() @ self._sum) / max(norm, 1e-30)
+
+    def best(self) -> int:
+        """SI word with the highest score (0 when no frame was added)."""
+        return int(self._indices[np.argmax(self.scores())]) if self.frames else 0

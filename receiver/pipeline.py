@@ -1,0 +1,491 @@
+"""The streaming DTMB receiver: IQ chunks in, per-frame results out.
+
+Data path (each stage its own module)::
+
+    input chunks -> resample (resample.py) -> acquisition (acquisition.py)
+      -> per batch of frames: header windows + channel estimate (body.py)
+      -> timing loop / loss of lock (tracking.py)
+      -> header-tail removal + cyclic reconstruction (body.py)
+      -> 3780-point FFT, SI carriers (ofdm.py)
+      -> SI and PN CFO estimates (cfo.py) -> f_s, Doppler, range (ranging.py)
+
+The receiver works on the 7.56 Msps stream in fixed batches of
+``batch_frames`` frames, processed only when all their samples have arrived,
+and starts acquisition attempts at fixed stream positions: the output is
+identical whatever the input chunk size, and memory stays flat (the buffer
+holds about one batch). ``ReceiverConfig.inspect`` receives each stage's
+intermediate output per batch, for debugging and plots.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from receiver import gb20600
+from receiver.acquisition import Acquisition, acquire, window_length
+from receiver.body import (ChannelEstimates, ChannelEstimator, body_phases, derotate_segments, recover_bodies,
+                           rotation_table)
+from receiver.capture import CaptureSource
+from receiver.cfo import SiWordDetector, cfo_from_theta, pn_theta, si_carrier_numbers, si_theta_kernel
+from receiver.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
+from receiver.ofdm import OfdmDemodulator
+from receiver.ranging import RangeIntegrator
+from receiver.records import FrameBatch, FrameFlag
+from receiver.resample import StreamResampler
+from receiver.tracking import FrameTracker, LockMonitor
+from receiver.writer import write_frames_csv, write_frames_h5
+
+#: Search position after the end of the stream (no acquisition window can fit).
+END_OF_STREAM = np.iinfo(np.int64).max // 4
+#: Stage names of :attr:`Receiver.stage_seconds`.
+STAGES = ("resample", "sync", "channel", "body", "fft", "estimators")
+
+
+@dataclass
+class ReceiverConfig:
+    """Receiver settings.
+
+    Attributes
+    ----------
+    pn_mode : PnMode or None
+        Header mode, or None to detect it.
+    constant_phase : int
+        Header phase assumed when the header does not rotate.
+    acquisition_frames : int
+        Frames folded by the acquisition metrics.
+    acquisition_threshold : float
+        Normalised grid metric needed to declare a signal (0..1).
+    track_threshold : float
+        Header ``peak_metric`` below which a tracked frame is weak.
+    loss_frames : int
+        Consecutive weak frames that mean loss of lock.
+    batch_frames : int
+        Frames per processing batch.
+    taps_before, taps_after : int
+        Channel-estimate delay span around the frame start, samples.
+    tap_threshold : float
+        Tap power over noise floor needed to keep a tap.
+    static_window_s : float
+        Static window for the f_s estimate, s.
+    clock_offset_hz : float or None
+        f_s given by the user (skips the static window).
+    conjugate_iq : bool
+        Conjugate the input (front ends that swap I and Q).
+    si_polarity : int
+        SI chip polarity convention for the SI word detector.
+    si_frames : int
+        Frames after each lock used to identify the SI word.
+    loop_alpha, loop_beta : float
+        Timing-loop gains.
+    inspect : callable or None
+        ``inspect(stage, arrays)`` called per batch with intermediate outputs.
+    """
+
+    pn_mode: PnMode | None = None
+    constant_phase: int = 0
+    acquisition_frames: int = 16
+    acquisition_threshold: float = 0.3
+    track_threshold: float = 0.15
+    loss_frames: int = 16
+    batch_frames: int = 128
+    taps_before: int = 16
+    taps_after: int = 48
+    tap_threshold: float = 10.0
+    static_window_s: float = 10.0
+    clock_offset_hz: float | None = None
+    conjugate_iq: bool = False
+    si_polarity: int = 1
+    si_frames: int = 256
+    loop_alpha: float = 0.05
+    loop_beta: float = 0.001
+    inspect: Callable[[str, Mapping[str, np.ndarray]], None] | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.pn_mode is not None:
+            self.pn_mode = PnMode.parse(self.pn_mode)
+        for name in ("acquisition_frames", "loss_frames", "batch_frames", "taps_after", "si_frames"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"ReceiverConfig.{name} must be >= 1, got {getattr(self, name)!r}")
+        if self.taps_before < 0:
+            raise ValueError("ReceiverConfig.taps_before must be >= 0")
+
+
+class SampleQueue:
+    """The buffered part of the 7.56 Msps stream, kept as the chunks that arrived.
+
+    Chunks are held by reference (not copied): a contiguous view of a range
+    is free when it lies inside one chunk, and only ranges that straddle
+    chunk boundaries are stitched (at most about one batch of samples per
+    boundary). The caller must not modify a chunk after handing it over.
+    """
+
+    def __init__(self) -> None:
+        self._segments: list[tuple[int, np.ndarray]] = []
+        self.start = 0
+        self.end = 0
+
+    def append(self, samples: np.ndarray) -> None:
+        """Add the next samples of the stream."""
+        if len(samples):
+            self._segments.append((self.end, samples))
+            self.end += len(samples)
+
+    def holds(self, start: int, stop: int) -> bool:
+        """Whether stream indices ``[start, stop)`` are buffered."""
+        return self.start <= start and stop <= self.end
+
+    def view(self, start: int, stop: int) -> np.ndarray:
+        """Samples ``[start, stop)`` as one contiguous complex64 array."""
+        parts = [seg[max(start - s0, 0): stop - s0] for s0, seg in self._segments
+                 if s0 < stop and s0 + len(seg) > start]
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    def drop_before(self, index: int) -> None:
+        """Forget samples before stream index ``index``."""
+        self.start = max(self.start, min(index, self.end))
+        while self._segments and self._segments[0][0] + len(self._segments[0][1]) <= self.start:
+            self._segments.pop(0)
+
+
+class _Lock:
+    """Everything that holds while one acquisition stays locked."""
+
+    def __init__(self, acq: Acquisition, config: ReceiverConfig, first_frame_index: int, acquired_from: int) -> None:
+        m = acq.mode.value
+        self.acq = acq
+        self.acquired_from = acquired_from
+        self.mode = acq.mode
+        self.tracker = FrameTracker(float(acq.frame_start), float(m.frame_length), m.frame_length,
+                                    config.loop_alpha, config.loop_beta)
+        self.monitor = LockMonitor(config.track_threshold, config.loss_frames)
+        self.next_frame_index = first_frame_index
+        self.cfo_cycles_per_sample = acq.coarse_cfo_hz / SYMBOL_RATE_HZ
+        span = BODY_LENGTH + config.taps_before + config.taps_after
+        self.rot = rotation_table(acq.coarse_cfo_hz, max(span, m.header_length + config.taps_before + config.taps_after))
+        self._header_phase0 = -(m.period // 2) if m.rotates else 0
+        phases = np.arange(self._header_phase0, m.period // 2 + 1) if m.rotates else np.zeros(1, np.int64)
+        self._headers = np.array([gb20600.header_symbols(acq.mode, int(p)) for p in phases], dtype=np.complex64)
+        # Carried from the last processed frame: SI carriers, taps, window start and offset.
+        self.prev_si: np.ndarray | None = None
+        self.prev_taps: np.ndarray | None = None
+        self.prev_start = 0
+        self.prev_delta = 0.0
+
+    def phases(self, frame_index: np.ndarray) -> np.ndarray:
+        """Header phase of each frame counter value."""
+        if self.acq.rotating:
+            return np.asarray(gb20600.header_phase(self.mode, frame_index), dtype=np.int64)
+        return np.full(len(frame_index), self.acq.constant_phase, dtype=np.int64)
+
+    def header_symbols(self, phases: np.ndarray) -> np.ndarray:
+        """Transmitted header symbols (complex64, (len(phases), Ng)) of each header phase."""
+        rows = phases - self._header_phase0 if len(self._headers) > 1 else np.zeros(len(phases), np.int64)
+        return self._headers[rows]
+
+
+class Receiver:
+    """Streaming receiver: feed chunks with :meth:`process`, end with :meth:`finish`.
+
+    Parameters
+    ----------
+    sample_rate_hz : float
+        Input sample rate, Hz (resampled to 7.56 Msps).
+    carrier_hz : float
+        RF carrier of the tower, Hz (for eq. 10-11).
+    config : ReceiverConfig, optional
+    """
+
+    def __init__(self, sample_rate_hz: float, carrier_hz: float, config: ReceiverConfig | None = None) -> None:
+        self.config = config or ReceiverConfig()
+        self.sample_rate_hz = float(sample_rate_hz)
+        self.carrier_hz = float(carrier_hz)
+        self.resampler = StreamResampler(sample_rate_hz)
+        self.ranging = RangeIntegrator(carrier_hz, self.config.clock_offset_hz, self.config.static_window_s)
+        self._modes = (self.config.pn_mode,) if self.config.pn_mode else tuple(PnMode)
+        self._acq_window = window_length(self.config.acquisition_frames)
+        self._queue = SampleQueue()
+        self._search_from = 0
+        self._lock: _Lock | None = None
+        self._estimators: dict[PnMode, ChannelEstimator] = {}
+        self._ofdm = OfdmDemodulator(self.config.batch_frames)
+        self._k_si = si_carrier_numbers().astype(np.float64)
+        self._si_detector: SiWordDetector | None = None
+        self._frame_counter: int | None = None   # frame_index of the next frame, across locks
+        self._last_start: int | None = None       # stream index of the last emitted frame
+        self._lock_starts_gap = False               # the current lock follows a loss of lock
+        self.acquisitions: list[Acquisition] = []
+        self.stage_seconds = dict.fromkeys(STAGES, 0.0)
+
+    # ---- public API -------------------------------------------------------------------
+
+    def process(self, chunk: np.ndarray) -> list[FrameBatch]:
+        """Feed input samples; return the frame batches completed by them."""
+        chunk = np.asarray(chunk)
+        if chunk.ndim != 1 or not np.iscomplexobj(chunk):
+            raise ValueError(f"chunk must be a 1-D complex array, got {chunk.dtype} shape {chunk.shape}")
+        t0 = time.perf_counter()
+        samples = self.resampler.process(np.conj(chunk) if self.config.conjugate_iq else chunk)
+        self.stage_seconds["resample"] += time.perf_counter() - t0
+        self._queue.append(samples)
+        return self._run(final=False)
+
+    def finish(self) -> list[FrameBatch]:
+        """End of stream: process the frames still complete, release the rest."""
+        out = self._run(final=True)
+        out.extend(self.ranging.flush())
+        return out
+
+    @property
+    def pn_mode(self) -> PnMode | None:
+        """Header mode of the last lock (None before any)."""
+        return self.acquisitions[-1].mode if self.acquisitions else None
+
+    @property
+    def si_index(self) -> int:
+        """SI word identified (0 before any lock)."""
+        return self._si_detector.best() if self._si_detector else 0
+
+    def attributes(self) -> dict[str, Any]:
+        """Parameters for the ``/receiver/frames`` attributes."""
+        acq = self.acquisitions[0] if self.acquisitions else None
+        return {
+            "pn_mode": acq.mode.name if acq else "none",
+            "rotating_header": bool(acq.rotating) if acq else False,
+            "si_index": self.si_index,
+            "sample_rate_hz": self.sample_rate_hz,
+            "carrier_hz": self.carrier_hz,
+            "clock_offset_hz": np.nan if self.ranging.clock_offset_hz is None else self.ranging.clock_offset_hz,
+            "coarse_cfo_hz": acq.coarse_cfo_hz if acq else np.nan,
+            "resample_up": self.resampler.up,
+            "resample_down": self.resampler.down,
+            "acquisitions": len(self.acquisitions),
+            "conjugate_iq": self.config.conjugate_iq,
+            "static_window_s": self.config.static_window_s,
+        }
+
+    # ---- driver -----------------------------------------------------------------------
+
+    def _run(self, final: bool) -> list[FrameBatch]:
+        out: list[FrameBatch] = []
+        while True:
+            if self._lock is None:
+                if not self._try_acquire():
+                    break
+                continue
+            batch = self._next_batch(final)
+            if batch is None:
+                break
+            out.extend(self.ranging.push(batch))
+        self._trim()
+        return out
+
+    def _try_acquire(self) -> bool:
+        start, stop = self._search_from, self._search_from + self._acq_window
+        if not self._queue.holds(start, stop):
+            return False
+        t0 = time.perf_counter()
+        acq = acquire(self._queue.view(start, stop), start,
+                      acquisition_frames=self.config.acquisition_frames,
+                      lock_threshold=self.config.acquisition_threshold, modes=self._modes,
+                      constant_phase=self.config.constant_phase)
+        self.stage_seconds["sync"] += time.perf_counter() - t0
+        if acq is None:
+            self._search_from += self._acq_window // 2
+            return True
+        self.acquisitions.append(acq)
+        m = acq.mode.value
+        if self._frame_counter is None:
+            index = acq.frame_in_superframe
+        else:  # keep counting frame periods across the gap; agree with the superframe position
+            elapsed = round((acq.frame_start - self._last_start) / m.frame_length)
+            index = self._frame_counter - 1 + elapsed
+            if acq.rotating:
+                f = m.frames_per_superframe
+                index += (acq.frame_in_superframe - index + f // 2) % f - f // 2
+        self._lock = _Lock(acq, self.config, index, start)
+        self._lock_starts_gap = self._frame_counter is not None
+        if acq.mode not in self._estimators:
+            self._estimators[acq.mode] = ChannelEstimator(acq.mode, self.config.batch_frames, self.config.taps_before,
+                                                          self.config.taps_after, self.config.tap_threshold)
+        if self._si_detector is None:
+            self._si_detector = SiWordDetector(self.config.taps_before, self.config.taps_before + self.config.taps_after,
+                                               self.config.si_polarity)
+        return True
+
+    def _trim(self) -> None:
+        """Drop buffered samples no future batch or acquisition can need."""
+        if self._lock is None:
+            keep = self._search_from
+        else:
+            keep = int(np.floor(self._lock.tracker.tau)) - self.config.taps_before - 64
+        self._queue.drop_before(keep)
+
+    # ---- one batch --------------------------------------------------------------------
+
+    def _next_batch(self, final: bool) -> FrameBatch | None:
+        lock = self._lock
+        assert lock is not None
+        cfg = self.config
+        m = lock.mode.value
+        ng = m.header_length
+        size = cfg.batch_frames
+        starts = np.rint(lock.tracker.predict(size)).astype(np.int64)
+        # A frame needs its header, body and the next header's first taps_after samples.
+        stops = starts + m.frame_length + cfg.taps_after + 1
+        count = int(np.searchsorted(stops, self._queue.end, side="right"))
+        if count < size and not (final and count > 0):
+            return None
+        starts = starts[:count]
+        buf_start = int(starts[0]) - cfg.taps_before
+        buf = self._queue.view(buf_start, int(stops[count - 1]))
+        frame_index = lock.next_frame_index + np.arange(count)
+        phases = lock.phases(np.concatenate([frame_index, frame_index[-1:] + 1]))
+        est = self._estimators[lock.mode]
+
+        t0 = time.perf_counter()
+        derotate_segments(buf, buf_start, starts + est.window_offset, est.window_length,
+                          lock.cfo_cycles_per_sample, lock.rot, est.windows)
+        ch = est.estimate(count, phases[:-1])
+        t1 = time.perf_counter()
+        measured = starts + ch.centroid
+        strong = ch.peak_metric >= cfg.track_threshold
+        smoothed, periods = lock.tracker.update(measured, strong)
+        lost_at = lock.monitor.check(ch.peak_metric)
+        t2 = time.perf_counter()
+        headers = lock.header_symbols(phases)
+        body_phase = body_phases(starts, ng, cfg.taps_before, lock.cfo_cycles_per_sample)
+        recover_bodies(buf, buf_start, starts, ng, lock.rot, body_phase, ch.taps, cfg.taps_before,
+                       headers[:-1], headers[1:], self._ofdm.bodies)
+        t3 = time.perf_counter()
+        si = self._ofdm.si_carriers(count) * body_phase[:, None]
+        t4 = time.perf_counter()
+        rows = self._estimate(lock, starts, smoothed, periods, si, ch, frame_index, phases[:-1])
+        t5 = time.perf_counter()
+        for name, dt in zip(("channel", "sync", "body", "fft", "estimators"), (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4)):
+            self.stage_seconds[name] += dt
+        if cfg.inspect is not None:
+            cfg.inspect("channel", {"taps": ch.taps, "snr_db": ch.snr_db, "peak_metric": ch.peak_metric})
+            cfg.inspect("tracking", {"window_start": starts, "measured": measured, "smoothed": smoothed})
+            cfg.inspect("body", {"bodies": self._ofdm.bodies[:count]})
+            cfg.inspect("ofdm", {"si_carriers": si})
+        lock.next_frame_index += count
+        if lost_at is not None:
+            rows = FrameBatch(**{k: v[:lost_at] for k, v in rows.columns().items()})
+            # Search again from the first weak frame, but always past this lock's acquisition window
+            # (a signal that acquires but cannot be tracked must not be re-acquired forever).
+            self._search_from = max(int(starts[lost_at]), lock.acquired_from + self._acq_window // 2)
+            self._lock = None
+        elif count < size:  # end of stream: the partial batch was the last one; nothing more to search
+            self._lock = None
+            self._search_from = END_OF_STREAM
+        return rows
+
+    def _estimate(self, lock: _Lock, starts: np.ndarray, smoothed: np.ndarray, periods: np.ndarray, si: np.ndarray,
+                  ch: ChannelEstimates, frame_index: np.ndarray, phases: np.ndarray) -> FrameBatch:
+        """CFO estimates (eq. 5-8 and PN), flags and the rows of a batch; carries state to the next batch."""
+        count = len(starts)
+        delta = starts - smoothed
+        first_of_lock = lock.prev_si is None
+        prev_si = si[0] if first_of_lock else lock.prev_si
+        prev_taps = ch.raw_taps[0] if first_of_lock else lock.prev_taps
+        prev_start = starts[0] if first_of_lock else lock.prev_start
+        prev_delta = float(delta[0]) if first_of_lock else lock.prev_delta
+        theta = si_theta_kernel(prev_si, si, self._k_si, prev_delta, delta)
+        step = np.diff(np.concatenate([[prev_start], starts]))
+        eta = periods / lock.tracker.nominal_period - 1.0
+        cfo = cfo_from_theta(theta, np.maximum(step, 1), eta, lock.acq.coarse_cfo_hz)
+        shift = step - np.rint(periods).astype(np.int64)
+        cfo_pn = cfo_from_theta(pn_theta(prev_taps, ch.raw_taps, shift), np.maximum(step, 1), eta, lock.acq.coarse_cfo_hz)
+        flags = np.where(ch.peak_metric < self.config.track_threshold, FrameFlag.LOW_QUALITY, 0).astype(np.uint8)
+        if first_of_lock:
+            cfo[0] = cfo_pn[0] = np.nan
+            flags[0] |= FrameFlag.LOCK_START | (FrameFlag.GAP if self._lock_starts_gap else 0)
+        lock.prev_si, lock.prev_taps = si[-1].copy(), ch.raw_taps[-1].copy()
+        lock.prev_start, lock.prev_delta = int(starts[-1]), float(delta[-1])
+        assert self._si_detector is not None
+        if self._si_detector.frames < self.config.si_frames:
+            self._si_detector.add(si, ch.taps)
+        self._frame_counter = int(frame_index[-1]) + 1
+        self._last_start = int(starts[-1])
+        nan = np.full(count, np.nan)
+        return FrameBatch(
+            t_s=starts / SYMBOL_RATE_HZ, sample_index=self.resampler.input_index(starts), frame_index=frame_index,
+            pn_phase=phases.astype(np.int32), cfo_hz=cfo, cfo_pn_hz=cfo_pn, doppler_hz=nan, velocity_mps=nan.copy(),
+            range_change_m=nan.copy(), snr_db=ch.snr_db, peak_metric=ch.peak_metric, flags=flags)
+
+
+def receive_stream(chunks: Iterable[np.ndarray], sample_rate_hz: float, carrier_hz: float,
+                   config: ReceiverConfig | None = None, receiver: Receiver | None = None) -> Iterator[FrameBatch]:
+    """Run the receiver over a stream of IQ chunks, yielding frame batches as they complete.
+
+    Parameters
+    ----------
+    chunks : iterable of complex arrays
+        Input samples at ``sample_rate_hz``.
+    sample_rate_hz, carrier_hz : float
+        Input rate and RF carrier, Hz.
+    config : ReceiverConfig, optional
+    receiver : Receiver, optional
+        A receiver to drive (to read its attributes afterwards); made from the
+        other arguments when omitted.
+    """
+    rx = receiver or Receiver(sample_rate_hz, carrier_hz, config)
+    for chunk in chunks:
+        yield from rx.process(chunk)
+    yield from rx.finish()
+
+
+def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, config: ReceiverConfig | None = None, *,
+                 carrier_hz: float | None = None, csv_path: str | os.PathLike | None = None,
+                 chunk_samples: int = 1 << 20, progress: bool = True) -> tuple[FrameBatch, dict[str, Any]]:
+    """Receive a whole capture and write ``/receiver/frames`` (and optionally CSV).
+
+    Parameters
+    ----------
+    capture : CaptureSource
+        From :func:`receiver.capture.open_capture`.
+    out_path : path or None
+        HDF5 file to write (None: do not write).
+    config : ReceiverConfig, optional
+    carrier_hz : float, optional
+        RF carrier; defaults to the capture's centre frequency.
+    csv_path : path, optional
+        Also write the rows as CSV (``"-"`` for stdout).
+    chunk_samples : int
+        Samples read at a time (memory stays flat).
+    progress : bool
+        Show a tqdm progress bar on stderr.
+
+    Returns
+    -------
+    frames : FrameBatch
+        All rows.
+    attributes : dict
+        The ``/receiver/frames`` attributes.
+    """
+    carrier = carrier_hz if carrier_hz is not None else capture.center_hz
+    if carrier is None:
+        raise ValueError(f"{capture.path}: the capture has no centre frequency; give carrier_hz")
+    rx = Receiver(capture.sample_rate_hz, carrier, config)
+    batches: list[FrameBatch] = []
+    with tqdm(total=capture.num_samples, unit="S", unit_scale=True, disable=not progress,
+              desc=f"receive {os.path.basename(str(capture.path))}") as bar:
+        for chunk in capture.chunks(chunk_samples):
+            batches.extend(rx.process(chunk))
+            bar.update(len(chunk))
+        batches.extend(rx.finish())
+    frames = FrameBatch.concatenate(batches)
+    attrs = rx.attributes()
+    attrs["source"] = str(capture.path)
+    if out_path is not None:
+        write_frames_h5(out_path, frames, attrs)
+    if csv_path is not None:
+        write_frames_csv(csv_path, frames)
+    return frames, attrs

@@ -1,0 +1,147 @@
+"""Streaming rational polyphase resampling to the DTMB symbol rate.
+
+Any capture rate is brought to 7.56 Msps with an up/down rational ratio and a
+Kaiser-windowed low-pass FIR designed with :func:`scipy.signal.firwin`, applied
+as a polyphase filter. Output sample ``n`` is computed at upsampled position
+``n * down + D`` with ``D`` the filter's group delay, so it sits exactly at
+input time ``n * down / up`` (input samples): the output index maps back to
+the capture without an offset. Each output sample depends only on the input
+samples it needs, whatever the chunking, so the stream is chunk-size invariant.
+"""
+
+from __future__ import annotations
+
+from fractions import Fraction
+
+import numpy as np
+from numba import njit
+from scipy.signal import fftconvolve, firwin
+
+from receiver.gb20600 import SYMBOL_RATE_HZ
+
+#: Largest up/down factor accepted before the ratio is approximated.
+MAX_RATIO_TERM = 4096
+
+
+def resampling_ratio(input_rate_hz: float, output_rate_hz: float = SYMBOL_RATE_HZ) -> tuple[int, int]:
+    """``(up, down)`` with ``input_rate * up / down == output_rate``.
+
+    Raises
+    ------
+    ValueError
+        If the rate is not positive or no ratio with terms up to
+        ``MAX_RATIO_TERM`` matches within 1 ppm (the residual would act as a
+        sampling offset the tracker would have to absorb).
+    """
+    if not np.isfinite(input_rate_hz) or input_rate_hz <= 0:
+        raise ValueError(f"sample_rate_hz must be a positive number, got {input_rate_hz!r}")
+    ratio = Fraction(output_rate_hz / input_rate_hz).limit_denominator(MAX_RATIO_TERM)
+    if ratio.numerator > MAX_RATIO_TERM or abs(float(ratio) * input_rate_hz / output_rate_hz - 1.0) > 1e-6:
+        raise ValueError(f"sample_rate_hz {input_rate_hz} Hz: no rational ratio to {output_rate_hz} Hz "
+                         f"with terms <= {MAX_RATIO_TERM}")
+    return ratio.numerator, ratio.denominator
+
+
+def design_filter(up: int, down: int, taps_per_phase: int = 24, beta: float = 8.0) -> np.ndarray:
+    """Low-pass prototype for an up/down resampler (odd length, gain ``up``).
+
+    The cutoff is the narrower of the input and output Nyquist frequencies.
+    Length ``2 * taps_per_phase * max(up, down) + 1`` keeps the transition
+    band a fixed fraction of the output band whatever the ratio.
+    """
+    length = 2 * taps_per_phase * max(up, down) + 1
+    return (up * firwin(length, 1.0 / max(up, down), window=("kaiser", beta))).astype(np.float32)
+
+
+@njit(cache=True)
+def polyphase_kernel(x: np.ndarray, x_start: int, h: np.ndarray, up: int, down: int,
+                     n_first: int, n_count: int) -> np.ndarray:
+    """Output samples ``n_first .. n_first + n_count - 1`` of the resampler.
+
+    ``x`` holds input samples with global indices ``x_start ..``; output n
+    is ``sum_i x[i] h[n*down + D - i*up]`` over the taps inside the filter,
+    ``D = (len(h) - 1) // 2``. The caller guarantees the needed inputs are in
+    ``x`` (indices below ``x_start`` count as zeros: the stream's start).
+    """
+    taps = h.shape[0]
+    delay = (taps - 1) // 2
+    out = np.empty(n_count, dtype=np.complex64)
+    for j in range(n_count):
+        u = (n_first + j) * down + delay
+        i = u // up
+        k = u - i * up
+        acc_re = 0.0
+        acc_im = 0.0
+        while k < taps:
+            idx = i - x_start
+            if idx < 0:
+                break
+            v = x[idx]
+            acc_re += h[k] * v.real
+            acc_im += h[k] * v.imag
+            i -= 1
+            k += up
+        out[j] = complex(acc_re, acc_im)
+    return out
+
+
+def polyphase_reference(x: np.ndarray, h: np.ndarray, up: int, down: int, n_count: int) -> np.ndarray:
+    """Plain-numpy resampler of a whole signal starting at index 0 (for tests).
+
+    Upsample by zero insertion, filter (FFT convolution), shift by the group
+    delay, decimate.
+    """
+    delay = (len(h) - 1) // 2
+    upsampled = np.zeros(len(x) * up, dtype=np.complex128)
+    upsampled[::up] = x
+    filtered = fftconvolve(upsampled, h.astype(np.float64))
+    return filtered[delay: delay + n_count * down: down][:n_count].astype(np.complex64)
+
+
+class StreamResampler:
+    """Chunk-size-invariant resampler of a complex stream to 7.56 Msps.
+
+    Parameters
+    ----------
+    input_rate_hz : float
+        Capture sample rate, Hz.
+    output_rate_hz : float
+        Target rate, Hz (the DTMB symbol rate by default).
+
+    Attributes
+    ----------
+    up, down : int
+        The rational ratio; ``up == down == 1`` is a pass-through.
+    """
+
+    def __init__(self, input_rate_hz: float, output_rate_hz: float = SYMBOL_RATE_HZ) -> None:
+        self.up, self.down = resampling_ratio(input_rate_hz, output_rate_hz)
+        self.passthrough = self.up == 1 and self.down == 1
+        self._h = design_filter(self.up, self.down) if not self.passthrough else np.ones(1, np.float32)
+        # Input samples each output needs behind the newest one it touches.
+        self._history = len(self._h) // self.up + 2
+        self._x = np.zeros(0, dtype=np.complex64)
+        self._x_start = 0
+        self._n_next = 0
+
+    def input_index(self, n: np.ndarray) -> np.ndarray:
+        """Input sample at or before output sample ``n`` (int64)."""
+        return (np.asarray(n, dtype=np.int64) * self.down) // self.up
+
+    def process(self, chunk: np.ndarray) -> np.ndarray:
+        """Feed input samples; return the output samples now complete."""
+        chunk = np.asarray(chunk, dtype=np.complex64)
+        if self.passthrough:
+            return chunk
+        self._x = np.concatenate([self._x, chunk])
+        x_end = self._x_start + len(self._x)
+        # Output n needs inputs up to floor((n*down + D) / up).
+        delay = (len(self._h) - 1) // 2
+        n_stop = (x_end * self.up - delay - 1) // self.down + 1 if x_end * self.up > delay else 0
+        out = polyphase_kernel(self._x, self._x_start, self._h, self.up, self.down, self._n_next,
+                               max(n_stop - self._n_next, 0))
+        self._n_next = max(n_stop, self._n_next)
+        keep_from = max((self._n_next * self.down + delay) // self.up - self._history, self._x_start)
+        self._x = self._x[keep_from - self._x_start:]
+        self._x_start = keep_from
+        return out
