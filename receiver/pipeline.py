@@ -40,7 +40,7 @@ from receiver.ranging import RangeIntegrator
 from receiver.records import FrameBatch, FrameFlag
 from receiver.resample import StreamResampler
 from receiver.tracking import FrameTracker, LockMonitor
-from receiver.writer import write_frames_csv, write_frames_h5
+from receiver.writer import write_csv, write_frames_h5
 
 #: Search position after the end of the stream (no acquisition window can fit).
 END_OF_STREAM = np.iinfo(np.int64).max // 4
@@ -487,5 +487,5 @@ def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, con
     if out_path is not None:
         write_frames_h5(out_path, frames, attrs)
     if csv_path is not None:
-        write_frames_csv(csv_path, frames)
+        write_csv(csv_path, frames.columns())
     return frames, attrs

@@ -54,15 +54,13 @@ def write_frames_h5(path: str | os.PathLike, frames: FrameBatch, attrs: Mapping[
         write_columns(f, FRAMES_GROUP, frames, frame_attributes(attrs))
 
 
-def write_frames_csv(path: str | os.PathLike, frames: FrameBatch) -> None:
-    """Write ``frames`` as CSV with a header row (``"-"`` writes to stdout)."""
-    columns = frames.columns()
+def write_csv(path: str | os.PathLike, columns: Mapping[str, np.ndarray]) -> None:
+    """Write equal-length columns as CSV with a header row (``"-"`` writes to stdout)."""
     stream = sys.stdout if str(path) == "-" else open(path, "w", newline="")
     try:
         writer = csv.writer(stream)
         writer.writerow(columns)
-        for row in zip(*(c.tolist() for c in columns.values())):
-            writer.writerow(row)
+        writer.writerows(zip(*(np.asarray(c).tolist() for c in columns.values())))
     finally:
         if stream is not sys.stdout:
             stream.close()

@@ -14,7 +14,7 @@ from receiver.h5io import read_columns
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
 from receiver.ranging import SPEED_OF_LIGHT_MPS, RangeIntegrator
 from receiver.records import FrameBatch, FrameFlag
-from receiver.writer import write_frames_csv, write_frames_h5
+from receiver.writer import write_csv, write_frames_h5
 from receiver_signals import frame_start_samples, make_signal
 
 START = 123_457      # transmitted symbol at receiver sample 0 (mid-frame, mid-superframe)
@@ -167,7 +167,7 @@ def test_files_roundtrip(tmp_path):
         attrs = f["receiver/frames"].attrs
         assert attrs["pn_mode"] == "PN420" and attrs["si_index"] == 15 and attrs["clock_offset_hz"] == 0.0
         assert attrs["resample_up"] == 1 and "units" in attrs
-    write_frames_csv(tmp_path / "rx.csv", rows)
+    write_csv(tmp_path / "rx.csv", rows.columns())
     table = np.genfromtxt(tmp_path / "rx.csv", delimiter=",", names=True)
     assert np.allclose(table["t_s"], rows.t_s) and len(table) == len(rows)
 

@@ -1,0 +1,289 @@
+"""The ``dtmbnav`` command line: one entry point, one subcommand per job.
+
+Exit codes
+----------
+0  success
+1  the job ran but found nothing usable (e.g. no DTMB lock in a capture)
+2  bad command-line usage (argparse)
+3  bad input: a file that is missing, truncated, malformed or inconsistent
+
+Diagnostics go to stderr; ``-`` means stdin/stdout where a stream makes sense.
+Heavy imports (numba kernels) happen inside the handlers so that ``--help``
+stays instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+EXIT_OK = 0
+EXIT_NO_RESULT = 1
+EXIT_USAGE = 2
+EXIT_BAD_INPUT = 3
+
+EXAMPLES = """\
+examples:
+  dtmbnav demo                                   # simulate park-loop, receive, fuse, report
+  dtmbnav simulate park-loop --seconds 5 -o out/ # 5 s SigMF capture + truth.h5
+  dtmbnav simulate street-back --no-iq -o out/   # IMU, GNSS and truth only
+  dtmbnav receive out/park-loop-cw.sigmf-meta -o out/rx.h5
+  dtmbnav receive cap.ci8 --format ci8 --rate 10e6 --center 666e6 -o rx.h5
+  rtl_sdr ... | dtmbnav receive - --format cu8 --rate 2.4e6 --center 666e6 -o rx.h5
+  dtmbnav pdr out/truth.h5 -o out/pdr.h5
+  dtmbnav fuse --receiver out/rx.h5 --sensors out/truth.h5 -o out/fused.h5
+  dtmbnav run captures/                          # the whole chain on the bundled capture set
+  dtmbnav report out/results.h5 -o out/report
+  dtmbnav evaluate park-loop --seeds 20 --json table.json
+  dtmbnav bench --json bench.json
+"""
+
+
+class CliError(Exception):
+    """An error to report on stderr with an exit code, without a traceback."""
+
+    def __init__(self, message: str, code: int = EXIT_BAD_INPUT) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+def _xy(text: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y in metres, got {text!r}") from None
+    return x, y
+
+
+def _rate(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text!r}")
+    return value
+
+
+# --- handlers ---------------------------------------------------------------------------
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from sim.scenario import load_scenario
+    from sim.simulate import simulate
+
+    scenario = load_scenario(args.scenario)
+    result = simulate(scenario, args.output, seconds=args.seconds, start_s=args.start,
+                      sample_rate_hz=args.rate, sample_format=args.format, pn_mode=args.pn_mode,
+                      seed=args.seed, container=args.container, with_iq=not args.no_iq,
+                      progress=not args.quiet)
+    if result.capture_path is not None:
+        print(f"capture: {result.capture_path}", file=sys.stderr)
+    print(f"truth:   {result.truth_path}", file=sys.stderr)
+    return EXIT_OK
+
+
+def cmd_receive(args: argparse.Namespace) -> int:
+    from dtmbnav.chain import receive_capture, receiver_config_from_args
+    from receiver.capture import open_capture
+
+    source = open_capture(args.capture, sample_format=args.format, sample_rate_hz=args.rate,
+                          center_hz=args.center)
+    summary = receive_capture(source, args.output, receiver_config_from_args(args), csv_path=args.csv,
+                              progress=not args.quiet)
+    print(summary.describe(), file=sys.stderr)
+    return EXIT_OK if summary.frames else EXIT_NO_RESULT
+
+
+def cmd_pdr(args: argparse.Namespace) -> int:
+    from dtmbnav.chain import pdr_config_from_args, run_pdr_file
+
+    result = run_pdr_file(args.sensors, args.output, pdr_config_from_args(args), csv_path=args.csv)
+    print(f"pdr: {len(result.steps)} steps, {result.steps.step_length_m.sum():.1f} m walked -> {args.output}",
+          file=sys.stderr)
+    return EXIT_OK if len(result.steps) else EXIT_NO_RESULT
+
+
+def cmd_fuse(args: argparse.Namespace) -> int:
+    from dtmbnav.chain import fuse_files, pdr_config_from_args
+
+    result = fuse_files(args.receiver, args.sensors, args.output, filters=tuple(args.filters.split(",")),
+                        pdr_config=pdr_config_from_args(args), tower_xy_m=args.tower, start_xy_m=args.start,
+                        n_particles=args.particles, seed=args.seed)
+    print(f"initial heading {result.heading.describe()}", file=sys.stderr)
+    print(f"fused {', '.join(result.tracks)} -> {args.output}", file=sys.stderr)
+    return EXIT_OK
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from dtmbnav.chain import run_directory
+
+    outcome = run_directory(args.directory, args.output, filters=tuple(args.filters.split(",")),
+                            progress=not args.quiet)
+    print(outcome.summary, file=sys.stderr if args.json else sys.stdout)
+    return EXIT_OK
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from dtmbnav.report import write_report
+
+    folder = write_report(args.results, args.output, truth_path=args.truth)
+    print(f"report written to {folder}", file=sys.stderr)
+    return EXIT_OK
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from dtmbnav import evaluate
+
+    if args.pdr:
+        from dtmbnav.pdr_table import pdr_table
+
+        print(pdr_table(evaluate.expand_scenarios(args.scenarios)))
+        return EXIT_OK
+    argv = [*args.scenarios, "--seeds", str(args.seeds), "--filters", args.filters]
+    if args.particles is not None:
+        argv += ["--particles", str(args.particles)]
+    if args.json:
+        argv += ["--json", args.json]
+    return evaluate.main(argv)
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from dtmbnav.bench import run_benchmarks
+
+    return run_benchmarks(json_path=args.json, quick=args.quick)
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from dtmbnav.demo import run_demo
+
+    run_demo(args.output, scenario=args.scenario, seconds=args.seconds, progress=not args.quiet)
+    return EXIT_OK
+
+
+# --- parser -------------------------------------------------------------------------------
+
+def _add_receiver_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("receiver")
+    g.add_argument("--pn-mode", choices=["PN420", "PN595", "PN945"], help="header mode (default: detect)")
+    g.add_argument("--static-window", type=float, default=10.0, metavar="S",
+                   help="seconds at the start during which the receiver stands still; f_s is measured there "
+                        "(default 10)")
+    g.add_argument("--clock-offset", type=float, metavar="HZ",
+                   help="oscillator offset f_s in Hz, if known (skips the static window)")
+    g.add_argument("--conjugate", action="store_true", help="the front end swaps I and Q")
+
+
+def _add_pdr_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("PDR")
+    g.add_argument("--step-model", choices=["weinberg", "frequency"], default="weinberg",
+                   help="step-length model (default weinberg)")
+    g.add_argument("--weinberg-k", type=float, metavar="K",
+                   help="calibrated Weinberg gain; default: read from the sensors file's calibration "
+                        "attribute, else the frequency model is used")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="dtmbnav", description="DTMB (GB 20600) Doppler-ranging receiver and PDR fusion for pedestrian "
+                                    "navigation.", epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    p = sub.add_parser("simulate", help="scenario -> IQ capture + IMU + GNSS + truth.h5")
+    p.add_argument("scenario", help="park-loop, park-loop-ccw, street, street-back, or a scenario .toml file")
+    p.add_argument("-o", "--output", required=True, type=Path, help="output folder")
+    p.add_argument("--seconds", type=float, help="segment length, s (default: the whole walk)")
+    p.add_argument("--start", type=float, default=0.0, help="segment start, s (default 0)")
+    p.add_argument("--rate", type=_rate, help="sample rate, Hz (default: the scenario's)")
+    p.add_argument("--format", choices=["cu8", "ci8", "ci16", "cf32"], help="sample format")
+    p.add_argument("--pn-mode", choices=["PN420", "PN595", "PN945"], help="header mode")
+    p.add_argument("--seed", type=int, help="seed (default: the scenario's)")
+    p.add_argument("--container", choices=["sigmf", "raw"], default="sigmf", help="raw = raw file + JSON sidecar")
+    p.add_argument("--no-iq", action="store_true", help="write IMU, GNSS and truth only")
+    p.set_defaults(handler=cmd_simulate)
+
+    p = sub.add_parser("receive", help="IQ capture -> per-frame CFO, Doppler, range (HDF5)")
+    p.add_argument("capture", help="SigMF .sigmf-meta/.sigmf-data, raw file (+ .json sidecar), or - for stdin")
+    p.add_argument("-o", "--output", required=True, type=Path, help="output HDF5 file")
+    p.add_argument("--format", choices=["cu8", "ci8", "ci16", "cf32"], help="sample format of a raw file/stdin")
+    p.add_argument("--rate", type=_rate, help="sample rate of a raw file/stdin, Hz")
+    p.add_argument("--center", type=_rate, help="RF centre frequency, Hz (needed for velocity and range)")
+    p.add_argument("--csv", metavar="FILE", help="also write the frame table as CSV ('-' for stdout)")
+    _add_receiver_options(p)
+    p.set_defaults(handler=cmd_receive)
+
+    p = sub.add_parser("pdr", help="IMU log (/imu of an HDF5 file) -> pedestrian dead reckoning")
+    p.add_argument("sensors", help="HDF5 file with /imu (e.g. truth.h5 from simulate)")
+    p.add_argument("-o", "--output", required=True, type=Path, help="output HDF5 file (/pdr)")
+    p.add_argument("--csv", metavar="FILE", help="also write the steps as CSV ('-' for stdout)")
+    _add_pdr_options(p)
+    p.set_defaults(handler=cmd_pdr)
+
+    p = sub.add_parser("fuse", help="receiver range + PDR -> corrected trajectory")
+    p.add_argument("--receiver", required=True, help="HDF5 file with /receiver/frames")
+    p.add_argument("--sensors", required=True, help="HDF5 file with /imu and /gnss (start fix)")
+    p.add_argument("-o", "--output", required=True, type=Path, help="output HDF5 file (/pdr, /fusion/<filter>)")
+    p.add_argument("--filters", default="pf,ukf,wt-ukf,adaptive-kf,rank-kf", help="comma-separated filters")
+    p.add_argument("--tower", type=_xy, metavar="X,Y", help="tower position, ENU m (default: from the sensors file)")
+    p.add_argument("--start", type=_xy, metavar="X,Y", help="start fix P0, ENU m (default: from /gnss)")
+    p.add_argument("--particles", type=int, default=2000, help="particle-filter Np (default 2000)")
+    p.add_argument("--seed", type=int, default=0, help="particle-filter seed")
+    _add_pdr_options(p)
+    p.set_defaults(handler=cmd_fuse)
+
+    p = sub.add_parser("run", help="the whole chain (receive, PDR, fuse, report) on one capture set")
+    p.add_argument("directory", nargs="?", default="captures", type=Path,
+                   help="folder with one capture and its sensors/truth file (default: captures/)")
+    p.add_argument("-o", "--output", type=Path, default=Path("out/run"), help="output folder (default out/run)")
+    p.add_argument("--filters", default="pf,ukf,wt-ukf,adaptive-kf,rank-kf", help="comma-separated filters")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(handler=cmd_run)
+
+    p = sub.add_parser("report", help="plots and a summary table from a results file")
+    p.add_argument("results", help="HDF5 file from run/fuse")
+    p.add_argument("-o", "--output", required=True, type=Path, help="report folder")
+    p.add_argument("--truth", help="truth.h5 (default: the truth group inside the results file)")
+    p.set_defaults(handler=cmd_report)
+
+    p = sub.add_parser("evaluate", help="Monte Carlo accuracy table of every filter against truth")
+    p.add_argument("scenarios", nargs="+", help="scenario names/files; 'all', 'park-loop', 'street' = groups")
+    p.add_argument("--seeds", type=int, default=20, help="walks per scenario (default 20)")
+    p.add_argument("--filters", default="pf,ukf,wt-ukf,adaptive-kf,rank-kf", help="comma-separated filters")
+    p.add_argument("--particles", type=int, help="particle-filter Np")
+    p.add_argument("--json", metavar="FILE", help="also write the table as JSON ('-' for stdout)")
+    p.add_argument("--pdr", action="store_true", help="only the PDR figures (steps, step length, drift, error)")
+    p.set_defaults(handler=cmd_evaluate)
+
+    p = sub.add_parser("bench", help="throughput of every kernel next to its plain-numpy reference")
+    p.add_argument("--json", metavar="FILE", help="also write the results as JSON ('-' for stdout)")
+    p.add_argument("--quick", action="store_true", help="short runs (smoke test)")
+    p.set_defaults(handler=cmd_bench)
+
+    p = sub.add_parser("demo", help="simulate a walk at IQ level, receive, fuse and write a report")
+    p.add_argument("-o", "--output", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
+    p.add_argument("--scenario", default="park-loop", help="scenario (default park-loop)")
+    p.add_argument("--seconds", type=float, help="simulate only this many seconds (default: the whole walk)")
+    p.set_defaults(handler=cmd_demo)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``dtmbnav`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.handler(args)
+    except CliError as exc:
+        print(f"dtmbnav {args.command}: {exc}", file=sys.stderr)
+        return exc.code
+    except (ValueError, OSError) as exc:
+        print(f"dtmbnav {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"dtmbnav {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,237 @@
+"""Report folder: trajectory map, range vs truth, error CDF and a summary table.
+
+Reads a results file (``/receiver/frames``, ``/pdr``, ``/fusion/<filter>``)
+and, when available, the truth (``/truth``) of the same walk. Figures are PNG
+(matplotlib, Agg backend); the table is written as Markdown and JSON, with the
+paper's figures (method.md §6) next to ours.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tomllib
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import h5py
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402  (backend chosen first: reports run headless)
+import numpy as np  # noqa: E402
+
+from dtmbnav.evaluate import paper_figures  # noqa: E402
+from fusion.metrics import (error_cdf, error_stats, place_pdr, position_errors_m,  # noqa: E402
+                            true_initial_heading_rad)
+from fusion.records import PdrSteps, Track  # noqa: E402
+from receiver.h5io import read_attrs, read_columns  # noqa: E402
+from receiver.writer import FRAMES_GROUP  # noqa: E402
+
+
+
+@dataclass(frozen=True)
+class SummaryRow:
+    """One line of the summary table (errors in metres)."""
+
+    estimate: str
+    p68_m: float
+    p95_m: float
+    max_m: float
+    reduction_95: float | None
+    paper: tuple[float, float, float] | None
+
+
+def _track(columns: dict[str, np.ndarray]) -> Track:
+    return Track(**{k: columns[k] for k in ("t_s", "x_m", "y_m", "heading_rad", "speed_mps")})
+
+
+def load_results(results_path: str | os.PathLike) -> tuple[dict[str, Track], PdrSteps, float]:
+    """Fused tracks by filter, the PDR steps and the initial heading used."""
+    with h5py.File(results_path, "r") as f:
+        if "fusion" not in f:
+            raise ValueError(f"{results_path}: no /fusion group (run 'dtmbnav fuse' or 'dtmbnav run' first)")
+        names = list(f["fusion"])
+    tracks = {name: _track(read_columns(results_path, f"fusion/{name}")) for name in names}
+    pdr_cols = read_columns(results_path, "pdr")
+    pdr = PdrSteps(**{k: pdr_cols[k] for k in ("t_s", "x_m", "y_m", "heading_rad", "speed_mps", "step_length_m")})
+    heading = float(read_attrs(results_path, f"fusion/{names[0]}")["initial_heading_rad"])
+    return tracks, pdr, heading
+
+
+def summary_rows(truth: Track, estimates: dict[str, Track], scenario_name: str) -> list[SummaryRow]:
+    """68/95/max of every estimate against the truth, with the 95 % reduction vs the ``pdr`` row."""
+    stats = {name: error_stats(position_errors_m(track, truth)) for name, track in estimates.items()}
+    pdr95 = stats["pdr"].p95_m if "pdr" in stats else None
+    figures = paper_figures(scenario_name)
+    paper = {"pdr": figures.pdr, "pf": figures.pf} if figures else {}
+    return [SummaryRow(name, s.p68_m, s.p95_m, s.max_m,
+                       None if name == "pdr" or pdr95 is None else 1.0 - s.p95_m / pdr95, paper.get(name))
+            for name, s in stats.items()]
+
+
+def format_rows(rows: list[SummaryRow]) -> str:
+    """The summary as a Markdown table."""
+    lines = ["| estimate | 68 % (m) | 95 % (m) | max (m) | 95 % reduction vs PDR | paper 68/95/max |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        red = "" if r.reduction_95 is None else f"{100 * r.reduction_95:.0f} %"
+        paper = "" if r.paper is None else "/".join(f"{v:.2f}" for v in r.paper)
+        lines.append(f"| {r.estimate} | {r.p68_m:.2f} | {r.p95_m:.2f} | {r.max_m:.2f} | {red} | {paper} |")
+    return "\n".join(lines)
+
+
+def _scenario_name(truth_path: str | os.PathLike) -> str:
+    text = str(read_attrs(truth_path, "truth/trajectory").get("scenario", ""))
+    return tomllib.loads(text).get("name", "") if text else ""
+
+
+def plot_trajectories(path: Path, truth: Track | None, estimates: dict[str, Track], tower_xy: tuple[float, float] | None):
+    fig, ax = plt.subplots(figsize=(7, 7))
+    if truth is not None:
+        ax.plot(truth.x_m, truth.y_m, "k-", lw=2.5, label="truth")
+    for name, track in estimates.items():
+        ax.plot(track.x_m, track.y_m, "--" if name == "pdr" else "-", lw=1.2, label=name)
+    if tower_xy is not None:
+        span = max(np.ptp(truth.x_m), np.ptp(truth.y_m)) if truth is not None else 50.0
+        bearing = np.arctan2(tower_xy[0] - truth.x_m[0], tower_xy[1] - truth.y_m[0]) if truth is not None else 0.0
+        ax.annotate("to tower", xy=(truth.x_m[0] + 0.4 * span * np.sin(bearing),
+                                    truth.y_m[0] + 0.4 * span * np.cos(bearing)),
+                    xytext=(truth.x_m[0], truth.y_m[0]), arrowprops={"arrowstyle": "->", "color": "grey"})
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    ax.set_aspect("equal")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title("Trajectories")
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+
+
+def plot_range(path: Path, frames: dict[str, np.ndarray], time_offset_s: float, truth_frames: dict | None):
+    fig, (ax, ax_err) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    t = frames["t_s"] + time_offset_s
+    ax.plot(t, frames["range_change_m"], lw=1, label="receiver (eq. 11)")
+    if truth_frames is not None:
+        t_true = truth_frames["t_s"] + time_offset_s
+        true_change = truth_frames["range_m"] - truth_frames["range_m"][0]
+        ax.plot(t_true, true_change, "k--", lw=1, label="truth")
+        ok = np.isfinite(frames["range_change_m"])
+        err = frames["range_change_m"][ok] - np.interp(t[ok], t_true, true_change)
+        ax_err.plot(t[ok], err, lw=0.8)
+    ax.set_ylabel("range change (m)")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    ax_err.set_ylabel("error (m)")
+    ax_err.set_xlabel("time (s)")
+    ax_err.grid(alpha=0.3)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+
+
+def plot_cdf(path: Path, errors: dict[str, np.ndarray]):
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for name, err in errors.items():
+        x, p = error_cdf(err)
+        ax.plot(x, p, label=name)
+    ax.axhline(0.95, color="grey", lw=0.8, ls=":")
+    ax.axhline(0.68, color="grey", lw=0.8, ls=":")
+    ax.set_xlabel("position error (m)")
+    ax.set_ylabel("CDF")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+
+
+def write_report(results_path: str | os.PathLike, out_dir: str | os.PathLike,
+                 truth_path: str | os.PathLike | None = None) -> Path:
+    """Write the report folder for a results file; returns the folder.
+
+    Without a truth file the trajectory and range plots are drawn without
+    truth and no error table is made.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tracks, pdr, heading = load_results(results_path)
+    frames = read_columns(results_path, FRAMES_GROUP)
+    truth = truth_frames = None
+    tower = None
+    offset = 0.0
+    if truth_path is not None:
+        from sim.walk_io import read_walk_truth
+
+        walk_truth = read_walk_truth(truth_path)
+        truth = walk_truth.track
+        truth_frames = read_columns(truth_path, "truth/frames")
+        offset = float(read_attrs(truth_path, "truth/frames").get("capture_start_s", 0.0))
+        attrs = read_attrs(truth_path, "truth/trajectory")
+        tower = (float(attrs["tower_x_m"]), float(attrs["tower_y_m"]))
+    first = next(iter(tracks.values()))
+    estimates = {"pdr@fix": place_pdr(pdr, float(first.x_m[0]), float(first.y_m[0]), heading), **tracks}
+    if truth is not None:
+        # The paper's PDR baseline: the relative track rotated by the TRUE initial heading at the true start.
+        true_heading = true_initial_heading_rad(truth, walk_truth.walk_start_t_s)
+        estimates = {"pdr": place_pdr(pdr, float(truth.x_m[0]), float(truth.y_m[0]), true_heading), **estimates}
+    plot_trajectories(out / "trajectory.png", truth, estimates, tower)
+    plot_range(out / "range.png", frames, offset, truth_frames)
+    summary: dict = {"results": str(results_path), "initial_heading_deg": float(np.rad2deg(heading))}
+    if truth is not None:
+        errors = {name: position_errors_m(track, truth) for name, track in estimates.items()}
+        plot_cdf(out / "error_cdf.png", errors)
+        rows = summary_rows(truth, estimates, _scenario_name(truth_path))
+        table = format_rows(rows)
+        (out / "summary.md").write_text(
+            f"# dtmbnav report\n\nResults: `{results_path}`  \nTruth: `{truth_path}`  \n"
+            f"Initial heading (eq. 15): {np.rad2deg(heading):.1f} deg\n\n{table}\n\n"
+            "`pdr` is placed as the paper reports PDR error (true start, true initial heading); `pdr@fix` "
+            "starts like the filters, at the GNSS fix with the eq. 15 heading.\n")
+        summary["rows"] = [asdict(r) for r in rows]
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return out
+
+
+def receiver_accuracy(frames: dict[str, np.ndarray], truth_frames: dict[str, np.ndarray]) -> dict[str, float]:
+    """Receiver against the simulator's truth, matched by arrival time.
+
+    Returns the clock-offset error (f_s used minus the true mean CFO of the
+    clock), the RMSE of 1 s means of the radial velocity, and the 95th
+    percentile / max of the integrated-range error, m.
+    """
+    t, t_true = frames["t_s"], truth_frames["t_s"]
+    velocity_true = np.interp(t, t_true, truth_frames["radial_velocity_mps"])
+    range_true = np.interp(t, t_true, truth_frames["range_m"])
+    ok = np.isfinite(frames["velocity_mps"]) & np.isfinite(frames["range_change_m"])
+    second = np.floor(t[ok]).astype(int)
+    counts = np.bincount(second)
+    used = counts > 0
+    mean_v = np.bincount(second, frames["velocity_mps"][ok])[used] / counts[used]
+    mean_v_true = np.bincount(second, velocity_true[ok])[used] / counts[used]
+    range_err = np.abs(frames["range_change_m"][ok] - (range_true[ok] - range_true[ok][0]))
+    return {"velocity_rmse_1s_mps": float(np.sqrt(np.mean((mean_v - mean_v_true) ** 2))),
+            "range_error_p95_m": float(np.percentile(range_err, 95)), "range_error_max_m": float(range_err.max()),
+            "frames": int(len(t)), "seconds": float(t[-1] - t[0])}
+
+
+def write_receiver_report(receiver_path: str | os.PathLike, out_dir: str | os.PathLike,
+                          truth_path: str | os.PathLike | None = None) -> Path:
+    """Report of a receiver run alone: range plot and, with truth, its accuracy."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    frames = read_columns(receiver_path, FRAMES_GROUP)
+    attrs = read_attrs(receiver_path, FRAMES_GROUP)
+    truth_frames = read_columns(truth_path, "truth/frames") if truth_path is not None else None
+    plot_range(out / "range.png", frames, 0.0, truth_frames)
+    lines = ["# dtmbnav receiver report", "", f"Capture results: `{receiver_path}`", "",
+             f"- header mode {attrs.get('pn_mode')}, SI word {attrs.get('si_index')}, "
+             f"f_s = {float(attrs.get('clock_offset_hz', np.nan)):.2f} Hz, {len(frames['t_s'])} frames"]
+    summary: dict = {"receiver": str(receiver_path), "attributes": {k: str(v) for k, v in attrs.items()}}
+    if truth_frames is not None:
+        acc = receiver_accuracy(frames, truth_frames)
+        summary["accuracy"] = acc
+        lines.append(f"- radial velocity RMSE (1 s means) {acc['velocity_rmse_1s_mps']:.3f} m/s; integrated range "
+                     f"error 95 % {acc['range_error_p95_m']:.3f} m, max {acc['range_error_max_m']:.3f} m over "
+                     f"{acc['seconds']:.1f} s")
+    (out / "summary.md").write_text("\n".join(lines) + "\n")
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return out
