@@ -42,7 +42,7 @@ def resampling_ratio(input_rate_hz: float, output_rate_hz: float = SYMBOL_RATE_H
     return ratio.numerator, ratio.denominator
 
 
-def design_filter(up: int, down: int, taps_per_phase: int = 24, beta: float = 8.0) -> np.ndarray:
+def design_filter(up: int, down: int, taps_per_phase: int = 12, beta: float = 8.0) -> np.ndarray:
     """Low-pass prototype for an up/down resampler (odd length, gain ``up``).
 
     The cutoff is the narrower of the input and output Nyquist frequencies.
