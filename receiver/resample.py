@@ -53,34 +53,42 @@ def design_filter(up: int, down: int, taps_per_phase: int = 12, beta: float = 8.
     return (up * firwin(length, 1.0 / max(up, down), window=("kaiser", beta))).astype(np.float32)
 
 
+def polyphase_bank(h: np.ndarray, up: int) -> np.ndarray:
+    """Filter ``h`` split into its ``up`` phases: ``bank[k, t] = h[k + t * up]`` (zero-padded).
+
+    Each output sample is then one contiguous dot product of a bank row with
+    the input, instead of a strided walk through ``h``.
+    """
+    n_taps = -(-len(h) // up)
+    padded = np.zeros(n_taps * up, dtype=np.float32)
+    padded[: len(h)] = h
+    return np.ascontiguousarray(padded.reshape(n_taps, up).T)
+
+
 @njit(cache=True)
-def polyphase_kernel(x: np.ndarray, x_start: int, h: np.ndarray, up: int, down: int,
+def polyphase_kernel(x: np.ndarray, x_start: int, bank: np.ndarray, delay: int, up: int, down: int,
                      n_first: int, n_count: int) -> np.ndarray:
     """Output samples ``n_first .. n_first + n_count - 1`` of the resampler.
 
     ``x`` holds input samples with global indices ``x_start ..``; output n
     is ``sum_i x[i] h[n*down + D - i*up]`` over the taps inside the filter,
-    ``D = (len(h) - 1) // 2``. The caller guarantees the needed inputs are in
+    ``D = delay = (len(h) - 1) // 2``, computed with the phase bank of
+    :func:`polyphase_bank`. The caller guarantees the needed inputs are in
     ``x`` (indices below ``x_start`` count as zeros: the stream's start).
     """
-    taps = h.shape[0]
-    delay = (taps - 1) // 2
+    n_taps = bank.shape[1]
     out = np.empty(n_count, dtype=np.complex64)
     for j in range(n_count):
         u = (n_first + j) * down + delay
-        i = u // up
-        k = u - i * up
-        acc_re = 0.0
-        acc_im = 0.0
-        while k < taps:
-            idx = i - x_start
-            if idx < 0:
-                break
-            v = x[idx]
-            acc_re += h[k] * v.real
-            acc_im += h[k] * v.imag
-            i -= 1
-            k += up
+        i = u // up - x_start
+        row = bank[u - (u // up) * up]
+        acc_re = np.float32(0.0)
+        acc_im = np.float32(0.0)
+        stop = min(n_taps, i + 1)  # taps reaching before the stream start are zeros
+        for t in range(stop):
+            v = x[i - t]
+            acc_re += row[t] * v.real
+            acc_im += row[t] * v.imag
         out[j] = complex(acc_re, acc_im)
     return out
 
@@ -118,6 +126,7 @@ class StreamResampler:
         self.up, self.down = resampling_ratio(input_rate_hz, output_rate_hz)
         self.passthrough = self.up == 1 and self.down == 1
         self._h = design_filter(self.up, self.down) if not self.passthrough else np.ones(1, np.float32)
+        self._bank = polyphase_bank(self._h, self.up)
         # Input samples each output needs behind the newest one it touches.
         self._history = len(self._h) // self.up + 2
         self._x = np.zeros(0, dtype=np.complex64)
@@ -138,7 +147,7 @@ class StreamResampler:
         # Output n needs inputs up to floor((n*down + D) / up).
         delay = (len(self._h) - 1) // 2
         n_stop = (x_end * self.up - delay - 1) // self.down + 1 if x_end * self.up > delay else 0
-        out = polyphase_kernel(self._x, self._x_start, self._h, self.up, self.down, self._n_next,
+        out = polyphase_kernel(self._x, self._x_start, self._bank, delay, self.up, self.down, self._n_next,
                                max(n_stop - self._n_next, 0))
         self._n_next = max(n_stop, self._n_next)
         keep_from = max((self._n_next * self.down + delay) // self.up - self._history, self._x_start)
