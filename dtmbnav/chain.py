@@ -29,7 +29,7 @@ from fusion.run import FusionConfig, FusionResult, fuse
 from receiver.capture import CaptureSource
 from receiver.h5io import atomic_h5, read_attrs, read_columns, write_columns
 from receiver.pipeline import ReceiverConfig, receive_file
-from receiver.records import FrameBatch, FrameFlag
+from receiver.records import FrameFlag
 from receiver.writer import FRAMES_GROUP, write_csv
 
 #: Frame flags that make a frame's range unusable for fusion.
@@ -77,10 +77,9 @@ def receiver_config_from_args(args: argparse.Namespace) -> ReceiverConfig:
 def receive_capture(source: CaptureSource, out_path: str | os.PathLike, config: ReceiverConfig,
                     csv_path: str | None = None, progress: bool = True) -> ReceiveSummary:
     """Receive a capture into ``out_path`` (``/receiver/frames``) and summarise it."""
-    frames, attrs = receive_file(source, out_path, config, csv_path=csv_path, progress=progress)
-    gaps = int(np.count_nonzero(frames.flags & FrameFlag.GAP))
-    span = float(frames.t_s[-1] - frames.t_s[0]) if len(frames) else 0.0
-    return ReceiveSummary(frames=len(frames), attrs=attrs, gaps=gaps, seconds=span)
+    sink, attrs = receive_file(source, out_path, config, csv_path=csv_path, progress=progress)
+    span = sink.last_t_s - sink.first_t_s if sink.frames else 0.0
+    return ReceiveSummary(frames=sink.frames, attrs=attrs, gaps=sink.gaps, seconds=span)
 
 
 def ranges_from_frames(columns: dict[str, np.ndarray], time_offset_s: float = 0.0) -> RangeSeries:

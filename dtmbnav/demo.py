@@ -23,8 +23,7 @@ from fusion.pdr import PdrConfig
 from fusion.run import FILTERS
 from receiver.iqformat import decode, get_format
 from receiver.pipeline import Receiver, ReceiverConfig
-from receiver.records import FrameBatch
-from receiver.writer import write_frames_h5
+from receiver.writer import FrameSink
 from sim.rf import CaptureGenerator
 from sim.scenario import load_scenario
 from sim.simulate import simulate
@@ -43,17 +42,22 @@ def stream_receive(scenario, seconds: float | None, rx_path: Path, progress: boo
     # The walker stands still for start_still_s: that is the f_s calibration window (eq. 9-10).
     config = ReceiverConfig(static_window_s=max(scenario.walk.start_still_s - STATIC_MARGIN_S, 0.5))
     receiver = Receiver(generator.sample_rate_hz, generator.carrier_hz, config)
-    batches: list[FrameBatch] = []
-    with tqdm(total=generator.num_samples, unit="S", unit_scale=True, disable=not progress, file=sys.stderr,
-              desc="simulate + receive") as bar:
-        for rails in generator.quantised_chunks(CHUNK_SAMPLES):
-            samples = decode(rails, fmt)
-            batches.extend(receiver.process(samples))
-            bar.update(len(samples))
-        batches.extend(receiver.finish())
-    frames = FrameBatch.concatenate(batches)
-    write_frames_h5(rx_path, frames, {**receiver.attributes(), "source": f"simulated {scenario.name} (streamed)"})
-    return len(frames)
+    sink = FrameSink(rx_path)
+    try:
+        with tqdm(total=generator.num_samples, unit="S", unit_scale=True, disable=not progress, file=sys.stderr,
+                  desc="simulate + receive") as bar:
+            for rails in generator.quantised_chunks(CHUNK_SAMPLES):
+                samples = decode(rails, fmt)
+                for batch in receiver.process(samples):
+                    sink.append(batch)
+                bar.update(len(samples))
+            for batch in receiver.finish():
+                sink.append(batch)
+    except BaseException as exc:
+        sink.abort(exc)
+        raise
+    sink.close({**receiver.attributes(), "source": f"simulated {scenario.name} (streamed)"})
+    return sink.frames
 
 
 def run_demo(out_dir: Path, scenario: str = "park-loop", seconds: float | None = None, progress: bool = True) -> Path:

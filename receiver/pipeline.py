@@ -40,7 +40,7 @@ from receiver.ranging import RangeIntegrator
 from receiver.records import FrameBatch, FrameFlag
 from receiver.resample import StreamResampler
 from receiver.tracking import FrameTracker, LockMonitor
-from receiver.writer import write_csv, write_frames_h5
+from receiver.writer import FrameSink
 
 #: Search position after the end of the stream (no acquisition window can fit).
 END_OF_STREAM = np.iinfo(np.int64).max // 4
@@ -444,8 +444,11 @@ def receive_stream(chunks: Iterable[np.ndarray], sample_rate_hz: float, carrier_
 
 def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, config: ReceiverConfig | None = None, *,
                  carrier_hz: float | None = None, csv_path: str | os.PathLike | None = None,
-                 chunk_samples: int = 1 << 20, progress: bool = True) -> tuple[FrameBatch, dict[str, Any]]:
+                 chunk_samples: int = 1 << 20, progress: bool = True) -> tuple[FrameSink, dict[str, Any]]:
     """Receive a whole capture and write ``/receiver/frames`` (and optionally CSV).
+
+    Rows are written batch by batch as the receiver produces them, so memory
+    stays flat however long the capture is.
 
     Parameters
     ----------
@@ -459,14 +462,14 @@ def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, con
     csv_path : path, optional
         Also write the rows as CSV (``"-"`` for stdout).
     chunk_samples : int
-        Samples read at a time (memory stays flat).
+        Samples read at a time.
     progress : bool
         Show a tqdm progress bar on stderr.
 
     Returns
     -------
-    frames : FrameBatch
-        All rows.
+    sink : FrameSink
+        The finished writer: ``frames``, ``gaps``, ``first_t_s``, ``last_t_s``.
     attributes : dict
         The ``/receiver/frames`` attributes.
     """
@@ -474,18 +477,20 @@ def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, con
     if carrier is None:
         raise ValueError(f"{capture.path}: the capture has no centre frequency; give carrier_hz")
     rx = Receiver(capture.sample_rate_hz, carrier, config)
-    batches: list[FrameBatch] = []
-    with tqdm(total=capture.num_samples, unit="S", unit_scale=True, disable=not progress,
-              desc=f"receive {os.path.basename(str(capture.path))}") as bar:
-        for chunk in capture.chunks(chunk_samples):
-            batches.extend(rx.process(chunk))
-            bar.update(len(chunk))
-        batches.extend(rx.finish())
-    frames = FrameBatch.concatenate(batches)
+    sink = FrameSink(out_path, csv_path)
+    try:
+        with tqdm(total=capture.num_samples, unit="S", unit_scale=True, disable=not progress,
+                  desc=f"receive {os.path.basename(str(capture.path))}") as bar:
+            for chunk in capture.chunks(chunk_samples):
+                for batch in rx.process(chunk):
+                    sink.append(batch)
+                bar.update(len(chunk))
+            for batch in rx.finish():
+                sink.append(batch)
+    except BaseException as exc:
+        sink.abort(exc)
+        raise
     attrs = rx.attributes()
     attrs["source"] = str(capture.path)
-    if out_path is not None:
-        write_frames_h5(out_path, frames, attrs)
-    if csv_path is not None:
-        write_csv(csv_path, frames.columns())
-    return frames, attrs
+    sink.close(attrs)
+    return sink, attrs

@@ -75,6 +75,10 @@ class FrameBatch:
     def __len__(self) -> int:
         return len(self.t_s)
 
+    def select(self, rows: slice | np.ndarray) -> "FrameBatch":
+        """The rows picked by a slice, index array or boolean mask, as a new batch."""
+        return FrameBatch(**{name: values[rows] for name, values in self.columns().items()})
+
     def columns(self) -> dict[str, np.ndarray]:
         """The columns by name, in field order."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -87,7 +91,7 @@ class FrameBatch:
     @classmethod
     def concatenate(cls, batches: list["FrameBatch"]) -> "FrameBatch":
         """Rows of ``batches`` in order, as one batch."""
-        dtypes = _COLUMN_DTYPES
+        dtypes = COLUMN_DTYPES
         if not batches:
             return cls(**{name: np.empty(0, dtype=dt) for name, dt in dtypes.items()})
         return cls(**{name: np.concatenate([getattr(b, name) for b in batches]).astype(dt, copy=False)
@@ -95,7 +99,7 @@ class FrameBatch:
 
 
 #: Storage type of each column.
-_COLUMN_DTYPES: dict[str, type] = {
+COLUMN_DTYPES: dict[str, type] = {
     "t_s": np.float64, "sample_index": np.int64, "frame_index": np.int64, "pn_phase": np.int32,
     "cfo_hz": np.float64, "cfo_pn_hz": np.float64, "doppler_hz": np.float64, "velocity_mps": np.float64,
     "range_change_m": np.float64, "snr_db": np.float32, "peak_metric": np.float32, "flags": np.uint8,

@@ -18,8 +18,8 @@ from typing import Any
 import h5py
 import numpy as np
 
-from receiver.h5io import atomic_h5, package_version, write_columns
-from receiver.records import FrameBatch
+from receiver.h5io import atomic_h5, package_version
+from receiver.records import COLUMN_DTYPES, FrameBatch, FrameFlag
 
 #: HDF5 group of the per-frame results.
 FRAMES_GROUP = "receiver/frames"
@@ -42,18 +42,6 @@ def frame_attributes(receiver_attrs: Mapping[str, Any]) -> dict[str, Any]:
     return attrs
 
 
-def write_frames_h5(path: str | os.PathLike, frames: FrameBatch, attrs: Mapping[str, Any], mode: str = "w") -> None:
-    """Write ``frames`` as ``/receiver/frames`` of ``path`` (atomically).
-
-    Parameters
-    ----------
-    mode : {"w", "a"}
-        New file, or add the group to a copy of an existing file.
-    """
-    with atomic_h5(path, mode) as f:
-        write_columns(f, FRAMES_GROUP, frames, frame_attributes(attrs))
-
-
 def write_csv(path: str | os.PathLike, columns: Mapping[str, np.ndarray]) -> None:
     """Write equal-length columns as CSV with a header row (``"-"`` writes to stdout)."""
     stream = sys.stdout if str(path) == "-" else open(path, "w", newline="")
@@ -64,3 +52,77 @@ def write_csv(path: str | os.PathLike, columns: Mapping[str, np.ndarray]) -> Non
     finally:
         if stream is not sys.stdout:
             stream.close()
+
+
+class FrameSink:
+    """Writes frame batches as they come: HDF5 ``/receiver/frames`` and/or CSV, memory flat.
+
+    The HDF5 columns are resizable datasets that grow batch by batch inside an
+    :func:`~receiver.h5io.atomic_h5` file, so the file appears only when
+    complete; the attributes are set at :meth:`close`. Counts of frames and
+    gaps and the time span are kept for a summary.
+
+    Parameters
+    ----------
+    h5_path, csv_path : path or None
+        Where to write (None: not written). ``csv_path`` ``"-"`` is stdout.
+    """
+
+    def __init__(self, h5_path: str | os.PathLike | None, csv_path: str | os.PathLike | None = None) -> None:
+        self.frames = 0
+        self.gaps = 0
+        self.first_t_s = float("nan")
+        self.last_t_s = float("nan")
+        self._h5_context = atomic_h5(h5_path) if h5_path is not None else None
+        self._h5 = self._h5_context.__enter__() if self._h5_context is not None else None
+        if self._h5 is not None:
+            group = self._h5.create_group(FRAMES_GROUP)
+            for name, dtype in COLUMN_DTYPES.items():
+                group.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(4096,))
+        self._csv_stream = None
+        if csv_path is not None:
+            self._csv_stream = sys.stdout if str(csv_path) == "-" else open(csv_path, "w", newline="")
+            self._csv = csv.writer(self._csv_stream)
+            self._csv.writerow(COLUMN_DTYPES)
+
+    def append(self, batch: FrameBatch) -> None:
+        """Write the rows of one batch."""
+        n = len(batch)
+        if n == 0:
+            return
+        if self._h5 is not None:
+            group = self._h5[FRAMES_GROUP]
+            for name, values in batch.columns().items():
+                group[name].resize((self.frames + n,))
+                group[name][self.frames:] = values
+        if self._csv_stream is not None:
+            self._csv.writerows(zip(*(c.tolist() for c in batch.columns().values())))
+        if self.frames == 0:
+            self.first_t_s = float(batch.t_s[0])
+        self.last_t_s = float(batch.t_s[-1])
+        self.frames += n
+        self.gaps += int(np.count_nonzero(batch.flags & FrameFlag.GAP))
+
+    def close(self, attrs: Mapping[str, Any]) -> None:
+        """Finish the files; ``attrs`` become the group's attributes."""
+        if self._h5 is not None:
+            for key, value in frame_attributes(attrs).items():
+                self._h5[FRAMES_GROUP].attrs[key] = value
+            self._h5_context.__exit__(None, None, None)
+            self._h5 = None
+        self._close_csv()
+
+    def abort(self, exc: BaseException) -> None:
+        """Drop the partial HDF5 file (the target path is left as it was)."""
+        if self._h5 is not None:
+            try:
+                self._h5_context.__exit__(type(exc), exc, exc.__traceback__)
+            except BaseException:
+                pass
+            self._h5 = None
+        self._close_csv()
+
+    def _close_csv(self) -> None:
+        if self._csv_stream is not None and self._csv_stream is not sys.stdout:
+            self._csv_stream.close()
+        self._csv_stream = None

@@ -67,15 +67,17 @@ def test_receive_file_from_simulated_sigmf(tmp_path):
     scn = load_scenario("park-loop-cw")
     sim = simulate(scn, tmp_path / "sim", seconds=0.1, start_s=1.0)
     capture = open_capture(sim.capture_path)
-    frames, attrs = receive_file(capture, tmp_path / "rx.h5", ReceiverConfig(clock_offset_hz=0.0),
-                                 csv_path=tmp_path / "rx.csv", progress=False)
-    assert len(frames) > 150
+    sink, attrs = receive_file(capture, tmp_path / "rx.h5", ReceiverConfig(clock_offset_hz=0.0),
+                               csv_path=tmp_path / "rx.csv", progress=False)
+    assert sink.frames > 150
     with h5py.File(tmp_path / "rx.h5", "r") as f:
         group = f["receiver/frames"]
         assert group.attrs["pn_mode"] == "PN420" and group.attrs["si_index"] == 15
         assert group.attrs["sample_rate_hz"] == capture.sample_rate_hz
         assert group.attrs["carrier_hz"] == scn.tower.carrier_hz
-        assert np.array_equal(group["frame_index"][()], frames.frame_index)
+        assert len(group["frame_index"]) == sink.frames
+        assert np.all(np.diff(group["frame_index"][()]) == 1)
+    assert len((tmp_path / "rx.csv").read_text().splitlines()) == sink.frames + 1
     with pytest.raises(ValueError, match="carrier_hz"):
         capture.center_hz = None
         receive_file(capture, None, progress=False)
