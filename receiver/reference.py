@@ -10,6 +10,7 @@ compares their speed. It works on an in-memory 7.56 Msps signal.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,12 +37,15 @@ class ReferenceFrames:
 def receive_reference(r: np.ndarray, acq: Acquisition, n_frames: int, *, taps_before: int = 16,
                       taps_after: int = 48, tap_threshold: float = 10.0, loop_alpha: float = 0.05,
                       loop_beta: float = 0.001, batch_frames: int = 128,
-                      first_frame_index: int | None = None) -> ReferenceFrames:
+                      first_frame_index: int | None = None,
+                      stage_seconds: dict[str, float] | None = None) -> ReferenceFrames:
     """Process ``n_frames`` frames of ``r`` (stream index 0 = ``r[0]``) after acquisition ``acq``.
 
     As in the streaming receiver, the FFT windows of each group of
     ``batch_frames`` frames are placed from the loop state at the group's
-    start, and the first frame has no CFO (NaN).
+    start, and the first frame has no CFO (NaN). ``stage_seconds``, when
+    given, accumulates the time spent per stage under the names of
+    :data:`receiver.pipeline.STAGES` (sync = derotation + timing loop).
     """
     mode = acq.mode
     m = mode.value
@@ -61,15 +65,21 @@ def receive_reference(r: np.ndarray, acq: Acquisition, n_frames: int, *, taps_be
         phase_now, phase_next = (
             (int(gb20600.header_phase(mode, index)), int(gb20600.header_phase(mode, index + 1)))
             if acq.rotating else (acq.constant_phase, acq.constant_phase))
+        t0 = time.perf_counter()
         windows = derotate_segments_reference(r, 0, np.array([start + est.window_offset]), est.window_length, cycles)
+        t1 = time.perf_counter()
         ch = est.estimate_reference(windows, np.array([phase_now]))
+        t2 = time.perf_counter()
         smoothed, periods, tau, period = timing_loop_reference(np.array([start + ch.centroid[0]]),
                                                       np.array([ch.peak_metric[0] >= 0.15]), tau, period,
                                                       loop_alpha, loop_beta)
+        t3 = time.perf_counter()
         body = recover_bodies_reference(r, 0, np.array([start]), ng, cycles, ch.taps, taps_before,
                                         gb20600.header_symbols(mode, phase_now)[None, :],
                                         gb20600.header_symbols(mode, phase_next)[None, :])
+        t4 = time.perf_counter()
         si = si_carriers_reference(body)[0]
+        t5 = time.perf_counter()
         delta = start - smoothed[0]
         out.window_start[i], out.snr_db[i] = start, ch.snr_db[0]
         if prev is not None:
@@ -82,4 +92,8 @@ def receive_reference(r: np.ndarray, acq: Acquisition, n_frames: int, *, taps_be
             out.cfo_pn_hz[i] = cfo_from_theta(pn_theta(prev_taps, ch.raw_taps, shift), step, eta,
                                               acq.coarse_cfo_hz)[0]
         prev = (si, ch.raw_taps[0], start, delta)
+        if stage_seconds is not None:
+            for stage, spent in (("sync", (t1 - t0) + (t3 - t2)), ("channel", t2 - t1), ("body", t4 - t3),
+                                 ("fft", t5 - t4), ("estimators", time.perf_counter() - t5)):
+                stage_seconds[stage] = stage_seconds.get(stage, 0.0) + spent
     return out
