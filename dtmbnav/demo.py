@@ -15,14 +15,13 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from tqdm import tqdm
 
 from dtmbnav.chain import fuse_files
 from dtmbnav.report import write_report
 from fusion.pdr import PdrConfig
 from fusion.run import FILTERS
 from receiver.iqformat import decode, get_format
-from receiver.pipeline import Receiver, ReceiverConfig
+from receiver.pipeline import Receiver, ReceiverConfig, receive_into_sink
 from receiver.writer import FrameSink
 from sim.rf import CaptureGenerator
 from sim.scenario import load_scenario
@@ -43,20 +42,9 @@ def stream_receive(scenario, seconds: float | None, rx_path: Path, progress: boo
     config = ReceiverConfig(static_window_s=max(scenario.walk.start_still_s - STATIC_MARGIN_S, 0.5))
     receiver = Receiver(generator.sample_rate_hz, generator.carrier_hz, config)
     sink = FrameSink(rx_path)
-    try:
-        with tqdm(total=generator.num_samples, unit="S", unit_scale=True, disable=not progress, file=sys.stderr,
-                  desc="simulate + receive") as bar:
-            for rails in generator.quantised_chunks(CHUNK_SAMPLES):
-                samples = decode(rails, fmt)
-                for batch in receiver.process(samples):
-                    sink.append(batch)
-                bar.update(len(samples))
-            for batch in receiver.finish():
-                sink.append(batch)
-    except BaseException as exc:
-        sink.abort(exc)
-        raise
-    sink.close({**receiver.attributes(), "source": f"simulated {scenario.name} (streamed)"})
+    receive_into_sink(receiver, (decode(rails, fmt) for rails in generator.quantised_chunks(CHUNK_SAMPLES)), sink,
+                      source=f"simulated {scenario.name} (streamed)", total_samples=generator.num_samples,
+                      progress=progress)
     return sink.frames
 
 

@@ -20,6 +20,7 @@ intermediate output per batch, for debugging and plots.
 from __future__ import annotations
 
 import os
+import sys
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -478,10 +479,22 @@ def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, con
         raise ValueError(f"{capture.path}: the capture has no centre frequency; give carrier_hz")
     rx = Receiver(capture.sample_rate_hz, carrier, config)
     sink = FrameSink(out_path, csv_path)
+    attrs = receive_into_sink(rx, capture.chunks(chunk_samples), sink, source=str(capture.path),
+                              total_samples=capture.num_samples, progress=progress)
+    return sink, attrs
+
+
+def receive_into_sink(rx: Receiver, chunks: Iterable[np.ndarray], sink: FrameSink, *, source: str,
+                      total_samples: int | None = None, progress: bool = True) -> dict[str, Any]:
+    """Drive ``rx`` over ``chunks``, writing every batch to ``sink``, and close it.
+
+    On any error the sink's partial file is dropped and the error re-raised.
+    Returns the attributes written (the receiver's, plus ``source``).
+    """
     try:
-        with tqdm(total=capture.num_samples, unit="S", unit_scale=True, disable=not progress,
-                  desc=f"receive {os.path.basename(str(capture.path))}") as bar:
-            for chunk in capture.chunks(chunk_samples):
+        with tqdm(total=total_samples, unit="S", unit_scale=True, disable=not progress, file=sys.stderr,
+                  desc=f"receive {os.path.basename(source)}") as bar:
+            for chunk in chunks:
                 for batch in rx.process(chunk):
                     sink.append(batch)
                 bar.update(len(chunk))
@@ -490,7 +503,6 @@ def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, con
     except BaseException as exc:
         sink.abort(exc)
         raise
-    attrs = rx.attributes()
-    attrs["source"] = str(capture.path)
+    attrs = {**rx.attributes(), "source": source}
     sink.close(attrs)
-    return sink, attrs
+    return attrs
