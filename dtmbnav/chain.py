@@ -15,6 +15,7 @@ unless ``time_offset_s`` says otherwise.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +25,7 @@ import numpy as np
 
 from fusion.pdr import PdrConfig, run_pdr
 from fusion.pdr.pipeline import PdrResult
-from fusion.records import PdrSteps, RangeSeries
+from fusion.records import RangeSeries
 from fusion.run import FusionConfig, FusionResult, fuse
 from receiver.capture import CaptureSource
 from receiver.h5io import atomic_h5, read_attrs, read_columns, write_columns
@@ -118,10 +119,8 @@ def resolve_pdr_config(config: PdrConfig, sensors_path: str | os.PathLike) -> Pd
         return config
     k_m = read_attrs(sensors_path, "imu").get(WEINBERG_K_ATTR)
     if k_m is None:
-        return PdrConfig(step_model="frequency", output_rate_hz=config.output_rate_hz, steps=config.steps,
-                         attitude=config.attitude)
-    return PdrConfig(step_model="weinberg", weinberg_k_m=float(k_m), output_rate_hz=config.output_rate_hz,
-                     steps=config.steps, attitude=config.attitude)
+        return dataclasses.replace(config, step_model="frequency")
+    return dataclasses.replace(config, weinberg_k_m=float(k_m))
 
 
 def write_pdr(h5: h5py.File, result: PdrResult, config: PdrConfig) -> None:

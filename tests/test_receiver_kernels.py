@@ -4,7 +4,6 @@ the body recovery and estimators are right on signals with known answers."""
 import numpy as np
 import pytest
 
-from receiver import gb20600
 from receiver.body import (ChannelEstimator, body_phases, derotate_segments, derotate_segments_reference,
                            recover_bodies, recover_bodies_reference, rotation_table)
 from receiver.cfo import cfo_from_theta, si_carrier_numbers, si_theta_kernel, si_theta_reference
