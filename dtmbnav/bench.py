@@ -8,11 +8,11 @@ is limited to one thread so that "one core" means one core):
 - generator: the transmitter + multipath channel kernel of the simulator
   (samples/s of a park-loop-like 4-path channel at 7.56 Msps);
 - resampler: the streaming polyphase resampler, 20 Msps -> 7.56 Msps input;
-- receiver: the streaming receiver on a cf32 capture at 7.56 Msps, end to end
-  and per stage (sync, channel estimate, body recovery, FFT, estimators),
-  against the per-frame numpy pipeline (:mod:`receiver.reference`); the
-  streaming receiver's sync includes acquisition, the reference's starts
-  from a finished acquisition;
+- receiver: the streaming receiver on an 8 s cf32 capture at 7.56 Msps (best
+  of 3 runs): end to end including acquisition, steady state (acquisition
+  left out) and per stage (acquisition, sync, channel estimate, body
+  recovery, SI DFT, estimators), against the per-frame numpy pipeline
+  (:mod:`receiver.reference`), which starts from a finished acquisition;
 - particle filter: particle-updates/s at Np = 1k, 10k, 100k.
 """
 
@@ -93,8 +93,16 @@ def bench_resampler(seconds: float) -> BenchRow:
                     rate / rate_in)
 
 
-def bench_receiver(seconds: float, reference_frames: int) -> list[BenchRow]:
-    """Streaming receiver on a simulated cf32 7.56 Msps capture, end to end and per stage."""
+def bench_receiver(seconds: float, reference_frames: int, repeats: int) -> list[BenchRow]:
+    """Streaming receiver on a simulated cf32 7.56 Msps capture: end to end, steady state and per stage.
+
+    The receiver runs ``repeats`` times over the same capture (1 Mi-sample
+    chunks); the fastest run is reported. "End to end" counts everything
+    from the first chunk to the last frame, acquisition included; "steady
+    state" leaves out the acquisition stage (a one-off cost per lock, about
+    30 ms) and is the rate the receiver sustains once locked, comparable
+    with the reference pipeline, which starts from a finished acquisition.
+    """
     from receiver.pipeline import STAGES, Receiver, ReceiverConfig, receive_stream
     from receiver.reference import receive_reference
     from sim.rf import CaptureGenerator
@@ -108,11 +116,17 @@ def bench_receiver(seconds: float, reference_frames: int) -> list[BenchRow]:
     # Warm-up on a separate receiver: numba cache loads and FFTW planning are not part of the rate.
     for _ in receive_stream([x[: int(0.2 * SYMBOL_RATE_HZ)]], SYMBOL_RATE_HZ, generator.carrier_hz, config):
         pass
-    rx = Receiver(SYMBOL_RATE_HZ, generator.carrier_hz, config)
-    t0 = time.perf_counter()
-    frames = sum(len(b) for b in receive_stream((x[i:i + (1 << 20)] for i in range(0, len(x), 1 << 20)),
-                                                 SYMBOL_RATE_HZ, generator.carrier_hz, receiver=rx))
-    elapsed = time.perf_counter() - t0
+    best: tuple[float, Receiver, int] | None = None
+    for _ in range(repeats):
+        rx = Receiver(SYMBOL_RATE_HZ, generator.carrier_hz, config)
+        t0 = time.perf_counter()
+        frames = sum(len(b) for b in receive_stream((x[i:i + (1 << 20)] for i in range(0, len(x), 1 << 20)),
+                                                     SYMBOL_RATE_HZ, generator.carrier_hz, receiver=rx))
+        elapsed = time.perf_counter() - t0
+        if best is None or elapsed < best[0]:
+            best = (elapsed, rx, frames)
+    assert best is not None
+    elapsed, rx, frames = best
     if frames == 0:
         raise RuntimeError("benchmark receiver produced no frames")
     ref_stages: dict[str, float] = {}
@@ -120,10 +134,14 @@ def bench_receiver(seconds: float, reference_frames: int) -> list[BenchRow]:
     receive_reference(x, rx.acquisitions[0], reference_frames, stage_seconds=ref_stages)
     ref_per_frame = (time.perf_counter() - t0) / reference_frames
     samples_per_frame = rx.pn_mode.value.frame_length
-    rows = [BenchRow("receiver end to end (cf32, 7.56 Msps)", "samples/s", len(x) / elapsed,
-                     samples_per_frame / ref_per_frame, len(x) / elapsed / SYMBOL_RATE_HZ,
-                     f"{frames / elapsed:.0f} frames/s incl. acquisition; reference {1 / ref_per_frame:.0f} "
-                     "frames/s after acquisition")]
+    locked = elapsed - rx.stage_seconds["acquisition"]
+    best_of = f"best of {repeats} runs, " if repeats > 1 else ""
+    rows = [BenchRow("receiver end to end incl. acquisition", "samples/s", len(x) / elapsed, None,
+                     len(x) / elapsed / SYMBOL_RATE_HZ,
+                     f"cf32 7.56 Msps, {seconds:g} s capture, {best_of}{frames / elapsed:.0f} frames/s"),
+            BenchRow("receiver steady state (after acquisition)", "samples/s", len(x) / locked,
+                     samples_per_frame / ref_per_frame, len(x) / locked / SYMBOL_RATE_HZ,
+                     f"{frames / locked:.0f} frames/s; reference {1 / ref_per_frame:.0f} frames/s")]
     for stage in STAGES:
         spent = rx.stage_seconds[stage]
         if spent > 0:
@@ -166,10 +184,13 @@ def run_benchmarks(json_path: str | None = None, quick: bool = False) -> int:
     """Run every benchmark, print the table (JSON to ``json_path``, ``-`` = stdout)."""
     numba.set_num_threads(1)
     seconds = 0.2 if quick else 2.0
+    # The receiver needs a longer capture than the kernels: acquisition is a one-off cost that a
+    # short capture would let dominate the end-to-end figure.
+    receiver_seconds = 0.2 if quick else 8.0
     rows: list[BenchRow] = []
     for name, fn in [("generator", lambda: [bench_generator(seconds / 2)]),
                      ("resampler", lambda: [bench_resampler(seconds / 2)]),
-                     ("receiver", lambda: bench_receiver(seconds, 50 if quick else 400)),
+                     ("receiver", lambda: bench_receiver(receiver_seconds, 50 if quick else 400, 1 if quick else 3)),
                      ("particle filter", lambda: bench_particle_filter((1000, 10_000) if quick else
                                                                         (1000, 10_000, 100_000), 5 if quick else 30))]:
         print(f"benchmarking {name} ...", file=sys.stderr)

@@ -27,13 +27,13 @@ plain-numpy reference (``*_reference``) used by the tests and the benchmark.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numba import njit
 
 from receiver import gb20600
 from receiver.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
-from receiver.ofdm import BatchFft
 
 @njit(cache=True, fastmath=True)
 def derotate_segments(buf: np.ndarray, buf_start: int, seg_starts: np.ndarray, length: int,
@@ -50,9 +50,10 @@ def derotate_segments(buf: np.ndarray, buf_start: int, seg_starts: np.ndarray, l
         cycles = cfo_cycles_per_sample * s
         cycles -= np.floor(cycles)
         base = np.complex64(np.exp(-2j * np.pi * cycles))
-        off = s - buf_start
+        # 1-D slices with non-negative loop indices: the loop vectorises (no wraparound checks).
+        src, dst = buf[s - buf_start: s - buf_start + length], out[b]
         for i in range(length):
-            out[b, i] = buf[off + i] * rot[i] * base
+            dst[i] = src[i] * rot[i] * base
 
 
 def derotate_segments_reference(buf: np.ndarray, buf_start: int, seg_starts: np.ndarray, length: int,
@@ -96,9 +97,10 @@ class ChannelEstimator:
     """Batched PN-header channel estimation for one header mode.
 
     PN420/PN945: circular correlation of a core-period window with the
-    phase-correct m-sequence (FFT), corrected for the m-sequence's -1/P
-    sidelobes (exact deconvolution); the lags outside the tap span measure
-    the noise floor. PN595: least squares over
+    phase-correct m-sequence (a fast Walsh-Hadamard transform,
+    :func:`m_sequence_correlation_kernel`; the reference path uses FFTs),
+    corrected for the m-sequence's -1/P sidelobes (exact deconvolution); the
+    lags outside the tap span measure the noise floor. PN595: least squares over
     the header rows that only header chips reach (a precomputed
     pseudo-inverse; an aperiodic correlation would leave -28 dB sidelobes per
     path), the residual measures the noise.
@@ -132,10 +134,14 @@ class ChannelEstimator:
             lags = np.arange(-taps_before, taps_after)
             self.tap_bins = lags % m.period
             self.noise_bins = np.setdiff1d(np.arange(m.period), self.tap_bins)
-            self._references = self._reference_spectra()
-            self._forward = BatchFft(batch, m.period)
-            self._inverse = BatchFft(batch, m.period, inverse=True)
-            self._windows = self._forward.input
+            self._sample_slot, self._shift_slot = hadamard_slots(gb20600.pn_core(mode))
+            # Every header phase's core window is alpha * (1 - 2 c[(n + preamble + phase) mod P]):
+            # the correlation is conj(alpha) / energy times the +-1 m-sequence correlation.
+            alpha = (1.0 + 1.0j) * m.header_amplitude
+            self._hadamard_scale = np.complex64(np.conj(alpha) / (m.period * abs(alpha) ** 2))
+            self._windows = np.zeros((batch, m.period), dtype=np.complex64)
+            self._corr = np.empty((batch, m.period), dtype=np.complex64)
+            self._hadamard_work = np.empty(m.period + 1, dtype=np.complex64)
         else:
             # Rows n + taps_after - 1 + i only see header chips i .. i + n_taps - 1.
             self.window_offset, self.window_length = taps_after - 1, m.header_length - self.n_taps + 1
@@ -148,8 +154,12 @@ class ChannelEstimator:
             self._windows = np.zeros((batch, self.window_length), dtype=np.complex64)
         self.reference_length = self.window_length
 
-    def _reference_spectra(self) -> np.ndarray:
-        """Per header phase: conj(FFT(core window reference)) / (P * energy): the inverse FFT gives taps."""
+    @cached_property
+    def _references(self) -> np.ndarray:
+        """Per header phase: conj(FFT(core window reference)) / (P * energy): the inverse FFT gives taps.
+
+        Only :meth:`estimate_reference` uses the table; it is made on first use.
+        """
         m = self.mode.value
         refs = np.array([gb20600.header_symbols(self.mode, int(p))[m.preamble: m.preamble + m.period]
                          for p in self.phases])
@@ -168,14 +178,17 @@ class ChannelEstimator:
     def estimate(self, count: int, phases: np.ndarray) -> ChannelEstimates:
         """Estimate the channel of the first ``count`` windows in :attr:`windows`."""
         windows = self._windows[:count]
-        power_in = np.mean(windows.real ** 2 + windows.imag ** 2, axis=1)
         if self.cyclic:
-            spectrum = self._forward.execute()
-            np.multiply(spectrum[:count], self._references[self.phase_rows(phases)], out=self._inverse.input[:count])
+            power_in = np.empty(count)
+            m = self.mode.value
+            shifts = (np.asarray(phases, dtype=np.int64) + m.preamble) % m.period
+            m_sequence_correlation_kernel(windows, shifts, self._sample_slot, self._shift_slot, self._hadamard_scale,
+                                          self._hadamard_work, self._corr, power_in)
             raw = np.empty((count, self.n_taps), np.complex64)
             noise_tap = np.empty(count)
-            deconvolve_kernel(self._inverse.execute()[:count], self.tap_bins, self.noise_bins, raw, noise_tap)
+            deconvolve_kernel(self._corr[:count], self.tap_bins, self.noise_bins, raw, noise_tap)
         else:
+            power_in = np.mean(windows.real ** 2 + windows.imag ** 2, axis=1)
             raw = windows @ self._pinv_t
             noise_tap = self._ls_noise_tap(raw, power_in)
         out = ChannelEstimates(taps=np.empty((count, self.n_taps), np.complex64), raw_taps=raw.astype(np.complex64),
@@ -241,6 +254,115 @@ class ChannelEstimator:
         return ChannelEstimates(taps=np.where(keep, raw, 0).astype(np.complex64), raw_taps=raw.astype(np.complex64),
                                 snr_db=snr_db.astype(np.float32), peak_metric=peak.astype(np.float32),
                                 centroid=centroid)
+
+
+def hadamard_slots(chips: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Permutations that turn circular correlation with an m-sequence into a Walsh-Hadamard transform.
+
+    For an m-sequence ``c`` of period ``P = 2^d - 1`` (chips 0/1, signs
+    ``x = 1 - 2c``), the state ``u(m) = sum_i c[m + i] 2^i`` (``i < d``) runs
+    over all nonzero d-bit words, and every shifted chip is a linear function
+    of it: ``c[m + t] = parity(v(t) & u(m))``, with ``v(t)`` read off the
+    positions whose state is a single bit. Then ``x[m + t] = H[v(t), u(m)]``
+    with ``H`` the ``2^d`` Sylvester-Hadamard matrix, so
+    ``sum_m w[m] x[(m + t) mod P] = (H W)[v(t)]`` where ``W[u(m)] = w[m]``,
+    ``W[0] = 0`` (M. Cohn and A. Lempel, "On fast M-sequence transforms",
+    IEEE Trans. Inf. Theory, 1977): all P lags for ``d 2^d`` additions.
+
+    Parameters
+    ----------
+    chips : ndarray of 0/1, (P,)
+        One period of the m-sequence.
+
+    Returns
+    -------
+    sample_slot : ndarray of int64, (P,)
+        ``u(m)``: where sample m goes in the transform's input.
+    shift_slot : ndarray of int64, (P,)
+        ``v(t)``: where the correlation at shift t is in its output.
+
+    Raises
+    ------
+    ValueError
+        If ``chips`` is not an m-sequence (the states are not all distinct
+        or a shift is not linear in the state).
+    """
+    c = np.asarray(chips, dtype=np.int64)
+    period = len(c)
+    degree = int(np.log2(period + 1))
+    if period != 2 ** degree - 1:
+        raise ValueError(f"chips: an m-sequence has period 2^d - 1, got {period}")
+    n = np.arange(period)
+    sample_slot = sum(c[(n + i) % period] << i for i in range(degree))
+    if not np.array_equal(np.sort(sample_slot), np.arange(1, period + 1)):
+        raise ValueError("chips: not an m-sequence (the register states repeat)")
+    position = np.empty(period + 1, dtype=np.int64)
+    position[sample_slot] = n
+    shift_slot = sum(c[(position[1 << i] + n) % period] << i for i in range(degree))
+    parity = np.array([bin(x).count("1") & 1 for x in range(period + 1)])
+    predicted = parity[shift_slot[None, :] & sample_slot[:, None]]       # [m, t]
+    if not np.array_equal(predicted, c[(n[:, None] + n[None, :]) % period]):
+        raise ValueError("chips: not an m-sequence (a shifted chip is not linear in the state)")
+    return sample_slot, shift_slot
+
+
+@njit(cache=True, fastmath=True)
+def walsh_hadamard_inplace(work: np.ndarray) -> None:
+    """Unnormalised fast Walsh-Hadamard transform (Sylvester order) of ``work``, length a power of 2, in place.
+
+    Radix-4 passes (half the memory passes of radix-2), then one radix-2
+    pass when the length is an odd power of 2.
+    """
+    size = work.shape[0]
+    q = 1
+    while 4 * q <= size:
+        for start in range(0, size, 4 * q):
+            for i in range(start, start + q):
+                a, b, c, d = work[i], work[i + q], work[i + 2 * q], work[i + 3 * q]
+                ab_sum, ab_diff, cd_sum, cd_diff = a + b, a - b, c + d, c - d
+                work[i] = ab_sum + cd_sum
+                work[i + q] = ab_diff + cd_diff
+                work[i + 2 * q] = ab_sum - cd_sum
+                work[i + 3 * q] = ab_diff - cd_diff
+        q *= 4
+    if q < size:
+        for i in range(q):
+            a, b = work[i], work[i + q]
+            work[i] = a + b
+            work[i + q] = a - b
+
+
+@njit(cache=True, fastmath=True)
+def m_sequence_correlation_kernel(windows: np.ndarray, shifts: np.ndarray, sample_slot: np.ndarray,
+                                  shift_slot: np.ndarray, scale: complex, work: np.ndarray, corr: np.ndarray,
+                                  power_in: np.ndarray) -> None:
+    """Circular correlation of each window with its phase of the m-sequence, by fast Walsh-Hadamard transform.
+
+    With ``x`` the m-sequence's signs (see :func:`hadamard_slots`),
+    ``corr[b, s] = scale * sum_m w_b[m] x[(m - s + shifts[b]) mod P]``, i.e.
+    ``sum_n w_b[n + s] conj(ref_b[n]) / energy`` for the reference
+    ``ref_b[n] = alpha x[(n + shifts[b]) mod P]`` and
+    ``scale = conj(alpha) / energy``: what the FFT correlation of
+    :meth:`ChannelEstimator.estimate_reference` gives. Also the mean power of
+    each window (``power_in``). ``work`` is a ``(P + 1,)`` scratch buffer;
+    ``len(shifts)`` windows are processed.
+    """
+    period = windows.shape[1]
+    for b in range(shifts.shape[0]):
+        row = windows[b]
+        work[0] = 0
+        acc = 0.0
+        for m in range(period):
+            w = row[m]
+            work[sample_slot[m]] = w
+            acc += w.real * w.real + w.imag * w.imag
+        power_in[b] = acc / period
+        walsh_hadamard_inplace(work)
+        out = corr[b]
+        shift = shifts[b]
+        for s in range(period):
+            t = shift - s
+            out[s] = work[shift_slot[t if t >= 0 else t + period]] * scale
 
 
 @njit(cache=True, fastmath=True)
@@ -346,26 +468,39 @@ def recover_bodies(buf: np.ndarray, buf_start: int, frame_starts: np.ndarray, he
     n = out.shape[1]
     n_taps = taps.shape[1]
     taps_after = n_taps - taps_before
+    span = n + n_taps
     for b in range(frame_starts.shape[0]):
+        # 1-D slices with non-negative loop indices: the loops vectorise (no wraparound checks).
         off = frame_starts[b] + header_length - taps_before - buf_start   # body offset -taps_before
+        z_in = buf[off: off + span]
+        z_rot = rot[:span]
+        dst = out[b]
+        body_in, body_rot = z_in[taps_before: taps_before + n], z_rot[taps_before: taps_before + n]
         for t in range(n):
-            out[b, t] = buf[off + t + taps_before] * rot[t + taps_before]
+            dst[t] = body_in[t] * body_rot[t]
         for t in range(taps_after):  # the body's tail after the window
-            out[b, t] += buf[off + n + t + taps_before] * rot[n + t + taps_before]
+            dst[t] += z_in[taps_before + n + t] * z_rot[taps_before + n + t]
         for t in range(taps_before):  # pre-cursor spill before the window
-            out[b, n - taps_before + t] += buf[off + t] * rot[t]
+            dst[n - taps_before + t] += z_in[t] * z_rot[t]
         unphase = np.conj(phases[b])
+        now, nxt = headers_now[b], headers_next[b]
         for j in range(n_taps):
             if taps[b, j] == 0:
                 continue
             h = taps[b, j] * unphase
             lag = j - taps_before
-            # Current header sample src lands at u = src - Ng + lag, inside [-taps_before, lag).
-            for u in range(-taps_before, min(lag, taps_after)):
-                out[b, u if u >= 0 else u + n] -= h * headers_now[b, header_length + u - lag]
-            # Next header sample src lands at u = n + src + lag, inside [n + lag, n + taps_after).
-            for u in range(max(n + lag, n - taps_before), n + taps_after):
-                out[b, u if u < n else u - n] -= h * headers_next[b, u - n - lag]
+            # Current header sample src lands at u = src - Ng + lag, inside [-taps_before, lag),
+            # folded to t = u + n for u < 0 and t = u for u >= 0.
+            for u in range(-taps_before, min(lag, 0)):
+                dst[u + n] -= h * now[header_length + u - lag]
+            for u in range(0, min(lag, taps_after)):
+                dst[u] -= h * now[header_length + u - lag]
+            # Next header sample src lands at u = n + src + lag, inside [n + lag, n + taps_after),
+            # folded to t = u for u < n and t = u - n for u >= n.
+            for u in range(max(n + lag, n - taps_before), n):
+                dst[u] -= h * nxt[u - n - lag]
+            for u in range(max(n + lag, n), n + taps_after):
+                dst[u - n] -= h * nxt[u - n - lag]
 
 
 def recover_bodies_reference(buf: np.ndarray, buf_start: int, frame_starts: np.ndarray, header_length: int,

@@ -34,12 +34,7 @@ from numba import njit
 
 from receiver import gb20600
 from receiver.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ
-
-
-def si_carrier_numbers() -> np.ndarray:
-    """Signed carrier number k (-18..17) of each SI carrier, SI order."""
-    bins = np.asarray(gb20600.si_bins())
-    return np.where(bins < BODY_LENGTH // 2, bins, bins - BODY_LENGTH)
+from receiver.ofdm import si_carrier_numbers
 
 
 @njit(cache=True)
@@ -83,7 +78,8 @@ def si_theta_reference(y_prev: np.ndarray, y: np.ndarray, k: np.ndarray, delta_p
     return np.sum(np.conj(both[1:]) * both[:-1] * phase, axis=1)
 
 
-def pn_theta(taps_prev: np.ndarray, taps: np.ndarray, shift: np.ndarray) -> np.ndarray:
+@njit(cache=True)
+def pn_theta_kernel(taps_prev: np.ndarray, taps: np.ndarray, shift: np.ndarray) -> np.ndarray:
     """``sum_l conj(h_m[l]) h_{m-1}[l + s_m]`` for each frame of a batch.
 
     ``taps_prev`` are the taps of the frame before the batch. A path at a
@@ -92,6 +88,20 @@ def pn_theta(taps_prev: np.ndarray, taps: np.ndarray, shift: np.ndarray) -> np.n
     start stepped by one sample more (or less) than the frame period, so
     the taps are aligned by ``s_m`` before they are compared.
     """
+    count, n_taps = taps.shape
+    theta = np.empty(count, dtype=np.complex128)
+    for b in range(count):
+        s = shift[b]
+        acc = 0j
+        for lag in range(max(0, -s), min(n_taps, n_taps - s)):
+            old = taps_prev[lag + s] if b == 0 else taps[b - 1, lag + s]
+            acc += np.conj(np.complex128(taps[b, lag])) * old
+        theta[b] = acc
+    return theta
+
+
+def pn_theta_reference(taps_prev: np.ndarray, taps: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """Plain-numpy :func:`pn_theta_kernel`."""
     both = np.vstack([taps_prev[None, :], taps]).astype(np.complex128)
     n_taps = both.shape[1]
     theta = np.empty(len(taps), dtype=np.complex128)

@@ -18,9 +18,9 @@ import numpy as np
 from receiver import gb20600
 from receiver.acquisition import Acquisition
 from receiver.body import ChannelEstimator, derotate_segments_reference, recover_bodies_reference
-from receiver.cfo import cfo_from_theta, pn_theta, si_carrier_numbers, si_theta_reference
+from receiver.cfo import cfo_from_theta, pn_theta_reference, si_theta_reference
 from receiver.gb20600 import SYMBOL_RATE_HZ
-from receiver.ofdm import si_carriers_reference
+from receiver.ofdm import si_carrier_numbers, si_carriers_reference
 from receiver.tracking import timing_loop_reference
 
 
@@ -45,7 +45,8 @@ def receive_reference(r: np.ndarray, acq: Acquisition, n_frames: int, *, taps_be
     ``batch_frames`` frames are placed from the loop state at the group's
     start, and the first frame has no CFO (NaN). ``stage_seconds``, when
     given, accumulates the time spent per stage under the names of
-    :data:`receiver.pipeline.STAGES` (sync = derotation + timing loop).
+    :data:`receiver.pipeline.STAGES` (channel = header-window derotation +
+    estimate, sync = timing loop, as in the streaming receiver).
     """
     mode = acq.mode
     m = mode.value
@@ -67,7 +68,6 @@ def receive_reference(r: np.ndarray, acq: Acquisition, n_frames: int, *, taps_be
             if acq.rotating else (acq.constant_phase, acq.constant_phase))
         t0 = time.perf_counter()
         windows = derotate_segments_reference(r, 0, np.array([start + est.window_offset]), est.window_length, cycles)
-        t1 = time.perf_counter()
         ch = est.estimate_reference(windows, np.array([phase_now]))
         t2 = time.perf_counter()
         smoothed, periods, tau, period = timing_loop_reference(np.array([start + ch.centroid[0]]),
@@ -89,11 +89,11 @@ def receive_reference(r: np.ndarray, acq: Acquisition, n_frames: int, *, taps_be
             theta = si_theta_reference(prev_si, si[None, :], k, prev_delta, np.array([delta]))
             out.cfo_hz[i] = cfo_from_theta(theta, step, eta, acq.coarse_cfo_hz)[0]
             shift = step - np.rint(periods).astype(np.int64)
-            out.cfo_pn_hz[i] = cfo_from_theta(pn_theta(prev_taps, ch.raw_taps, shift), step, eta,
+            out.cfo_pn_hz[i] = cfo_from_theta(pn_theta_reference(prev_taps, ch.raw_taps, shift), step, eta,
                                               acq.coarse_cfo_hz)[0]
         prev = (si, ch.raw_taps[0], start, delta)
         if stage_seconds is not None:
-            for stage, spent in (("sync", (t1 - t0) + (t3 - t2)), ("channel", t2 - t1), ("body", t4 - t3),
+            for stage, spent in (("sync", t3 - t2), ("channel", t2 - t0), ("body", t4 - t3),
                                  ("fft", t5 - t4), ("estimators", time.perf_counter() - t5)):
                 stage_seconds[stage] = stage_seconds.get(stage, 0.0) + spent
     return out

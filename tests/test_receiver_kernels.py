@@ -4,11 +4,14 @@ the body recovery and estimators are right on signals with known answers."""
 import numpy as np
 import pytest
 
+from receiver import gb20600
 from receiver.body import (ChannelEstimator, body_phases, derotate_segments, derotate_segments_reference,
-                           recover_bodies, recover_bodies_reference, rotation_table)
-from receiver.cfo import cfo_from_theta, si_carrier_numbers, si_theta_kernel, si_theta_reference
+                           hadamard_slots, m_sequence_correlation_kernel, recover_bodies, recover_bodies_reference,
+                           rotation_table, walsh_hadamard_inplace)
+from receiver.cfo import cfo_from_theta, pn_theta_kernel, pn_theta_reference, si_theta_kernel, si_theta_reference
 from receiver.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
-from receiver.ofdm import OfdmDemodulator, si_carriers_reference
+from receiver.ofdm import (OfdmDemodulator, si_carrier_numbers, si_carriers_reference, si_twiddle_kernel,
+                           si_twiddle_reference)
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
 from receiver.records import FrameBatch
 from receiver.reference import receive_reference
@@ -117,11 +120,101 @@ def test_channel_estimate_finds_paths_and_matches_reference(mode):
     assert np.allclose(ch.centroid, 7 * 0.16 / 1.16, atol=0.1)
 
 
-def test_ofdm_matches_numpy():
-    ofdm = OfdmDemodulator(4)
-    bodies = crandn(4, BODY_LENGTH)
+@pytest.mark.parametrize("size", [4, 8, 256, 512])
+def test_walsh_hadamard_matches_sylvester_matrix(size):
+    x = crandn(size)
+    sylvester = np.array([[1.0]])
+    while len(sylvester) < size:
+        sylvester = np.block([[sylvester, sylvester], [sylvester, -sylvester]])
+    work = x.copy()
+    walsh_hadamard_inplace(work)
+    assert np.max(np.abs(work - sylvester @ x.astype(np.complex128))) < 1e-5 * np.sqrt(size)
+
+
+@pytest.mark.parametrize("mode", [PnMode.PN420, PnMode.PN945])
+def test_hadamard_slots_turn_every_shift_into_a_hadamard_row(mode):
+    chips = gb20600.pn_core(mode)
+    p = len(chips)
+    sample_slot, shift_slot = hadamard_slots(chips)
+    assert sorted(sample_slot) == list(range(1, p + 1)) and sorted(shift_slot) == list(range(1, p + 1))
+    parity = np.array([bin(v).count("1") & 1 for v in range(p + 1)])
+    for t in (0, 1, 7, p // 2, p - 1):
+        assert np.array_equal(parity[shift_slot[t] & sample_slot], np.roll(chips, -t))
+
+
+def test_hadamard_slots_reject_a_sequence_that_is_not_an_m_sequence():
+    chips = gb20600.pn_core(PnMode.PN420).copy()
+    with pytest.raises(ValueError, match="period"):
+        hadamard_slots(chips[:200])
+    chips[10] ^= 1
+    with pytest.raises(ValueError, match="m-sequence"):
+        hadamard_slots(chips)
+
+
+@pytest.mark.parametrize("mode", [PnMode.PN420, PnMode.PN945])
+def test_m_sequence_correlation_equals_fft_correlation(mode):
+    """The Hadamard correlation gives the FFT correlation with each frame's header phase."""
+    m = mode.value
+    est = ChannelEstimator(mode, 6)
+    windows = crandn(6, m.period)
+    phases = np.array([0, 1, -1, m.period // 2, -(m.period // 2), 37])
+    shifts = (phases + m.preamble) % m.period
+    corr = np.empty((6, m.period), np.complex64)
+    power_in = np.empty(6)
+    m_sequence_correlation_kernel(windows, shifts, est._sample_slot, est._shift_slot, est._hadamard_scale,
+                                  np.empty(m.period + 1, np.complex64), corr, power_in)
+    refs = np.array([gb20600.header_symbols(mode, int(p))[m.preamble: m.preamble + m.period] for p in phases])
+    # corr[s] = sum_n w[n + s] conj(ref[n]) / energy, circularly
+    expected = np.array([[np.sum(np.roll(w, -s) * np.conj(r)) for s in range(m.period)] for w, r in zip(windows, refs)])
+    expected /= np.sum(np.abs(refs[0]) ** 2)
+    assert np.max(np.abs(corr - expected)) < 1e-5 * np.max(np.abs(expected))
+    assert np.allclose(power_in, np.mean(np.abs(windows) ** 2, axis=1), rtol=1e-5)
+
+
+def test_pn_theta_kernel_matches_reference():
+    taps = crandn(6, 64)
+    prev = crandn(64)
+    shift = np.array([0, 1, -1, 2, 0, -3])
+    got = pn_theta_kernel(prev, taps, shift)
+    assert np.allclose(got, pn_theta_reference(prev, taps, shift), rtol=1e-6, atol=1e-6)
+    # A path delayed by one sample more in frame m - 1 is aligned by shift = 1.
+    assert np.isclose(pn_theta_kernel(np.roll(taps[0], 1), taps[:1], np.array([1]))[0],
+                      np.sum(np.abs(taps[0, :-1].astype(np.complex128)) ** 2), rtol=1e-5)
+
+
+def test_pruned_si_dft_matches_full_fft_on_random_bodies():
+    ofdm = OfdmDemodulator(5)
+    bodies = crandn(5, BODY_LENGTH)
     ofdm.bodies[:] = bodies
-    assert np.max(np.abs(ofdm.si_carriers(4) - si_carriers_reference(bodies))) < 1e-3
+    ref = si_carriers_reference(bodies)
+    got = ofdm.si_carriers(4)     # only the first 4 of the batch
+    assert got.shape == (4, 36) and got.dtype == np.complex64
+    # Carriers of a unit-power random body have magnitude ~sqrt(3780): float32 rounding is ~1e-6 of that.
+    assert np.max(np.abs(got - ref[:4])) < 1e-5 * np.sqrt(BODY_LENGTH)
+    phases = np.exp(2j * np.pi * RNG.uniform(size=5)).astype(np.complex64)
+    assert np.max(np.abs(ofdm.si_carriers(5, phases) - ref * phases[:, None])) < 1e-5 * np.sqrt(BODY_LENGTH)
+
+
+def test_pruned_si_dft_recovers_a_transmitted_frames_si_symbols():
+    """A body from the transmitter gives back sqrt(3780) times its SI symbols (unitary IDFT)."""
+    src = FrameSource(FrameConfig(pn_mode=PnMode.PN420, si_index=15, seed=4))
+    body = src.frame_symbols(3)[PnMode.PN420.value.header_length:]
+    ofdm = OfdmDemodulator(1)
+    ofdm.bodies[0] = body
+    got = ofdm.si_carriers(1)[0]
+    scale = np.sqrt(BODY_LENGTH)
+    assert np.max(np.abs(got - si_carriers_reference(body[None, :])[0])) < 1e-5 * scale
+    assert np.max(np.abs(got / scale - gb20600.si_symbols(15))) < 1e-5
+
+
+def test_si_twiddle_kernel_matches_reference():
+    ofdm = OfdmDemodulator(1)
+    columns = crandn(3, *ofdm.twiddles.shape)
+    phases = np.exp(2j * np.pi * RNG.uniform(size=3)).astype(np.complex64)
+    out = np.empty((3, 36), np.complex64)
+    si_twiddle_kernel(columns, ofdm.twiddles, ofdm.slot_of_si, phases, 3, out)
+    ref = si_twiddle_reference(columns, ofdm.twiddles, ofdm.slot_of_si, phases)
+    assert np.max(np.abs(out - ref)) < 1e-5 * np.sqrt(columns.shape[1])
 
 
 def test_si_theta_kernel_and_cfo_sign():
@@ -161,10 +254,14 @@ def test_lock_monitor_counts_runs_across_batches():
 def test_batched_pipeline_equals_numpy_reference(mode):
     x = make_signal(int(7.56e6 * 0.06), pn_mode=mode, cfo_hz=3000.0, snr_db=15, start_symbol=123_457,
                     echo=(5.3, 0.3j), sampling_offset_ppm=3)
-    rx = Receiver(7.56e6, 666e6, ReceiverConfig(clock_offset_hz=0.0, batch_frames=16))
+    bodies = []
+    config = ReceiverConfig(clock_offset_hz=0.0, batch_frames=40,   # 40: several body/DFT blocks per batch
+                            inspect=lambda stage, arrays: bodies.append(arrays["bodies"]) if stage == "body" else None)
+    rx = Receiver(7.56e6, 666e6, config)
     got = FrameBatch.concatenate(list(receive_stream([x], 7.56e6, 666e6, receiver=rx)))
-    ref = receive_reference(x, rx.acquisitions[0], len(got), batch_frames=16)
+    ref = receive_reference(x, rx.acquisitions[0], len(got), batch_frames=40)
     assert len(got) > 90
+    assert sum(len(b) for b in bodies) >= len(got)   # every frame's body is inspected (a lost frame is dropped)
     assert np.array_equal(np.rint(got.t_s * SYMBOL_RATE_HZ), ref.window_start)
     assert np.nanmax(np.abs(got.cfo_hz - ref.cfo_hz)) < 1e-3
     assert np.nanmax(np.abs(got.cfo_pn_hz - ref.cfo_pn_hz)) < 1e-3
