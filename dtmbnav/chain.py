@@ -88,12 +88,15 @@ def ranges_from_frames(columns: dict[str, np.ndarray], time_offset_s: float = 0.
 
     Frames flagged as a gap or low quality, and frames without a range
     (NaN), are marked invalid; ``time_offset_s`` moves the receiver's times
-    onto the IMU's time base.
+    onto the IMU's time base. The SNR handed on is the SI-carrier SNR (the
+    slice of the band the range is measured on, whose fading the fusion
+    watches for multipath); files from receivers that did not write it give
+    the header SNR instead.
     """
     rng = columns["range_change_m"]
     valid = np.isfinite(rng) & ((columns["flags"].astype(np.int64) & int(UNUSABLE_FLAGS)) == 0)
     return RangeSeries(t_s=columns["t_s"] + time_offset_s, range_change_m=np.where(np.isfinite(rng), rng, 0.0),
-                       snr_db=columns["snr_db"].astype(np.float64), valid=valid)
+                       snr_db=columns.get("si_snr_db", columns["snr_db"]).astype(np.float64), valid=valid)
 
 
 def capture_time_offset_s(sensors_path: str | os.PathLike) -> float:

@@ -80,6 +80,9 @@ class ChannelEstimates:
         Taps before thresholding (for the PN CFO estimate).
     snr_db : ndarray (B,)
         Body SNR: tap power over the noise power per sample, dB.
+    noise_power : ndarray (B,)
+        Noise power per received sample (the SNR's denominator), in the
+        units of the received samples.
     peak_metric : ndarray (B,)
         Share of the header-window power the kept taps explain, 0..1.
     centroid : ndarray (B,)
@@ -89,6 +92,7 @@ class ChannelEstimates:
     taps: np.ndarray
     raw_taps: np.ndarray
     snr_db: np.ndarray
+    noise_power: np.ndarray
     peak_metric: np.ndarray
     centroid: np.ndarray
 
@@ -192,11 +196,11 @@ class ChannelEstimator:
             raw = windows @ self._pinv_t
             noise_tap = self._ls_noise_tap(raw, power_in)
         out = ChannelEstimates(taps=np.empty((count, self.n_taps), np.complex64), raw_taps=raw.astype(np.complex64),
-                               snr_db=np.empty(count, np.float32), peak_metric=np.empty(count, np.float32),
-                               centroid=np.empty(count))
+                               snr_db=np.empty(count, np.float32), noise_power=np.empty(count),
+                               peak_metric=np.empty(count, np.float32), centroid=np.empty(count))
         summarise_taps_kernel(out.raw_taps, noise_tap, power_in, self.threshold, self.header_power,
-                              self.reference_length, self.taps_before, out.taps, out.snr_db, out.peak_metric,
-                              out.centroid)
+                              self.reference_length, self.taps_before, out.taps, out.snr_db, out.noise_power,
+                              out.peak_metric, out.centroid)
         return out
 
     def _deconvolve(self, corr: np.ndarray) -> np.ndarray:
@@ -252,8 +256,8 @@ class ChannelEstimator:
         lags = np.arange(-self.taps_before, self.taps_after)
         centroid = np.where(total > 0, kept @ lags / np.where(total > 0, total, 1.0), 0.0)
         return ChannelEstimates(taps=np.where(keep, raw, 0).astype(np.complex64), raw_taps=raw.astype(np.complex64),
-                                snr_db=snr_db.astype(np.float32), peak_metric=peak.astype(np.float32),
-                                centroid=centroid)
+                                snr_db=snr_db.astype(np.float32), noise_power=noise_sample,
+                                peak_metric=peak.astype(np.float32), centroid=centroid)
 
 
 def hadamard_slots(chips: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -393,8 +397,8 @@ def deconvolve_kernel(corr: np.ndarray, tap_bins: np.ndarray, noise_bins: np.nda
 @njit(cache=True, fastmath=True)
 def summarise_taps_kernel(raw: np.ndarray, noise_tap: np.ndarray, power_in: np.ndarray, threshold: float,
                           header_power: float, reference_length: int, taps_before: int, taps: np.ndarray,
-                          snr_db: np.ndarray, peak: np.ndarray, centroid: np.ndarray) -> None:
-    """Thresholded taps, SNR, peak metric and centroid of a batch (into the given arrays).
+                          snr_db: np.ndarray, noise_power: np.ndarray, peak: np.ndarray, centroid: np.ndarray) -> None:
+    """Thresholded taps, SNR, noise power, peak metric and centroid of a batch (into the given arrays).
 
     Same arithmetic as :meth:`ChannelEstimator.summarise_reference`.
     """
@@ -414,6 +418,7 @@ def summarise_taps_kernel(raw: np.ndarray, noise_tap: np.ndarray, power_in: np.n
             else:
                 taps[b, j] = 0
         noise_sample = noise * header_power * reference_length
+        noise_power[b] = noise_sample
         snr_db[b] = 10.0 * np.log10(max(signal, 1e-30) / max(noise_sample, 1e-30))
         peak[b] = min(max(signal * header_power / max(power_in[b], 1e-30), 0.0), 1.0)
         centroid[b] = moment / total if total > 0 else 0.0

@@ -20,6 +20,29 @@ def si_carrier_numbers() -> np.ndarray:
     return np.where(bins < gb20600.BODY_LENGTH // 2, bins, bins - gb20600.BODY_LENGTH)
 
 
+def si_snr_db(si_carriers: np.ndarray, noise_power: np.ndarray) -> np.ndarray:
+    """SNR on the SI carriers of each frame, dB.
+
+    The unnormalised DFT puts ``3780 * noise_power`` of noise on every
+    carrier, so the signal per carrier is the mean ``|Y_k|^2`` over the 36 SI
+    carriers minus that, scaled back to per-sample units: with unit-power SI
+    symbols this is the body SNR of :class:`receiver.body.ChannelEstimates`
+    measured on the SI slice of the band only.
+
+    Parameters
+    ----------
+    si_carriers : ndarray, complex, (B, 36)
+        SI carriers from :meth:`OfdmDemodulator.si_carriers`.
+    noise_power : ndarray, (B,)
+        Noise power per received sample (``ChannelEstimates.noise_power``).
+    """
+    carrier_power = np.mean(si_carriers.real.astype(np.float64) ** 2 + si_carriers.imag.astype(np.float64) ** 2,
+                            axis=1)
+    noise = np.maximum(np.asarray(noise_power, dtype=np.float64), 1e-30)
+    signal = np.maximum(carrier_power / gb20600.BODY_LENGTH - noise, 1e-30)
+    return (10.0 * np.log10(signal / noise)).astype(np.float32)
+
+
 class OfdmDemodulator:
     """The 36 SI carriers of recovered frame bodies: a 3780-point DFT pruned to the bins used.
 

@@ -36,7 +36,7 @@ from receiver.body import (ChannelEstimates, ChannelEstimator, body_phases, dero
 from receiver.capture import CaptureSource
 from receiver.cfo import SiWordDetector, cfo_from_theta, pn_theta_kernel, si_theta_kernel
 from receiver.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
-from receiver.ofdm import OfdmDemodulator, si_carrier_numbers
+from receiver.ofdm import OfdmDemodulator, si_carrier_numbers, si_snr_db
 from receiver.ranging import RangeIntegrator
 from receiver.records import FrameBatch, FrameFlag
 from receiver.resample import StreamResampler
@@ -448,7 +448,8 @@ class Receiver:
         return FrameBatch(
             t_s=starts / SYMBOL_RATE_HZ, sample_index=self.resampler.input_index(starts), frame_index=frame_index,
             pn_phase=phases.astype(np.int32), cfo_hz=cfo, cfo_pn_hz=cfo_pn, doppler_hz=nan, velocity_mps=nan.copy(),
-            range_change_m=nan.copy(), snr_db=ch.snr_db, peak_metric=ch.peak_metric, flags=flags)
+            range_change_m=nan.copy(), snr_db=ch.snr_db, si_snr_db=si_snr_db(si, ch.noise_power),
+            peak_metric=ch.peak_metric, flags=flags)
 
 
 def receive_stream(chunks: Iterable[np.ndarray], sample_rate_hz: float, carrier_hz: float,

@@ -24,8 +24,11 @@ Columns
   positive when closing on the tower.
 - ``range_change_m``: eq. 11, range since the first frame, m (shrinks when
   closing); continued across a gap with the last velocity (flagged).
-- ``snr_db``: header-based SNR; ``peak_metric``: share of the header-window
-  power captured by the channel taps (0 on noise, ~1 on a clean signal).
+- ``snr_db``: header-based SNR (over the whole band); ``si_snr_db``: SNR on
+  the 36 SI carriers (a 72 kHz slice at the band centre), which fades where
+  paths with different delays cancel there, and which the CFO estimate
+  (eq. 5-8) lives on; ``peak_metric``: share of the header-window power
+  captured by the channel taps (0 on noise, ~1 on a clean signal).
 - ``flags``: :class:`FrameFlag` bits.
 """
 
@@ -64,6 +67,7 @@ class FrameBatch:
     velocity_mps: np.ndarray
     range_change_m: np.ndarray
     snr_db: np.ndarray
+    si_snr_db: np.ndarray
     peak_metric: np.ndarray
     flags: np.ndarray
 
@@ -102,5 +106,6 @@ class FrameBatch:
 COLUMN_DTYPES: dict[str, type] = {
     "t_s": np.float64, "sample_index": np.int64, "frame_index": np.int64, "pn_phase": np.int32,
     "cfo_hz": np.float64, "cfo_pn_hz": np.float64, "doppler_hz": np.float64, "velocity_mps": np.float64,
-    "range_change_m": np.float64, "snr_db": np.float32, "peak_metric": np.float32, "flags": np.uint8,
+    "range_change_m": np.float64, "snr_db": np.float32, "si_snr_db": np.float32,
+    "peak_metric": np.float32, "flags": np.uint8,
 }

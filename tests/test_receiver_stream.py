@@ -100,6 +100,21 @@ def test_si_word_is_identified():
     assert rx.si_index == 10
 
 
+@pytest.mark.parametrize("echo", [None, (10.0, -0.9), (3.0, 0.7j)])
+def test_si_snr_follows_the_channel_on_the_si_carriers(echo):
+    """A flat channel: SI SNR = body SNR. An echo: the SI slice sees |H(f_k)|^2, not the band's sum of path powers."""
+    from receiver.gb20600 import bin_frequency_hz, si_bins
+
+    x = make_signal(int(0.05 * SYMBOL_RATE_HZ), cfo_hz=2000.0, snr_db=20, start_symbol=START, echo=echo)
+    rows, _ = receive(x, ReceiverConfig(clock_offset_hz=2000.0))
+    delay, gain = echo or (0.0, 0.0)
+    f_k = bin_frequency_hz(np.asarray(si_bins()))
+    h_si = np.mean(np.abs(1.0 + gain * np.exp(-2j * np.pi * f_k * delay / SYMBOL_RATE_HZ)) ** 2)
+    assert len(rows) > 50
+    assert np.median(rows.si_snr_db) == pytest.approx(20.0 + 10 * np.log10(h_si), abs=1.0)
+    assert np.median(rows.snr_db) == pytest.approx(20.0 + 10 * np.log10(1 + abs(gain) ** 2), abs=1.0)
+
+
 SIGNAL = make_signal(int(0.09 * SYMBOL_RATE_HZ), cfo_hz=4000.0, snr_db=12, start_symbol=START, sampling_offset_ppm=4.0)
 
 
@@ -192,7 +207,7 @@ def test_clear_errors():
     weak = FrameBatch(t_s=np.arange(n) * 5.6e-4, sample_index=np.arange(n), frame_index=np.arange(n),
                       pn_phase=np.zeros(n, np.int32), cfo_hz=np.full(n, 10.0), cfo_pn_hz=np.full(n, 10.0),
                       doppler_hz=np.full(n, np.nan), velocity_mps=np.full(n, np.nan),
-                      range_change_m=np.full(n, np.nan), snr_db=np.zeros(n, np.float32),
+                      range_change_m=np.full(n, np.nan), snr_db=np.zeros(n, np.float32), si_snr_db=np.zeros(n, np.float32),
                       peak_metric=np.zeros(n, np.float32), flags=np.full(n, FrameFlag.LOW_QUALITY, np.uint8))
     ranging = RangeIntegrator(CARRIER, None, static_window_s=1.0)
     assert ranging.push(weak) == []
