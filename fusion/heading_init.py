@@ -7,7 +7,11 @@ change to the tower at every step (eq. 14); the initial heading is the
 sense (eq. 15). A walk symmetric about the line P0-P_b has two equally good
 solutions (the true one and its mirror), so the solver reports every local
 minimum of the cost with its value, and a confidence from how much better
-the best one is than the runner-up. A coarse 1-degree grid finds the minima;
+the best one is than the runner-up. After an epoch without a range
+observation (a gap, a fade, a multipath stretch: :mod:`fusion.observations`)
+the integrated range may carry an error it picked up there, so each later
+run of observed epochs gets a free offset (its median mismatch, the L1
+optimum); only the run that starts at P0 is tied to zero. A coarse 1-degree grid finds the minima;
 each is then refined to a fraction of a degree.
 """
 
@@ -85,21 +89,37 @@ def predicted_range_change(heading_rad: float | np.ndarray, pdr_x_m: np.ndarray,
 
 
 def heading_cost(heading_rad: float | np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.ndarray,
-                 range_change_m: np.ndarray, geometry: Geometry, scale: float = 1.0) -> np.ndarray:
-    """Eq. 15 cost (mean absolute range mismatch, m) of candidate headings for a PDR scaled by ``scale``."""
+                 range_change_m: np.ndarray, geometry: Geometry, scale: float = 1.0,
+                 free_runs: list[np.ndarray] | None = None) -> np.ndarray:
+    """Eq. 15 cost (mean absolute range mismatch, m) of candidate headings for a PDR scaled by ``scale``.
+
+    ``free_runs`` lists index arrays of epochs whose range shares an unknown
+    offset (module docstring): their mismatch is taken about its median.
+    """
     predicted = predicted_range_change(np.asarray(heading_rad)[..., None], scale * pdr_x_m, scale * pdr_y_m, geometry)
-    return np.mean(np.abs(predicted - range_change_m), axis=-1)
+    mismatch = predicted - range_change_m
+    for run in free_runs or ():
+        mismatch[..., run] -= np.median(mismatch[..., run], axis=-1, keepdims=True)
+    return np.mean(np.abs(mismatch), axis=-1)
+
+
+def free_offset_runs(observed: np.ndarray) -> list[np.ndarray]:
+    """Index arrays (into the observed epochs) of each run of observed epochs that follows a missing one."""
+    observed = np.asarray(observed, dtype=bool)
+    run_id = np.cumsum(observed & ~np.concatenate([[False], observed[:-1]]))[observed]
+    first_tied = bool(observed[0]) if len(observed) else False
+    return [np.nonzero(run_id == r)[0] for r in np.unique(run_id) if not (first_tied and r == 1)]
 
 
 def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.ndarray,
                           range_change_m: np.ndarray, geometry: Geometry, *,
                           scale_bounds: tuple[float, float] | None = (0.8, 1.25),
-                          max_duration_s: float | None = 45.0) -> HeadingSolution:
+                          max_duration_s: float | None = 45.0, min_confidence: float = 0.3) -> HeadingSolution:
     """Solve eq. 15 for the initial heading.
 
-    Two options extend the paper's eq. 15, both aimed at the PDR errors that
+    Three options extend the paper's eq. 15, aimed at the PDR errors that
     bias it (scenarios.md: a step-length gain 10-20 % off, a heading that
-    drifts late in the walk):
+    drifts late in the walk) and at the mirror ambiguity of a straight start:
 
     - ``scale_bounds``: the PDR's distance scale is solved jointly as a
       nuisance parameter (a too-long step stretches the predicted range
@@ -108,6 +128,11 @@ def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.
     - ``max_duration_s``: only the epochs within this time of the first one
       enter the cost, before the PDR heading has drifted far; None uses
       them all.
+    - ``min_confidence``: a straight leg fits its mirror image about the line
+      P0-P_b exactly as well as the truth (a street walk's first turn may
+      come minutes after the start), so while the confidence stays below
+      this value the window is doubled, up to the whole walk. A longer window
+      lets more PDR drift into the cost, but a wrong mirror costs far more.
 
     Parameters
     ----------
@@ -120,38 +145,55 @@ def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.
         P0 and the tower.
     scale_bounds : (float, float) or None
     max_duration_s : float or None
+    min_confidence : float
 
     Returns
     -------
     HeadingSolution
+        The solution of the first window that reaches ``min_confidence``
+        (or of the whole walk).
 
     Raises
     ------
     ValueError
-        If the inputs differ in length or fewer than 3 epochs have a range.
+        If the inputs differ in length, or the range constrains no heading
+        (fewer than 3 epochs with a range, or no cost minimum).
     """
     arrays = [np.asarray(a, dtype=np.float64) for a in (pdr_t_s, pdr_x_m, pdr_y_m, range_change_m)]
     if len({a.shape for a in arrays}) != 1:
         raise ValueError("solve_initial_heading: pdr_t_s, pdr_x_m, pdr_y_m and range_change_m differ in length")
     t, x, y, rc = arrays
-    used = np.isfinite(rc)
-    if max_duration_s is not None:
-        used &= t <= t[0] + max_duration_s
-    if used.sum() < 3:
-        raise ValueError(f"solve_initial_heading: need >= 3 epochs with a range observation, got {used.sum()}")
-    x, y, rc = x[used], y[used], rc[used]
+    observed = np.isfinite(rc)
+    duration = max_duration_s
+    while True:
+        used = observed if duration is None else observed & (t <= t[0] + duration)
+        solution = None
+        if used.sum() >= 3:
+            solution = _solve_window(x[used], y[used], rc[used], geometry, scale_bounds,
+                                     free_offset_runs(observed[: int(np.nonzero(used)[0][-1]) + 1]))
+        whole_walk = duration is None or t[-1] <= t[0] + duration
+        if solution is not None and (solution.confidence >= min_confidence or whole_walk):
+            return solution
+        if whole_walk:
+            raise ValueError(f"solve_initial_heading: the range does not constrain the heading ({observed.sum()} "
+                             "epochs with a range observation, too few or all in isolated runs)")
+        duration *= 2.0
 
+
+def _solve_window(x: np.ndarray, y: np.ndarray, rc: np.ndarray, geometry: Geometry,
+                  scale_bounds: tuple[float, float] | None, free_runs: list[np.ndarray]) -> HeadingSolution | None:
+    """Eq. 15 over the given epochs: coarse grid, then every local minimum refined (None: a flat cost)."""
     grid = np.arange(0.0, 2.0 * np.pi, COARSE_STEP_RAD)
     scales = (np.array([1.0]) if scale_bounds is None
               else np.clip(np.arange(scale_bounds[0], scale_bounds[1] + 0.01, 0.01), *scale_bounds))
-    costs = np.stack([heading_cost(grid, x, y, rc, geometry, k) for k in scales])  # (scales, headings)
+    costs = np.stack([heading_cost(grid, x, y, rc, geometry, k, free_runs) for k in scales])  # (scales, headings)
     profile = costs.min(axis=0)
     best_scale = scales[costs.argmin(axis=0)]
     # Local minima on the circle (a flat stretch counts once: <= before, < after).
     is_min = (profile <= np.roll(profile, 1)) & (profile < np.roll(profile, -1))
 
     def cost(params: np.ndarray) -> float:
-        return float(heading_cost(params[0], x, y, rc, geometry, params[1]))
+        return float(heading_cost(params[0], x, y, rc, geometry, params[1], free_runs))
 
     found = []
     for i in np.nonzero(is_min)[0]:
@@ -166,8 +208,10 @@ def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.
                            options={"xatol": 1e-4, "fatol": 1e-6})
             heading, scale = res.x
         found.append((float(res.fun), float(heading % (2.0 * np.pi)), float(scale)))
+    if not found:
+        return None
     found.sort()
     costs_m, minima_rad, solved_scales = (np.array(v) for v in zip(*found))
     confidence = float((costs_m[1] - costs_m[0]) / max(costs_m[1], COST_FLOOR_M)) if len(costs_m) > 1 else 1.0
     return HeadingSolution(minima_rad=minima_rad, costs_m=costs_m, scales=solved_scales,
-                           heading_rad=float(minima_rad[0]), confidence=confidence, n_used=int(used.sum()))
+                           heading_rad=float(minima_rad[0]), confidence=confidence, n_used=len(rc))

@@ -84,6 +84,11 @@ class ModelNoise:
         speed/heading model does not describe).
     heading_rate_radps : float
         xi3: random walk per step of the heading-rate error (gyro drift), rad/s.
+        Small: the AHRS's magnetometer and accelerometer already hold most
+        of the gyro bias, and the state is unobserved wherever the range is
+        missing; a loose random walk there lets the heading wander off the
+        PDR's (0.02 deg/s per step still follows a 0.3 deg/s drift that
+        sets in within a minute).
     heading_rad : float
         xi4: heading noise per step, rad.
     speed_mps : float
@@ -102,27 +107,37 @@ class ModelNoise:
         wild range (a cycle slip, a reflection) cannot collapse every
         particle onto the one that happens to be nearest it. The Kalman-type
         filters are Gaussian and ignore these.
+    range_offset_m : float
+        Random walk per epoch of the particle filter's range offset (the
+        particle's start range plus the range error the receiver has
+        integrated) in epochs without a range observation, m: across a gap,
+        a fade or a multipath stretch the integrated range may have jumped
+        or drifted, and what it says afterwards is a range change from an
+        unknown new origin. The Kalman-type filters have no offset state and
+        ignore this.
     initial_position_m : float
         Spread of the initial position around P0 (GNSS fix error), m.
     initial_heading_rad : float
         Spread of the initial heading around the solved value, rad.
     initial_heading_rate_radps : float
-        Spread of the initial heading rate, rad/s.
+        Spread of the initial heading rate, rad/s (the AHRS's residual gyro
+        bias).
     initial_speed_mps : float
         Spread of the initial speed around the first PDR speed, m/s.
     """
 
     position_m: float = 0.05
-    heading_rate_radps: float = np.deg2rad(0.05)
+    heading_rate_radps: float = np.deg2rad(0.02)
     heading_rad: float = np.deg2rad(1.5)
     speed_mps: float = 0.02
     pdr_heading_rad: float = np.deg2rad(40.0)
     pdr_speed_mps: float = 1.0
     range_outlier_probability: float = 0.01
     range_outlier_span_m: float = 100.0
+    range_offset_m: float = 1.0
     initial_position_m: float = 1.5
     initial_heading_rad: float = np.deg2rad(5.0)
-    initial_heading_rate_radps: float = np.deg2rad(1.0)
+    initial_heading_rate_radps: float = np.deg2rad(0.1)
     initial_speed_mps: float = 0.1
 
     def process_sigmas(self) -> np.ndarray:
@@ -300,6 +315,8 @@ class KalmanLikeFilter(Protocol):
     """What :func:`run_filter` needs from a filter."""
 
     x: np.ndarray
+    geometry: Geometry
+    start_range_m: float
 
     def predict(self, control: StepControl) -> None: ...
 
@@ -310,10 +327,26 @@ def run_filter(kf: KalmanLikeFilter, epochs: "FilterEpochs", noise: ModelNoise) 
     """Drive a filter over :class:`fusion.observations.FilterEpochs`; one estimate per epoch.
 
     The filter has been initialised (state and covariance at P0) by the caller.
+
+    The Kalman-type filters have no range-offset state (the particle filter
+    has, :mod:`fusion.particle_filter`). Their stand-in: when the range comes
+    back after ``k`` epochs without it and the offset a random walk of
+    ``noise.range_offset_m`` per epoch would have gathered,
+    ``range_offset_m * sqrt(k)``, exceeds three times the returning
+    observation's sigma, the filter re-anchors: its range origin is moved so
+    that this observation agrees with the predicted position, and the range
+    says only how the range changes from there.
     """
     states = np.empty((len(epochs), STATE_SIZE))
+    missing = 0
     for n in range(len(epochs)):
         kf.predict(epochs.control(n))
+        if np.isnan(epochs.range_change_m[n]):
+            missing += 1
+        else:
+            if noise.range_offset_m * np.sqrt(missing) > 3.0 * epochs.range_sigma_m[n]:
+                kf.start_range_m = float(kf.geometry.range_m(kf.x[X], kf.x[Y])) - float(epochs.range_change_m[n])
+            missing = 0
         kf.update(epoch_observation(epochs.range_change_m[n], epochs.range_sigma_m[n], epochs.pdr_heading_rad[n],
                                     epochs.pdr_speed_mps[n], noise), n)
         states[n] = kf.x

@@ -23,6 +23,22 @@ noise. The rule, applied per step time ``t_n``:
    ``sigma = base_sigma_m * sqrt(max(1, 10^((good_snr_db - snr)/10)))`` with
    ``snr`` the mean SNR of the valid frames in dB, and a further factor
    ``1 / sqrt(valid fraction)`` for partly flagged windows.
+6. **Multipath.** A reflection whose Doppler differs from the direct path's
+   (a wall ahead while the tower is behind) bends the integrated range by up
+   to a metre per second, at a healthy SNR. What gives it away is fading:
+   two comparable paths with different Dopplers beat, so the SI-carrier
+   power swings, where a line-of-sight link (direct path plus weak diffuse
+   scattering, Rician K ~ 10 dB) stays steady. The Rician K-factor is
+   estimated from the moments of the linear SNR over ``fading_window_s``
+   around the step (Greenstein et al. 1999:
+   ``gamma = Var(P) / E(P)^2``, ``K = sqrt(1 - gamma) / (1 - sqrt(1 - gamma))``)
+   and an epoch with ``K < min_rician_k_db`` has no range observation. A
+   reflection with the direct path's Doppler (walking along a wall) does not
+   fade and does not bend the range, so it is rightly kept.
+
+Where an epoch has no range observation, the integrated range may have
+jumped or drifted (a gap, a fade, a multipath stretch): the particle filter
+lets its range offset wander there (:mod:`fusion.particle_filter`).
 """
 
 from __future__ import annotations
@@ -49,12 +65,34 @@ class AggregationConfig:
         Range observation standard deviation on a good link, m.
     good_snr_db : float
         SNR at and above which no inflation applies, dB.
+    fading_window_s : float
+        Width of the window for the Rician K-factor, s (several beat periods
+        of paths whose Dopplers differ by a few Hz).
+    min_rician_k_db : float or None
+        Epochs whose K-factor is below this have no range observation, dB;
+        None keeps them all.
+    max_snr_deficit_db : float or None
+        Epochs whose SNR is this far below the recording's line-of-sight
+        level (its ``los_snr_percentile`` percentile epoch SNR) have no range
+        observation, dB; None keeps them all.
+    los_snr_percentile : float
+        Percentile of the epoch SNRs taken as the line-of-sight level.
+    settle_s : float
+        After an epoch without a range observation, the range comes back
+        only once this long has passed with every epoch passing rules 3-6, s.
+        A link that recovers for a moment inside a blocked stretch (a lucky
+        beat of two reflections) still carries the stretch's range error.
     """
 
     window_s: float = 0.2
     min_valid_fraction: float = 0.5
     base_sigma_m: float = 0.5
     good_snr_db: float = 10.0
+    fading_window_s: float = 2.0
+    min_rician_k_db: float | None = 6.0
+    max_snr_deficit_db: float | None = 5.0
+    los_snr_percentile: float = 90.0
+    settle_s: float = 3.0
 
 
 @dataclass
@@ -71,12 +109,16 @@ class RangeEpochs(ColumnRecord):
         Observation standard deviation, m; NaN where dropped.
     snr_db : ndarray
         Mean SNR of the valid frames, dB; NaN where none.
+    rician_k_db : ndarray
+        Rician K-factor of the link around the epoch, dB (module rule 6);
+        NaN where too few valid frames.
     """
 
     t_s: np.ndarray
     range_change_m: np.ndarray
     sigma_m: np.ndarray
     snr_db: np.ndarray
+    rician_k_db: np.ndarray
 
 
 @dataclass
@@ -128,6 +170,60 @@ def _check_ranges(ranges: RangeSeries) -> None:
         raise ValueError("ranges.t_s: frame times must increase strictly")
 
 
+def _window_sums(t_s: np.ndarray, values: np.ndarray, centres: np.ndarray, width_s: float
+                 ) -> tuple[np.ndarray, ...]:
+    """Sums of each column of ``values`` over ``|t - centre| <= width_s / 2``, by prefix sums (no Python loop)."""
+    lo = np.searchsorted(t_s, centres - width_s / 2.0, side="left")
+    hi = np.searchsorted(t_s, centres + width_s / 2.0, side="right")
+    cum = np.concatenate([np.zeros((1, values.shape[1])), np.cumsum(values, axis=0)])
+    return tuple(cum[hi, j] - cum[lo, j] for j in range(values.shape[1]))
+
+
+def rician_k_db(t_s: np.ndarray, snr_db: np.ndarray, valid: np.ndarray, centres: np.ndarray,
+                width_s: float) -> np.ndarray:
+    """Moment estimate of the Rician K-factor of the link around each centre time (module rule 6), dB.
+
+    Parameters
+    ----------
+    t_s, snr_db, valid : ndarray
+        Per-frame time (s), SNR (dB) and validity; invalid frames are left out.
+    centres : ndarray
+        Window centres, s.
+    width_s : float
+        Window width, s.
+
+    Returns
+    -------
+    ndarray
+        K in dB: ``+inf`` for a steady link, ``-inf`` for Rayleigh fading or
+        worse (``gamma >= 1``), NaN where the window holds fewer than 2 valid frames.
+    """
+    power = np.where(valid, 10.0 ** (np.asarray(snr_db, dtype=np.float64) / 10.0), 0.0)
+    n, s1, s2 = _window_sums(t_s, np.stack([valid.astype(np.float64), power, power**2], axis=1), centres, width_s)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = s1 / n
+        gamma = np.maximum(s2 / n - mean**2, 0.0) / mean**2
+        root = np.sqrt(np.clip(1.0 - gamma, 0.0, 1.0))
+        k_db = 10.0 * np.log10(root / (1.0 - root))
+    return np.where(n >= 2, k_db, np.nan)
+
+
+def settled(t_s: np.ndarray, passing: np.ndarray, settle_s: float) -> np.ndarray:
+    """``passing`` epochs that follow at least ``settle_s`` of passing epochs (the first run counts from the start).
+
+    An epoch in a run of passing epochs is kept when the run began at least
+    ``settle_s`` before it, where a run begins at the time of the failing epoch
+    before it, or at the first epoch for a run that opens the record.
+    """
+    passing = np.asarray(passing, dtype=bool)
+    if settle_s <= 0.0 or not len(passing):
+        return passing
+    failed_at = np.where(~passing, t_s, -np.inf)
+    last_fail = np.maximum.accumulate(failed_at)
+    since = np.where(np.isfinite(last_fail), t_s - last_fail, np.inf)
+    return passing & (since >= settle_s)
+
+
 def aggregate_ranges(ranges: RangeSeries, epoch_t_s: np.ndarray,
                      config: AggregationConfig = AggregationConfig()) -> RangeEpochs:
     """Apply the module's aggregation rule at each epoch time.
@@ -147,29 +243,32 @@ def aggregate_ranges(ranges: RangeSeries, epoch_t_s: np.ndarray,
     _check_ranges(ranges)
     epoch_t_s = np.asarray(epoch_t_s, dtype=np.float64)
     valid = np.asarray(ranges.valid, dtype=bool) & np.isfinite(ranges.range_change_m)
-    half = config.window_s / 2.0
-    lo = np.searchsorted(ranges.t_s, epoch_t_s - half, side="left")
-    hi = np.searchsorted(ranges.t_s, epoch_t_s + half, side="right")
-    # Prefix sums give every window's count and sums without a Python loop.
-    zero = np.zeros(1)
-    n_valid_cum = np.concatenate([zero, np.cumsum(valid)])
-    range_cum = np.concatenate([zero, np.cumsum(np.where(valid, ranges.range_change_m, 0.0))])
-    snr_lin_cum = np.concatenate([zero, np.cumsum(np.where(valid, 10.0 ** (ranges.snr_db / 10.0), 0.0))])
-    n_valid = n_valid_cum[hi] - n_valid_cum[lo]
+    n_valid, range_sum, snr_lin_sum = _window_sums(
+        ranges.t_s, np.stack([valid.astype(np.float64), np.where(valid, ranges.range_change_m, 0.0),
+                              np.where(valid, 10.0 ** (ranges.snr_db / 10.0), 0.0)], axis=1),
+        epoch_t_s, config.window_s)
     expected = config.window_s / np.median(np.diff(ranges.t_s))
     fraction = np.minimum(n_valid / expected, 1.0)
+    k_db = rician_k_db(ranges.t_s, ranges.snr_db, valid, epoch_t_s, config.fading_window_s)
     keep = (fraction >= config.min_valid_fraction) & (n_valid > 0)
+    if config.min_rician_k_db is not None:
+        keep &= ~(k_db < config.min_rician_k_db)
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean_range = (range_cum[hi] - range_cum[lo]) / n_valid
-        snr_db = 10.0 * np.log10((snr_lin_cum[hi] - snr_lin_cum[lo]) / n_valid)
+        mean_range = range_sum / n_valid
+        snr_db = 10.0 * np.log10(snr_lin_sum / n_valid)
         inflation = np.maximum(1.0, 10.0 ** ((config.good_snr_db - snr_db) / 10.0))
         sigma = config.base_sigma_m * np.sqrt(inflation / fraction)
+    if config.max_snr_deficit_db is not None and np.any(np.isfinite(snr_db)):
+        los_snr_db = np.nanpercentile(snr_db, config.los_snr_percentile)
+        keep &= ~(snr_db < los_snr_db - config.max_snr_deficit_db)
+    keep = settled(epoch_t_s, keep, config.settle_s)
     nan = np.full(len(epoch_t_s), np.nan)
     return RangeEpochs(
         t_s=epoch_t_s,
         range_change_m=np.where(keep, mean_range, nan),
         sigma_m=np.where(keep, sigma, nan),
         snr_db=np.where(n_valid > 0, snr_db, nan),
+        rician_k_db=k_db,
     )
 
 

@@ -1,9 +1,13 @@
 """Particle-filter fusion of DTMB range and PDR (method.md §5, eq. 16-23, Algorithm 1).
 
 State and observations are those of :mod:`fusion.model`. Each particle also
-carries its own start range |P_0 - P_b| (eq. 19 uses the state at n = 0), so
-the range observation constrains the walked displacement and an error in the
-GNSS start fix is not mistaken for a range error.
+carries a range offset: its own start range |P_0 - P_b| (eq. 19 uses the
+state at n = 0), so the range observation constrains the walked displacement
+and an error in the GNSS start fix is not mistaken for a range error. In
+epochs without a range observation (gap, fade, multipath:
+:mod:`fusion.observations`) the offset takes a random-walk step of
+``ModelNoise.range_offset_m``: the range error integrated across such a
+stretch becomes a new, uncertain origin instead of a position error.
 
 Algorithm 1 per epoch: propagate with the transition prior (eq. 17) ->
 weight by the likelihood in the log domain and normalise (eq. 20-21) ->
@@ -62,7 +66,7 @@ def propagate_kernel(particles: np.ndarray, dt_s: float, heading_increment_rad: 
 
 
 @njit(cache=True)
-def log_likelihood_kernel(particles: np.ndarray, start_range_m: np.ndarray, tower: np.ndarray,
+def log_likelihood_kernel(particles: np.ndarray, range_offset_m: np.ndarray, tower: np.ndarray,
                           observation: np.ndarray, sigma: np.ndarray, outlier: np.ndarray, log_w: np.ndarray) -> None:
     """Eq. 20 in the log domain: add each particle's log-likelihood to ``log_w``.
 
@@ -78,7 +82,7 @@ def log_likelihood_kernel(particles: np.ndarray, start_range_m: np.ndarray, towe
             dx = particles[i, 0] - tower[0]
             dy = particles[i, 1] - tower[1]
             r = np.sqrt(dx * dx + dy * dy + tower[2] * tower[2])
-            d = (r - start_range_m[i] - observation[0]) / sigma[0]
+            d = (r - range_offset_m[i] - observation[0]) / sigma[0]
             ll = np.logaddexp(outlier[0] - 0.5 * d * d, outlier[1])
         dh = (particles[i, 3] - observation[1] + np.pi) % (2.0 * np.pi) - np.pi
         dh /= sigma[1]
@@ -144,7 +148,7 @@ def propagate_reference(particles: np.ndarray, dt_s: float, heading_increment_ra
     particles[:] = propagate(particles, StepControl(dt_s, heading_increment_rad, speed_ratio)) + noise
 
 
-def log_likelihood_reference(particles: np.ndarray, start_range_m: np.ndarray, tower: np.ndarray,
+def log_likelihood_reference(particles: np.ndarray, range_offset_m: np.ndarray, tower: np.ndarray,
                              observation: np.ndarray, sigma: np.ndarray, outlier: np.ndarray,
                              log_w: np.ndarray) -> None:
     """Numpy twin of :func:`log_likelihood_kernel`."""
@@ -152,7 +156,7 @@ def log_likelihood_reference(particles: np.ndarray, start_range_m: np.ndarray, t
     ll -= 0.5 * ((particles[:, SPEED] - observation[2]) / sigma[2]) ** 2
     if not np.isnan(observation[0]):
         r = np.sqrt((particles[:, X] - tower[0]) ** 2 + (particles[:, Y] - tower[1]) ** 2 + tower[2] ** 2)
-        d = (r - start_range_m - observation[0]) / sigma[0]
+        d = (r - range_offset_m - observation[0]) / sigma[0]
         ll += np.logaddexp(outlier[0] - 0.5 * d * d, outlier[1])
     log_w += ll
 
@@ -233,7 +237,7 @@ class ParticleFilter:
         self._tower = np.array([geometry.tower_x_m, geometry.tower_y_m, geometry.tower_height_m])
         self._process_sigmas = noise.process_sigmas()
         self.particles = np.zeros((n_particles, STATE_SIZE))
-        self.start_range_m = np.zeros(n_particles)
+        self.range_offset_m = np.zeros(n_particles)
         self.log_w = np.full(n_particles, -np.log(n_particles))
         self.weights = np.full(n_particles, 1.0 / n_particles)
         self.ess = float(n_particles)
@@ -244,7 +248,7 @@ class ParticleFilter:
         centre = np.array([self.geometry.start_x_m, self.geometry.start_y_m, 0.0, heading_rad, speed_mps])
         spread = self.noise.initial_sigmas()
         self.particles = centre + spread * self.rng.standard_normal((self.n_particles, STATE_SIZE))
-        self.start_range_m = self.geometry.range_m(self.particles[:, X], self.particles[:, Y])
+        self.range_offset_m = self.geometry.range_m(self.particles[:, X], self.particles[:, Y])
         self.log_w[:] = -np.log(self.n_particles)
         self.weights[:] = 1.0 / self.n_particles
         self.ess = float(self.n_particles)
@@ -260,20 +264,23 @@ class ParticleFilter:
         """Weight by the observation (eq. 20-21) and resample on low ESS (eq. 23).
 
         ``range_change_m`` may be NaN (no range this epoch): only the PDR
-        heading and speed then weigh.
+        heading and speed then weigh, and each particle's range offset takes
+        a random-walk step (module docstring).
         """
+        if np.isnan(range_change_m):
+            self.range_offset_m += self.noise.range_offset_m * self.rng.standard_normal(self.n_particles)
         observation = np.array([range_change_m, pdr_heading_rad, pdr_speed_mps], dtype=np.float64)
         sigma = np.array([range_sigma_m, self.noise.pdr_heading_rad, self.noise.pdr_speed_mps])
         p = self.noise.range_outlier_probability
         outlier = np.array([np.log1p(-p) - np.log(range_sigma_m * np.sqrt(2.0 * np.pi)),
                             np.log(p / self.noise.range_outlier_span_m)])
-        self.kernels.log_likelihood(self.particles, self.start_range_m, self._tower, observation, sigma, outlier,
+        self.kernels.log_likelihood(self.particles, self.range_offset_m, self._tower, observation, sigma, outlier,
                                     self.log_w)
         self.ess = self.kernels.normalise(self.log_w, self.weights)
         if self.ess < self.resample_ess_fraction * self.n_particles:
             index = self.kernels.resample(self.weights, self.rng.random())
             self.particles = self.particles[index]
-            self.start_range_m = self.start_range_m[index]
+            self.range_offset_m = self.range_offset_m[index]
             self.log_w[:] = -np.log(self.n_particles)
             self.weights[:] = 1.0 / self.n_particles
             self.resample_count += 1

@@ -36,6 +36,8 @@ def test_rows_hold_pdr_then_filters_with_paper_figures(park_rows):
     assert pf.paper_p95_m == 5.41 and pf.paper_reduction_95 == 0.41
     assert ukf.paper_p95_m is None
     assert pf.reduction_95 == pytest.approx(1 - pf.p95_m / pdr.p95_m)
+    assert pf.reduction_95_vs_fix == pytest.approx(1 - pf.p95_m / at_fix.p95_m)
+    assert at_fix.reduction_95_vs_fix is None
     assert all(r.seeds == 2 and r.p68_m <= r.p95_m <= r.max_m for r in park_rows)
 
 

@@ -31,6 +31,21 @@ def gain_walk():
     return walk, epochs, pdr95
 
 
+@pytest.mark.parametrize("runner", [run_ukf, rank_kf.run_rank_kf])
+def test_kalman_filters_re_anchor_the_range_after_a_long_gap(runner):
+    """The range returns from a 20 s gap 8 m off: re-anchoring keeps it out of the position."""
+    walk = park_like_walk(gain=1.15, seed=4)
+    ranges = exact_ranges(walk)
+    gap = (ranges.t_s > 40.0) & (ranges.t_s < 60.0)
+    shifted = RangeSeries(ranges.t_s, ranges.range_change_m + np.where(ranges.t_s >= 60.0, 8.0, 0.0),
+                          ranges.snr_db, ranges.valid & ~gap)
+    epochs = build_epochs(walk.pdr, aggregate_ranges(shifted, walk.pdr.t_s), walk.initial_heading_rad)
+    anchored = error_stats(position_errors_m(runner(epochs, walk.geometry), walk.truth)).p95_m
+    held = error_stats(position_errors_m(runner(epochs, walk.geometry, ModelNoise(range_offset_m=0.0)),
+                                         walk.truth)).p95_m
+    assert anchored < 0.5 * held, (anchored, held)
+
+
 @pytest.mark.parametrize("runner", [run_ukf, run_wt_ukf, run_adaptive_kf, rank_kf.run_rank_kf])
 def test_each_filter_corrects_a_step_gain_error_with_the_range(gain_walk, runner):
     walk, epochs, pdr95 = gain_walk

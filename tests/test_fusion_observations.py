@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from fusion.metrics import (error_cdf, error_stats, heading_error_rad, interpolate_track, place_pdr,
                             position_errors_m, true_initial_heading_rad)
-from fusion.observations import AggregationConfig, aggregate_ranges, build_epochs, step_durations_s
+from fusion.observations import AggregationConfig, aggregate_ranges, build_epochs, rician_k_db, step_durations_s
 from fusion.records import PdrSteps, RangeSeries, Track
 
 FRAME_S = 1 / 1800.0
@@ -33,7 +33,8 @@ def test_gap_drops_the_epoch_and_flagged_frames_are_left_out():
     valid[(rs.t_s > 5.0) & (rs.t_s < 5.04)] = False            # a few flagged frames near t = 5
     corrupt = rs.range_change_m.copy()
     corrupt[~valid] = 1e6                                      # flagged frames carry garbage
-    obs = aggregate_ranges(RangeSeries(rs.t_s, corrupt, rs.snr_db, valid), np.array([2.5, 5.0, 7.0]))
+    obs = aggregate_ranges(RangeSeries(rs.t_s, corrupt, rs.snr_db, valid), np.array([2.5, 5.0, 7.0]),
+                           AggregationConfig(settle_s=0.0))
     assert np.isnan(obs.range_change_m[0]) and np.isnan(obs.sigma_m[0])
     assert obs.range_change_m[1] == pytest.approx(-1.2 * 5.0, abs=0.05)
     assert obs.sigma_m[1] > obs.sigma_m[2]                      # fewer valid frames: less weight
@@ -46,6 +47,65 @@ def test_low_snr_inflates_sigma_like_one_over_snr():
     strong = aggregate_ranges(ramp_series(snr_db=15.0), np.array([5.0]), cfg)
     assert strong.sigma_m[0] == pytest.approx(0.5)
     assert weak.sigma_m[0] == pytest.approx(0.5 * np.sqrt(10.0), rel=1e-6)  # 10 dB below: variance x 10
+
+
+def rician_snr_db(t_s, k_db, seed, cn_db=15.0, doppler_hz=5.0, sinusoids=64):
+    """SNR of a Rician link: a steady path plus Clarke-model diffuse power 1/K (sum of sinusoids)."""
+    rng = np.random.default_rng(seed)
+    k = 10.0 ** (k_db / 10.0)
+    freq = doppler_hz * np.cos(rng.uniform(0, 2 * np.pi, sinusoids))
+    phase = rng.uniform(0, 2 * np.pi, sinusoids)
+    diffuse = np.exp(1j * (2 * np.pi * freq[:, None] * t_s + phase[:, None])).sum(axis=0) / np.sqrt(sinusoids)
+    h = (np.sqrt(k) + diffuse) / np.sqrt(k + 1.0)
+    return cn_db + 10.0 * np.log10(np.abs(h) ** 2)
+
+
+@pytest.mark.parametrize("k_db", [0.0, 6.0, 10.0])
+def test_rician_k_estimate_recovers_the_k_factor_of_a_fading_link(k_db):
+    t = np.arange(0.0, 60.0, 1 / 450.0)
+    estimates = [rician_k_db(t, rician_snr_db(t, k_db, seed), np.ones(len(t), bool), np.array([30.0]), 60.0)[0]
+                 for seed in range(8)]
+    assert np.median(estimates) == pytest.approx(k_db, abs=1.5)
+
+
+def test_two_paths_with_different_dopplers_fade_and_are_dropped():
+    """Direct path blocked, a reflection (0 dB) and a second one at -3 dB with the opposite Doppler beating at 5 Hz."""
+    rs = ramp_series()
+    beat = np.abs(1.0 + 10 ** (-3 / 20) * np.exp(2j * np.pi * 5.0 * rs.t_s)) ** 2
+    fading = RangeSeries(rs.t_s, rs.range_change_m, 15.0 + 10 * np.log10(beat), rs.valid)
+    # Moments of a two-tone: gamma = 2 a^2 b^2 / (a^2 + b^2)^2.
+    gamma = 2 * 10 ** (-3 / 10) / (1 + 10 ** (-3 / 10)) ** 2
+    expected_k_db = 10 * np.log10(np.sqrt(1 - gamma) / (1 - np.sqrt(1 - gamma)))
+    obs = aggregate_ranges(fading, np.array([5.0]))
+    assert obs.rician_k_db[0] == pytest.approx(expected_k_db, abs=0.3)
+    assert np.isnan(obs.range_change_m[0])
+    steady = aggregate_ranges(rs, np.array([5.0]))
+    assert np.isfinite(steady.range_change_m[0]) and steady.rician_k_db[0] > 30.0
+    kept = aggregate_ranges(fading, np.array([5.0]), AggregationConfig(min_rician_k_db=None))
+    assert kept.range_change_m[0] == pytest.approx(-6.0, abs=0.01)
+
+
+def test_epochs_far_below_the_line_of_sight_snr_are_dropped():
+    rs = ramp_series()
+    snr = np.where(rs.t_s < 5.0, 15.0, 9.0)   # the direct path is blocked from t = 5 s: 6 dB down
+    obs = aggregate_ranges(RangeSeries(rs.t_s, rs.range_change_m, snr, rs.valid), np.array([2.0, 3.0, 7.0, 8.0]))
+    assert np.all(np.isfinite(obs.range_change_m[:2])) and np.all(np.isnan(obs.range_change_m[2:]))
+    lenient = aggregate_ranges(RangeSeries(rs.t_s, rs.range_change_m, snr, rs.valid), np.array([2.0, 3.0, 7.0, 8.0]),
+                               AggregationConfig(max_snr_deficit_db=8.0))
+    assert np.all(np.isfinite(lenient.range_change_m))
+
+
+def test_range_returns_only_after_the_link_has_settled():
+    rs = ramp_series(20.0)
+    valid = rs.valid & ~((rs.t_s > 4.0) & (rs.t_s < 6.0))       # the link drops out from 4 to 6 s
+    epochs = np.arange(0.5, 20.0, 0.5)
+    series = RangeSeries(rs.t_s, rs.range_change_m, rs.snr_db, valid)
+    obs = aggregate_ranges(series, epochs, AggregationConfig(settle_s=3.0))
+    unsettled = aggregate_ranges(series, epochs, AggregationConfig(settle_s=0.0))
+    last_lost = epochs[~np.isfinite(unsettled.range_change_m)].max()
+    back = epochs[np.isfinite(obs.range_change_m) & (epochs > 4.0)]
+    assert back.min() == pytest.approx(last_lost + 3.0)
+    assert np.all(np.isfinite(obs.range_change_m[epochs < 3.9]))   # the opening run needs no settling
 
 
 def test_bad_ranges_raise():

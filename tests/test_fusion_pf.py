@@ -184,6 +184,24 @@ def test_range_corrects_a_step_length_gain_error():
     assert blind95 > 0.8 * pdr95
 
 
+def test_range_offset_absorbs_an_error_picked_up_in_a_gap():
+    """The range returns from a 20 s gap 8 m off (a blocked stretch): the offset walk takes it, not the position."""
+    walk = park_like_walk(gain=1.15, seed=4)
+    ranges = exact_ranges(walk)
+    gap = (ranges.t_s > 40.0) & (ranges.t_s < 60.0)
+    shifted = RangeSeries(ranges.t_s, ranges.range_change_m + np.where(ranges.t_s >= 60.0, 8.0, 0.0),
+                          ranges.snr_db, ranges.valid & ~gap)
+    epochs = epochs_for(walk, shifted)
+    assert np.isnan(epochs.range_change_m[(epochs.t_s > 41.0) & (epochs.t_s < 59.0)]).all()
+    errors = {}
+    for offset_m in (ModelNoise().range_offset_m, 0.0):
+        track = pf.run_particle_filter(epochs, walk.geometry, ModelNoise(range_offset_m=offset_m), seed=1)
+        errors[offset_m] = error_stats(position_errors_m(track, walk.truth)).p95_m
+    pdr95 = error_stats(position_errors_m(place_pdr(walk.pdr, 0.0, 0.0, walk.initial_heading_rad), walk.truth)).p95_m
+    assert errors[ModelNoise().range_offset_m] < 0.7 * pdr95
+    assert errors[0.0] > 2.0 * errors[ModelNoise().range_offset_m], errors
+
+
 def test_benchmark_reports_a_rate():
     assert pf.particle_updates_per_second(1000, "numba", n_epochs=3) > 1e4
     assert pf.particle_updates_per_second(1000, "numpy", n_epochs=3) > 1e3
