@@ -22,7 +22,7 @@ import matplotlib.pyplot as plt  # noqa: E402  (backend chosen first: reports ru
 import numpy as np  # noqa: E402
 
 from dtmbnav.evaluate import paper_figures  # noqa: E402
-from fusion.metrics import (error_cdf, error_stats, place_pdr, position_errors_m,  # noqa: E402
+from fusion.metrics import (error_cdf, error_stats, heading_error_rad, place_pdr, position_errors_m,  # noqa: E402
                             true_initial_heading_rad)
 from fusion.records import PdrSteps, Track  # noqa: E402
 from receiver.h5io import read_attrs, read_columns  # noqa: E402
@@ -173,6 +173,7 @@ def write_report(results_path: str | os.PathLike, out_dir: str | os.PathLike,
         # The paper's PDR baseline: the relative track rotated by the TRUE initial heading at the true start.
         true_heading = true_initial_heading_rad(truth, walk_truth.walk_start_t_s)
         estimates = {"pdr": place_pdr(pdr, float(truth.x_m[0]), float(truth.y_m[0]), true_heading), **estimates}
+        heading_error_deg = float(np.rad2deg(heading_error_rad(heading, true_heading)))
     plot_trajectories(out / "trajectory.png", truth, estimates, tower)
     plot_range(out / "range.png", frames, offset, truth_frames)
     summary: dict = {"results": str(results_path), "initial_heading_deg": float(np.rad2deg(heading))}
@@ -181,9 +182,11 @@ def write_report(results_path: str | os.PathLike, out_dir: str | os.PathLike,
         plot_cdf(out / "error_cdf.png", errors)
         rows = summary_rows(truth, estimates, _scenario_name(truth_path))
         table = format_rows(rows)
+        summary["initial_heading_error_deg"] = heading_error_deg
         (out / "summary.md").write_text(
             f"# dtmbnav report\n\nResults: `{results_path}`  \nTruth: `{truth_path}`  \n"
-            f"Initial heading (eq. 15): {np.rad2deg(heading):.1f} deg\n\n{table}\n\n"
+            f"Initial heading (eq. 15): {np.rad2deg(heading):.1f} deg, {heading_error_deg:.1f} deg from the "
+            f"true {np.rad2deg(true_heading) % 360:.1f} deg\n\n{table}\n\n"
             "`pdr` is placed as the paper reports PDR error (true start, true initial heading); `pdr@fix` "
             "starts like the filters, at the GNSS fix with the eq. 15 heading.\n")
         summary["rows"] = [asdict(r) for r in rows]

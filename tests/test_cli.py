@@ -109,6 +109,8 @@ def test_demo_fuses_the_walk(tiny_demo):
     assert {"pdr", "pf", "ukf"} <= set(rows)
     # A 12 m walk: every estimate stays within a few metres of the truth.
     assert rows["pf"]["max_m"] < 5.0
+    # The report compares the eq. 15 heading with the truth's (issue 5: median error below 5 deg).
+    assert summary["initial_heading_error_deg"] < 5.0
     for name in ("trajectory.png", "range.png", "error_cdf.png", "summary.md"):
         assert (tiny_demo / "report" / name).stat().st_size > 0
 
