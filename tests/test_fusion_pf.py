@@ -53,9 +53,12 @@ def test_log_likelihood_kernel_matches_reference(range_obs):
     sigma = np.array([1.0, 0.3, 0.2])
     outlier = np.array([np.log(0.99 / np.sqrt(2 * np.pi)), np.log(0.01 / 100.0)])
     a, b = np.zeros(500), np.zeros(500)
-    pf.log_likelihood_kernel(p, start, tower, obs, sigma, outlier, a)
-    pf.log_likelihood_reference(p, start, tower, obs, sigma, outlier, b)
+    start_b = start.copy()
+    inlier_a = pf.log_likelihood_kernel(p, start, tower, obs, sigma, outlier, 0.4, a)
+    inlier_b = pf.log_likelihood_reference(p, start_b, tower, obs, sigma, outlier, 0.4, b)
     np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(start, start_b, rtol=0, atol=1e-9)
+    assert inlier_a == pytest.approx(inlier_b, abs=1e-12)
 
 
 @given(st.lists(st.floats(-1e6, 10.0), min_size=2, max_size=60))
@@ -200,6 +203,51 @@ def test_range_offset_absorbs_an_error_picked_up_in_a_gap():
     pdr95 = error_stats(position_errors_m(place_pdr(walk.pdr, 0.0, 0.0, walk.initial_heading_rad), walk.truth)).p95_m
     assert errors[ModelNoise().range_offset_m] < 0.7 * pdr95
     assert errors[0.0] > 2.0 * errors[ModelNoise().range_offset_m], errors
+
+
+def test_range_offset_kalman_step_matches_the_closed_form():
+    """One returning range after a gap: each offset moves by the gain P / S times its innovation, P -> P sigma^2 / S."""
+    geometry = Geometry(0.0, 0.0, 2000.0, 2200.0, 150.0)
+    f = pf.ParticleFilter(geometry, ModelNoise(range_outlier_probability=1e-12), n_particles=300, seed=3)
+    f.initialise(0.7, 1.3)
+    for _ in range(25):  # 25 epochs without a range: P = 25 range_offset_m^2
+        f.update(np.nan, np.nan, 0.7, 1.3)
+    p_m2 = 25 * ModelNoise().range_offset_m ** 2
+    assert f.range_offset_var_m2 == pytest.approx(p_m2)
+    before = f.range_offset_m.copy()
+    predicted = geometry.range_m(f.particles[:, 0], f.particles[:, 1]) - before
+    f.update(4.0, 0.5, 0.7, 1.3)
+    s_m2 = p_m2 + 0.25
+    np.testing.assert_allclose(f.range_offset_m, before - p_m2 / s_m2 * (4.0 - predicted), atol=1e-9)
+    assert f.range_offset_var_m2 == pytest.approx(p_m2 * 0.25 / s_m2, rel=1e-6)
+
+
+def test_range_returning_far_off_after_a_long_gap_keeps_the_cloud():
+    """After 60 s blocked the range returns 8 m off: the offsets take it and the cloud does not collapse.
+
+    A sampled offset (one random-walk draw per particle, spread about 7 m after
+    the gap) leaves the few particles whose draw matches the returning range
+    (ESS about 0.05 Np); the marginalised one weighs every particle by its
+    innovation over the offset's whole variance.
+    """
+    walk = park_like_walk(gain=1.0, seed=5)
+    ranges = exact_ranges(walk)
+    gap = (ranges.t_s > 30.0) & (ranges.t_s < 90.0)
+    shifted = RangeSeries(ranges.t_s, ranges.range_change_m + np.where(ranges.t_s >= 90.0, 8.0, 0.0),
+                          ranges.snr_db, ranges.valid & ~gap)
+    epochs = epochs_for(walk, shifted)
+    back = int(np.argmax(np.isfinite(epochs.range_change_m) & (epochs.t_s > 90.0)))
+    f = pf.ParticleFilter(walk.geometry, n_particles=2000, seed=2)
+    f.initialise(float(epochs.pdr_heading_rad[0]), float(epochs.pdr_speed_mps[0]))
+    for n in range(back + 1):
+        f.predict(epochs.control(n))
+        f.update(epochs.range_change_m[n], epochs.range_sigma_m[n], epochs.pdr_heading_rad[n],
+                 epochs.pdr_speed_mps[n])
+    after = f.estimate()
+    true_x = np.interp(epochs.t_s[back], walk.truth.t_s, walk.truth.x_m)
+    true_y = np.interp(epochs.t_s[back], walk.truth.t_s, walk.truth.y_m)
+    assert f.ess > 0.5 * f.n_particles
+    assert np.hypot(after[0] - true_x, after[1] - true_y) < 1.5
 
 
 def test_benchmark_reports_a_rate():
