@@ -168,7 +168,7 @@ def write_fusion(h5: h5py.File, result: FusionResult) -> None:
 
 def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike, out_path: str | os.PathLike,
                filters: tuple[str, ...], pdr_config: PdrConfig, tower_xy_m: tuple[float, float] | None = None,
-               start_xy_m: tuple[float, float] | None = None, n_particles: int = 2000,
+               start_xy_m: tuple[float, float] | None = None, n_particles: int | None = None,
                seed: int = 0) -> FusionResult:
     """``dtmbnav fuse``: receiver range + PDR of the sensors file -> ``/pdr`` and ``/fusion/*``."""
     from sim.walk_io import read_gnss, read_imu
@@ -184,8 +184,8 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
     if tower_xy_m is None:
         *tower_xy, height_m = tower_from_file(sensors_path)
         tower_xy_m = (tower_xy[0], tower_xy[1])
-    result = fuse(pdr.steps, ranges, start_xy_m, tower_xy_m, filters, tower_height_m=height_m,
-                  config=FusionConfig(n_particles=n_particles, seed=seed))
+    config = FusionConfig(seed=seed) if n_particles is None else FusionConfig(n_particles=n_particles, seed=seed)
+    result = fuse(pdr.steps, ranges, start_xy_m, tower_xy_m, filters, tower_height_m=height_m, config=config)
     rx_attrs = read_attrs(receiver_path, FRAMES_GROUP)
     with atomic_h5(out_path) as h5:
         write_columns(h5, FRAMES_GROUP, frames, rx_attrs)

@@ -14,7 +14,7 @@ from fusion.adaptive_kf import run_adaptive_kf
 from fusion.heading_init import HeadingSolution, solve_initial_heading
 from fusion.model import Geometry, ModelNoise
 from fusion.observations import AggregationConfig, FilterEpochs, aggregate_ranges, build_epochs
-from fusion.particle_filter import run_particle_filter
+from fusion.particle_filter import DEFAULT_PARTICLES, run_particle_filter
 from fusion.rank_kf import run_rank_kf
 from fusion.records import PdrSteps, RangeSeries, Track
 from fusion.ukf import run_ukf
@@ -37,7 +37,7 @@ class FusionConfig:
 
     noise: ModelNoise = field(default_factory=ModelNoise)
     aggregation: AggregationConfig = field(default_factory=AggregationConfig)
-    n_particles: int = 2000
+    n_particles: int = DEFAULT_PARTICLES
     seed: int = 0
 
 
