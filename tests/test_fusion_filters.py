@@ -7,12 +7,12 @@ from scipy.stats import norm
 from fusion import rank_kf
 from fusion.adaptive_kf import GnssFixes, quality_grade_factors, run_adaptive_kf, transition_jacobian
 from fusion.metrics import error_stats, place_pdr, position_errors_m
-from fusion.model import ModelNoise, StepControl, propagate
+from fusion.model import ModelNoise, StepControl, epoch_observation, propagate
 from fusion.observations import aggregate_ranges, build_epochs
 from fusion.records import RangeSeries
 from fusion.run import FILTERS, FusionConfig, fuse
 from fusion.ukf import run_ukf
-from fusion.wt_ukf import run_wt_ukf, wavelet_noise_estimate
+from fusion.wt_ukf import WaveletUkf, run_wt_ukf, wavelet_noise_estimate
 from fusion_synth import foot_imu_straight, park_like_walk
 
 
@@ -107,6 +107,23 @@ def test_wavelet_noise_estimate_recovers_white_noise_on_a_smooth_signal():
     mean, sigma = wavelet_noise_estimate(signal + rng.normal(0.0, 0.4, t.size))
     assert sigma == pytest.approx(0.4, rel=0.15)
     assert abs(mean) < 0.1
+
+
+@pytest.mark.parametrize("rows", [(0,), (0, 1, 2)])
+def test_wt_ukf_re_estimates_only_the_chosen_channels(gain_walk, rows, monkeypatch):
+    """By default only the range's R comes from the wavelet; the PDR pseudo-observations keep their nominal R."""
+    walk, epochs, _ = gain_walk
+    noise = ModelNoise()
+    kf = WaveletUkf(walk.geometry, noise, epochs, window=32, wavelet_rows=rows)
+    seen = {}
+    monkeypatch.setattr(kf, "_update", lambda z, r, observation: seen.update(r=np.sqrt(np.diag(r))))
+    n = int(np.nonzero(np.isfinite(epochs.range_change_m[40:]))[0][0]) + 40
+    kf.update(epoch_observation(epochs.range_change_m[n], epochs.range_sigma_m[n], epochs.pdr_heading_rad[n],
+                                epochs.pdr_speed_mps[n], noise), n)
+    nominal = np.array([epochs.range_sigma_m[n], noise.pdr_heading_rad, noise.pdr_speed_mps])
+    changed = ~np.isclose(seen["r"], nominal)
+    assert changed[0]  # a smooth exact range: the wavelet sees far less than the nominal 0.5 m
+    assert list(changed[1:]) == [1 in rows, 2 in rows]
 
 
 # --- seed 004 rank sampling -------------------------------------------------------------------
