@@ -110,27 +110,26 @@ def log_likelihood_kernel(particles: np.ndarray, range_offset_m: np.ndarray, tow
     float
         Mean of that probability over the particles (1.0 without a range).
     """
-    if np.isnan(observation[0]):
-        for i in range(particles.shape[0]):
-            dh = ((particles[i, 3] - observation[1] + np.pi) % (2.0 * np.pi) - np.pi) / sigma[1]
-            ds = (particles[i, 4] - observation[2]) / sigma[2]
-            log_w[i] += -0.5 * (dh * dh + ds * ds)
-        return 1.0
+    use_range = not np.isnan(observation[0])
     inlier_sum = 0.0
     for i in range(particles.shape[0]):
-        dx = particles[i, 0] - tower[0]
-        dy = particles[i, 1] - tower[1]
-        r = np.sqrt(dx * dx + dy * dy + tower[2] * tower[2])
-        innovation = observation[0] - (r - range_offset_m[i])
-        d = innovation / sigma[0]
-        gaussian = outlier[0] - 0.5 * d * d
-        ll = np.logaddexp(gaussian, outlier[1])
-        inlier = np.exp(gaussian - ll)
-        range_offset_m[i] -= inlier * offset_gain * innovation
-        inlier_sum += inlier
+        ll = 0.0
+        if use_range:
+            dx = particles[i, 0] - tower[0]
+            dy = particles[i, 1] - tower[1]
+            r = np.sqrt(dx * dx + dy * dy + tower[2] * tower[2])
+            innovation = observation[0] - (r - range_offset_m[i])
+            d = innovation / sigma[0]
+            gaussian = outlier[0] - 0.5 * d * d
+            ll = np.logaddexp(gaussian, outlier[1])
+            inlier = np.exp(gaussian - ll)
+            range_offset_m[i] -= inlier * offset_gain * innovation
+            inlier_sum += inlier
         dh = ((particles[i, 3] - observation[1] + np.pi) % (2.0 * np.pi) - np.pi) / sigma[1]
         ds = (particles[i, 4] - observation[2]) / sigma[2]
         log_w[i] += ll - 0.5 * (dh * dh + ds * ds)
+    if not use_range:
+        return 1.0
     return inlier_sum / particles.shape[0]
 
 

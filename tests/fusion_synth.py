@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fusion.records import PdrSteps, Track
+from fusion.records import PdrSteps, RangeSeries, Track
 from fusion.model import Geometry
 
 
@@ -106,3 +106,23 @@ def foot_imu_straight(n_strides=12, stride_m=1.4, stride_s=1.1, stance_s=0.45, h
     gyro[:, 0] += pitch_rate
     pos = np.stack([dist * np.sin(heading_rad), dist * np.cos(heading_rad)], axis=1)
     return t, acc, gyro, pos
+
+
+def exact_ranges(walk: SyntheticWalk, rate_hz: float = 50.0) -> RangeSeries:
+    """Noise-free receiver range change along the truth at ``rate_hz``, every frame valid at 20 dB."""
+    t = np.arange(walk.truth.t_s[0], walk.truth.t_s[-1], 1.0 / rate_hz)
+    g = walk.geometry
+    r = g.range_m(np.interp(t, walk.truth.t_s, walk.truth.x_m), np.interp(t, walk.truth.t_s, walk.truth.y_m))
+    return RangeSeries(t, r - g.start_range_m(), np.full(len(t), 20.0), np.ones(len(t), bool))
+
+
+def ranges_with_blockage(walk: SyntheticWalk, start_s: float, end_s: float, jump_m: float) -> RangeSeries:
+    """:func:`exact_ranges` with no valid frame inside (start_s, end_s) and ``jump_m`` added from ``end_s`` on.
+
+    A blocked stretch: the integrated range comes back off by what it
+    picked up while the direct path was gone.
+    """
+    ranges = exact_ranges(walk)
+    blocked = (ranges.t_s > start_s) & (ranges.t_s < end_s)
+    return RangeSeries(ranges.t_s, ranges.range_change_m + np.where(ranges.t_s >= end_s, jump_m, 0.0),
+                       ranges.snr_db, ranges.valid & ~blocked)

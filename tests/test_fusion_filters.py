@@ -9,18 +9,10 @@ from fusion.adaptive_kf import GnssFixes, quality_grade_factors, run_adaptive_kf
 from fusion.metrics import error_stats, place_pdr, position_errors_m
 from fusion.model import ModelNoise, StepControl, epoch_observation, propagate
 from fusion.observations import aggregate_ranges, build_epochs
-from fusion.records import RangeSeries
 from fusion.run import FILTERS, FusionConfig, fuse
 from fusion.ukf import run_ukf
 from fusion.wt_ukf import WaveletUkf, run_wt_ukf, wavelet_noise_estimate
-from fusion_synth import foot_imu_straight, park_like_walk
-
-
-def exact_ranges(walk, rate_hz=50.0):
-    t = np.arange(walk.truth.t_s[0], walk.truth.t_s[-1], 1.0 / rate_hz)
-    g = walk.geometry
-    r = g.range_m(np.interp(t, walk.truth.t_s, walk.truth.x_m), np.interp(t, walk.truth.t_s, walk.truth.y_m))
-    return RangeSeries(t, r - g.start_range_m(), np.full(len(t), 20.0), np.ones(len(t), bool))
+from fusion_synth import exact_ranges, foot_imu_straight, park_like_walk, ranges_with_blockage
 
 
 @pytest.fixture(scope="module")
@@ -35,10 +27,7 @@ def gain_walk():
 def test_kalman_filters_re_anchor_the_range_after_a_long_gap(runner):
     """The range returns from a 20 s gap 8 m off: re-anchoring keeps it out of the position."""
     walk = park_like_walk(gain=1.15, seed=4)
-    ranges = exact_ranges(walk)
-    gap = (ranges.t_s > 40.0) & (ranges.t_s < 60.0)
-    shifted = RangeSeries(ranges.t_s, ranges.range_change_m + np.where(ranges.t_s >= 60.0, 8.0, 0.0),
-                          ranges.snr_db, ranges.valid & ~gap)
+    shifted = ranges_with_blockage(walk, 40.0, 60.0, 8.0)
     epochs = build_epochs(walk.pdr, aggregate_ranges(shifted, walk.pdr.t_s), walk.initial_heading_rad)
     anchored = error_stats(position_errors_m(runner(epochs, walk.geometry), walk.truth)).p95_m
     held = error_stats(position_errors_m(runner(epochs, walk.geometry, ModelNoise(range_offset_m=0.0)),

@@ -9,17 +9,7 @@ from fusion import particle_filter as pf
 from fusion.metrics import error_stats, place_pdr, position_errors_m
 from fusion.model import Geometry, ModelNoise
 from fusion.observations import FilterEpochs, aggregate_ranges, build_epochs
-from fusion.records import RangeSeries
-from fusion_synth import park_like_walk
-
-
-def exact_ranges(walk, rate_hz=50.0):
-    """Noise-free range change along the truth, at ``rate_hz``."""
-    t = np.arange(walk.truth.t_s[0], walk.truth.t_s[-1], 1.0 / rate_hz)
-    x = np.interp(t, walk.truth.t_s, walk.truth.x_m)
-    y = np.interp(t, walk.truth.t_s, walk.truth.y_m)
-    g = walk.geometry
-    return RangeSeries(t, g.range_m(x, y) - g.start_range_m(), np.full(len(t), 20.0), np.ones(len(t), bool))
+from fusion_synth import exact_ranges, park_like_walk, ranges_with_blockage
 
 
 def epochs_for(walk, ranges):
@@ -190,11 +180,7 @@ def test_range_corrects_a_step_length_gain_error():
 def test_range_offset_absorbs_an_error_picked_up_in_a_gap():
     """The range returns from a 20 s gap 8 m off (a blocked stretch): the offset walk takes it, not the position."""
     walk = park_like_walk(gain=1.15, seed=4)
-    ranges = exact_ranges(walk)
-    gap = (ranges.t_s > 40.0) & (ranges.t_s < 60.0)
-    shifted = RangeSeries(ranges.t_s, ranges.range_change_m + np.where(ranges.t_s >= 60.0, 8.0, 0.0),
-                          ranges.snr_db, ranges.valid & ~gap)
-    epochs = epochs_for(walk, shifted)
+    epochs = epochs_for(walk, ranges_with_blockage(walk, 40.0, 60.0, 8.0))
     assert np.isnan(epochs.range_change_m[(epochs.t_s > 41.0) & (epochs.t_s < 59.0)]).all()
     errors = {}
     for offset_m in (ModelNoise().range_offset_m, 0.0):
@@ -231,11 +217,7 @@ def test_range_returning_far_off_after_a_long_gap_keeps_the_cloud():
     innovation over the offset's whole variance.
     """
     walk = park_like_walk(gain=1.0, seed=5)
-    ranges = exact_ranges(walk)
-    gap = (ranges.t_s > 30.0) & (ranges.t_s < 90.0)
-    shifted = RangeSeries(ranges.t_s, ranges.range_change_m + np.where(ranges.t_s >= 90.0, 8.0, 0.0),
-                          ranges.snr_db, ranges.valid & ~gap)
-    epochs = epochs_for(walk, shifted)
+    epochs = epochs_for(walk, ranges_with_blockage(walk, 30.0, 90.0, 8.0))
     back = int(np.argmax(np.isfinite(epochs.range_change_m) & (epochs.t_s > 90.0)))
     f = pf.ParticleFilter(walk.geometry, n_particles=2000, seed=2)
     f.initialise(float(epochs.pdr_heading_rad[0]), float(epochs.pdr_speed_mps[0]))
