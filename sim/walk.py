@@ -199,7 +199,8 @@ def build_path(waypoints_m: list[list[float]], closed: bool, corner_radius_m: fl
     tan_half = np.tan(np.abs(turn) / 2.0)
     # Tangent distance from each corner, limited to half of either adjacent segment.
     cut = np.minimum(corner_radius_m * tan_half, 0.5 * np.minimum(seg_len[:-1], seg_len[1:]))
-    cut = np.where(np.abs(turn) > 1e-9, cut, 0.0)
+    # No arc for a straight-through corner, nor for a cut so small that 1 / radius would overflow.
+    cut = np.where((np.abs(turn) > 1e-9) & (cut > 1e-9), cut, 0.0)
     cut_in = np.concatenate([[0.0], cut])   # trimmed from each segment's start
     cut_out = np.concatenate([cut, [0.0]])  # trimmed from each segment's end
 
