@@ -111,7 +111,7 @@ def test_wt_ukf_re_estimates_only_the_chosen_channels(gain_walk, rows, monkeypat
                                 epochs.pdr_speed_mps[n], noise), n)
     nominal = np.array([epochs.range_sigma_m[n], noise.pdr_heading_rad, noise.pdr_speed_mps])
     changed = ~np.isclose(seen["r"], nominal)
-    assert changed[0]  # a smooth exact range: the wavelet sees far less than the nominal 0.5 m
+    assert changed[0]  # a smooth exact range: the wavelet sees far less than the nominal sigma
     assert list(changed[1:]) == [1 in rows, 2 in rows]
 
 
