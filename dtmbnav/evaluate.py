@@ -306,8 +306,8 @@ def format_table(rows: list[EvaluationRow]) -> str:
     for r in rows:
         lines.append(
             f"{r.scenario:<15} {r.filter:<12} {r.seeds:>5}  {r.p68_m:6.2f} {r.p95_m:6.2f} {r.max_m:6.2f}  "
-            f"{_fmt(None if r.reduction_95 is None else 100 * r.reduction_95, '5.0f'):>5}% "
-            f"{_fmt(None if r.reduction_95_vs_fix is None else 100 * r.reduction_95_vs_fix, '6.0f'):>6}%  "
+            f"{_fmt(None if r.reduction_95 is None else 100 * r.reduction_95, '5.1f'):>5}% "
+            f"{_fmt(None if r.reduction_95_vs_fix is None else 100 * r.reduction_95_vs_fix, '6.1f'):>6}%  "
             f"{r.heading_error_median_deg:6.2f}d  |       {_fmt(r.paper_p68_m, '6.2f'):>6} "
             f"{_fmt(r.paper_p95_m, '6.2f'):>6} {_fmt(r.paper_max_m, '6.2f'):>6} "
             f"{_fmt(None if r.paper_reduction_95 is None else 100 * r.paper_reduction_95, '4.0f'):>4}%")

@@ -60,6 +60,8 @@ def test_fusion_beats_the_pdr_on_a_gain_error(park_rows):
 def test_table_and_json(park_rows):
     table = ev.format_table(park_rows)
     assert "park-loop-ccw" in table and "9.19" in table and "41%" in table
+    # Reductions carry a decimal: a 40.5 % cut must not print as the paper's 41 %.
+    assert f"{100 * park_rows[2].reduction_95:5.1f}%" in table
     decoded = json.loads(ev.rows_to_json(park_rows))
     assert decoded[2]["filter"] == "pf" and decoded[2]["p95_m"] == pytest.approx(park_rows[2].p95_m)
 
