@@ -227,7 +227,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--filters", default="pf,ukf,wt-ukf,adaptive-kf,rank-kf", help="comma-separated filters")
     p.add_argument("--tower", type=_xy, metavar="X,Y", help="tower position, ENU m (default: from the sensors file)")
     p.add_argument("--start", type=_xy, metavar="X,Y", help="start fix P0, ENU m (default: from /gnss)")
-    p.add_argument("--particles", type=int, help="particle-filter Np (default 10000)")
+    p.add_argument("--particles", type=int,
+                   help="particle-filter Np (default: fusion.particle_filter.DEFAULT_PARTICLES)")
     p.add_argument("--seed", type=int, default=0, help="particle-filter seed")
     _add_pdr_options(p)
     p.set_defaults(handler=cmd_fuse)
