@@ -28,7 +28,7 @@ from dataclasses import asdict, dataclass
 import numba
 import numpy as np
 
-from receiver.gb20600 import SYMBOL_RATE_HZ
+from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,6 @@ unless ``time_offset_s`` says otherwise.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import os
 from dataclasses import dataclass
@@ -23,21 +22,24 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from fusion.pdr import PdrConfig, run_pdr
-from fusion.pdr.pipeline import PdrResult
-from fusion.records import RangeSeries
+from dtmbnav.core import schema
+from dtmbnav.core.h5io import atomic_h5, read_attrs, read_columns, write_columns
+from dtmbnav.core.records import FrameFlag, RangeSeries
+from dtmbnav.core.sensors import (
+    read_capture_start_s,
+    read_gnss,
+    read_imu,
+    read_tower,
+    read_weinberg_k_m,
+)
+from fusion.pdr import PdrConfig, PdrResult, run_pdr
 from fusion.run import FusionConfig, FusionResult, fuse
-from receiver.capture import CaptureSource
-from receiver.h5io import atomic_h5, read_attrs, read_columns, write_columns
+from receiver.capture import CaptureSource, open_capture
 from receiver.pipeline import ReceiverConfig, receive_file
-from receiver.records import FrameFlag
-from receiver.writer import FRAMES_GROUP, write_csv
+from receiver.writer import write_csv
 
 #: Frame flags that make a frame's range unusable for fusion.
 UNUSABLE_FLAGS = FrameFlag.GAP | FrameFlag.LOW_QUALITY
-
-#: Attribute of ``/imu`` holding the Weinberg gain calibrated for the walker and device.
-WEINBERG_K_ATTR = "weinberg_k_m"
 
 
 @dataclass(frozen=True)
@@ -69,12 +71,6 @@ class ReceiveSummary:
                 f"f_s = {a.get('clock_offset_hz', float('nan')):.2f} Hz, {self.gaps} gap(s)")
 
 
-def receiver_config_from_args(args: argparse.Namespace) -> ReceiverConfig:
-    """Receiver settings from the command line's receiver options."""
-    return ReceiverConfig(pn_mode=args.pn_mode, static_window_s=args.static_window,
-                          clock_offset_hz=args.clock_offset, conjugate_iq=args.conjugate)
-
-
 def receive_capture(source: CaptureSource, out_path: str | os.PathLike, config: ReceiverConfig,
                     csv_path: str | None = None, progress: bool = True) -> ReceiveSummary:
     """Receive a capture into ``out_path`` (``/receiver/frames``) and summarise it."""
@@ -99,19 +95,6 @@ def ranges_from_frames(columns: dict[str, np.ndarray], time_offset_s: float = 0.
                        snr_db=columns.get("si_snr_db", columns["snr_db"]).astype(np.float64), valid=valid)
 
 
-def capture_time_offset_s(sensors_path: str | os.PathLike) -> float:
-    """Where a simulated capture starts on the sensors file's clock, s (0 if not recorded)."""
-    with h5py.File(sensors_path, "r") as f:
-        if "truth/frames" in f:
-            return float(f["truth/frames"].attrs.get("capture_start_s", 0.0))
-    return 0.0
-
-
-def pdr_config_from_args(args: argparse.Namespace) -> PdrConfig:
-    """PDR settings from the command line (the gain may still come from the file)."""
-    return PdrConfig(step_model=args.step_model, weinberg_k_m=args.weinberg_k)
-
-
 def resolve_pdr_config(config: PdrConfig, sensors_path: str | os.PathLike) -> PdrConfig:
     """Fill in the Weinberg gain from the sensors file when the user gave none.
 
@@ -120,25 +103,23 @@ def resolve_pdr_config(config: PdrConfig, sensors_path: str | os.PathLike) -> Pd
     """
     if config.step_model != "weinberg" or config.weinberg_k_m is not None:
         return config
-    k_m = read_attrs(sensors_path, "imu").get(WEINBERG_K_ATTR)
+    k_m = read_weinberg_k_m(sensors_path)
     if k_m is None:
         return dataclasses.replace(config, step_model="frequency")
-    return dataclasses.replace(config, weinberg_k_m=float(k_m))
+    return dataclasses.replace(config, weinberg_k_m=k_m)
 
 
 def write_pdr(h5: h5py.File, result: PdrResult, config: PdrConfig) -> None:
     """Write ``/pdr`` (per step) and ``/pdr/track`` (resampled)."""
     attrs = {"step_model": config.step_model, "weinberg_k_m": config.weinberg_k_m or np.nan,
              "frame": "PDR frame: starts at (0, 0), heading relative to the initial one"}
-    write_columns(h5, "pdr", result.steps, attrs)
-    write_columns(h5, "pdr/track", result.track, {"rate_hz": config.output_rate_hz})
+    write_columns(h5, schema.PDR, result.steps, attrs)
+    write_columns(h5, schema.PDR_TRACK, result.track, {"rate_hz": config.output_rate_hz})
 
 
 def run_pdr_file(sensors_path: str | os.PathLike, out_path: str | os.PathLike, config: PdrConfig,
                  csv_path: str | None = None) -> PdrResult:
     """``dtmbnav pdr``: PDR on the ``/imu`` of a file, written to ``out_path``."""
-    from sim.walk_io import read_imu
-
     config = resolve_pdr_config(config, sensors_path)
     result = run_pdr(read_imu(sensors_path), config)
     with atomic_h5(out_path) as h5:
@@ -148,21 +129,12 @@ def run_pdr_file(sensors_path: str | os.PathLike, out_path: str | os.PathLike, c
     return result
 
 
-def tower_from_file(sensors_path: str | os.PathLike) -> tuple[float, float, float]:
-    """Tower position (x, y, height above the antenna, m) from a simulation's truth attributes."""
-    attrs = read_attrs(sensors_path, "truth/trajectory")
-    try:
-        return float(attrs["tower_x_m"]), float(attrs["tower_y_m"]), float(attrs.get("tower_height_above_receiver_m", 0.0))
-    except KeyError:
-        raise ValueError(f"{sensors_path}: no tower position in /truth/trajectory; give --tower X,Y") from None
-
-
 def write_fusion(h5: h5py.File, result: FusionResult) -> None:
     """Write ``/fusion/<filter>`` for every filter, with the initial heading used."""
     heading = result.heading
     for name, track in result.tracks.items():
-        write_columns(h5, f"fusion/{name}", track, {
-            "initial_heading_rad": heading.heading_rad, "initial_heading_confidence": heading.confidence,
+        write_columns(h5, schema.fusion_group(name), track, {
+            schema.INITIAL_HEADING_ATTR: heading.heading_rad, "initial_heading_confidence": heading.confidence,
             "initial_heading_minima_rad": heading.minima_rad, "initial_heading_costs_m": heading.costs_m})
 
 
@@ -171,10 +143,8 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
                start_xy_m: tuple[float, float] | None = None, n_particles: int | None = None,
                seed: int = 0) -> FusionResult:
     """``dtmbnav fuse``: receiver range + PDR of the sensors file -> ``/pdr`` and ``/fusion/*``."""
-    from sim.walk_io import read_gnss, read_imu
-
-    frames = read_columns(receiver_path, FRAMES_GROUP)
-    ranges = ranges_from_frames(frames, capture_time_offset_s(sensors_path))
+    frames = read_columns(receiver_path, schema.RECEIVER_FRAMES)
+    ranges = ranges_from_frames(frames, read_capture_start_s(sensors_path))
     pdr_config = resolve_pdr_config(pdr_config, sensors_path)
     pdr = run_pdr(read_imu(sensors_path), pdr_config)
     if start_xy_m is None:
@@ -182,17 +152,16 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
         start_xy_m = (fix.x_m, fix.y_m)
     height_m = 0.0
     if tower_xy_m is None:
-        *tower_xy, height_m = tower_from_file(sensors_path)
+        *tower_xy, height_m = read_tower(sensors_path)
         tower_xy_m = (tower_xy[0], tower_xy[1])
     config = FusionConfig(seed=seed) if n_particles is None else FusionConfig(n_particles=n_particles, seed=seed)
     result = fuse(pdr.steps, ranges, start_xy_m, tower_xy_m, filters, tower_height_m=height_m, config=config)
-    rx_attrs = read_attrs(receiver_path, FRAMES_GROUP)
+    rx_attrs = read_attrs(receiver_path, schema.RECEIVER_FRAMES)
     with atomic_h5(out_path) as h5:
-        write_columns(h5, FRAMES_GROUP, frames, rx_attrs)
+        write_columns(h5, schema.RECEIVER_FRAMES, frames, rx_attrs)
         write_pdr(h5, pdr, pdr_config)
         write_fusion(h5, result)
     return result
-
 
 
 #: Share of the IMU log the receiver's frames must span before ``run`` fuses.
@@ -201,11 +170,11 @@ MIN_FUSION_COVERAGE = 0.5
 
 def range_coverage_s(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike) -> tuple[float, float]:
     """Seconds of the IMU log covered by receiver frames, and the log's length, s."""
-    frames = read_columns(receiver_path, FRAMES_GROUP)
-    imu_t = read_columns(sensors_path, "imu")["t_s"]
+    frames = read_columns(receiver_path, schema.RECEIVER_FRAMES)
+    imu_t = read_columns(sensors_path, schema.IMU)["t_s"]
     if len(frames["t_s"]) == 0:
         return 0.0, float(imu_t[-1] - imu_t[0])
-    t = frames["t_s"] + capture_time_offset_s(sensors_path)
+    t = frames["t_s"] + read_capture_start_s(sensors_path)
     covered = max(0.0, min(t[-1], imu_t[-1]) - max(t[0], imu_t[0]))
     return covered, float(imu_t[-1] - imu_t[0])
 
@@ -250,7 +219,6 @@ def run_directory(directory: str | os.PathLike, output: str | os.PathLike, filte
     is a few seconds), the run stops after the receiver, says so, and
     reports the receiver against the truth.
     """
-    from receiver.capture import open_capture
     from dtmbnav.report import write_receiver_report, write_report
 
     capture_path, sensors_path = find_capture_set(directory)
@@ -262,7 +230,7 @@ def run_directory(directory: str | os.PathLike, output: str | os.PathLike, filte
     if not summary.frames:
         return RunOutcome(rx_path, None, None, "\n".join(lines))
     with h5py.File(sensors_path, "r") as f:
-        has_truth = "truth/trajectory" in f
+        has_truth = schema.TRUTH_TRAJECTORY in f
     truth_path = sensors_path if has_truth else None
     covered_s, walk_s = range_coverage_s(rx_path, sensors_path)
     if covered_s < MIN_FUSION_COVERAGE * walk_s:

@@ -9,7 +9,8 @@ Exit codes
 
 Diagnostics go to stderr; ``-`` means stdin/stdout where a stream makes sense.
 Heavy imports (numba kernels) happen inside the handlers so that ``--help``
-stays instant.
+stays instant. This module is the only one that knows the command line's
+option names: it turns them into the libraries' typed configs.
 """
 
 from __future__ import annotations
@@ -17,6 +18,9 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+
+from fusion import DEFAULT_PARTICLES, FILTER_NAMES, FOOT_INS
+from receiver import DEFAULT_STATIC_WINDOW_S
 
 EXIT_OK = 0
 EXIT_NO_RESULT = 1
@@ -40,20 +44,33 @@ examples:
 """
 
 
-class CliError(Exception):
-    """An error to report on stderr with an exit code, without a traceback."""
-
-    def __init__(self, message: str, code: int = EXIT_BAD_INPUT) -> None:
-        super().__init__(message)
-        self.code = code
-
-
 def _xy(text: str) -> tuple[float, float]:
     try:
         x, y = (float(v) for v in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected X,Y in metres, got {text!r}") from None
     return x, y
+
+
+def _filter_list(known: tuple[str, ...]):
+    """An argparse type: comma-separated names, each one of ``known``."""
+    def parse(text: str) -> tuple[str, ...]:
+        names = tuple(name for name in text.split(",") if name)
+        unknown = [name for name in names if name not in known]
+        if unknown or not names:
+            raise argparse.ArgumentTypeError(f"unknown filter(s) {unknown or [text]}; choose from {','.join(known)}")
+        return names
+    return parse
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
+    return value
 
 
 def _rate(text: str) -> float:
@@ -69,46 +86,59 @@ def _rate(text: str) -> float:
 # --- handlers ---------------------------------------------------------------------------
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    from dtmbnav.simulation import simulate_capture_set
     from sim.scenario import load_scenario
-    from sim.simulate import simulate
 
     scenario = load_scenario(args.scenario)
-    result = simulate(scenario, args.output, seconds=args.seconds, start_s=args.start,
-                      sample_rate_hz=args.rate, sample_format=args.format, pn_mode=args.pn_mode,
-                      seed=args.seed, container=args.container, with_iq=not args.no_iq,
-                      progress=not args.quiet)
+    result = simulate_capture_set(scenario, args.output, seconds=args.seconds, start_s=args.start,
+                                  sample_rate_hz=args.rate, sample_format=args.format, pn_mode=args.pn_mode,
+                                  seed=args.seed, container=args.container, with_iq=not args.no_iq,
+                                  progress=not args.quiet)
     if result.capture_path is not None:
         print(f"capture: {result.capture_path}", file=sys.stderr)
     print(f"truth:   {result.truth_path}", file=sys.stderr)
     return EXIT_OK
 
 
+def _receiver_config(args: argparse.Namespace):
+    from receiver.pipeline import ReceiverConfig
+
+    return ReceiverConfig(pn_mode=args.pn_mode, static_window_s=args.static_window,
+                          clock_offset_hz=args.clock_offset, conjugate_iq=args.conjugate)
+
+
+def _pdr_config(args: argparse.Namespace):
+    from fusion.pdr import PdrConfig
+
+    return PdrConfig(step_model=args.step_model, weinberg_k_m=args.weinberg_k)
+
+
 def cmd_receive(args: argparse.Namespace) -> int:
-    from dtmbnav.chain import receive_capture, receiver_config_from_args
+    from dtmbnav.chain import receive_capture
     from receiver.capture import open_capture
 
     source = open_capture(args.capture, sample_format=args.format, sample_rate_hz=args.rate,
                           center_hz=args.center)
-    summary = receive_capture(source, args.output, receiver_config_from_args(args), csv_path=args.csv,
+    summary = receive_capture(source, args.output, _receiver_config(args), csv_path=args.csv,
                               progress=not args.quiet)
     print(summary.describe(), file=sys.stderr)
     return EXIT_OK if summary.frames else EXIT_NO_RESULT
 
 
 def cmd_pdr(args: argparse.Namespace) -> int:
-    from dtmbnav.chain import pdr_config_from_args, run_pdr_file
+    from dtmbnav.chain import run_pdr_file
 
-    result = run_pdr_file(args.sensors, args.output, pdr_config_from_args(args), csv_path=args.csv)
+    result = run_pdr_file(args.sensors, args.output, _pdr_config(args), csv_path=args.csv)
     print(f"pdr: {len(result.steps)} steps, {result.steps.step_length_m.sum():.1f} m walked -> {args.output}",
           file=sys.stderr)
     return EXIT_OK if len(result.steps) else EXIT_NO_RESULT
 
 
 def cmd_fuse(args: argparse.Namespace) -> int:
-    from dtmbnav.chain import fuse_files, pdr_config_from_args
+    from dtmbnav.chain import fuse_files
 
-    result = fuse_files(args.receiver, args.sensors, args.output, filters=tuple(args.filters.split(",")),
-                        pdr_config=pdr_config_from_args(args), tower_xy_m=args.tower, start_xy_m=args.start,
+    result = fuse_files(args.receiver, args.sensors, args.output, filters=args.filters,
+                        pdr_config=_pdr_config(args), tower_xy_m=args.tower, start_xy_m=args.start,
                         n_particles=args.particles, seed=args.seed)
     print(f"initial heading {result.heading.describe()}", file=sys.stderr)
     print(f"fused {', '.join(result.tracks)} -> {args.output}", file=sys.stderr)
@@ -118,7 +148,7 @@ def cmd_fuse(args: argparse.Namespace) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     from dtmbnav.chain import run_directory
 
-    outcome = run_directory(args.directory, args.output, filters=tuple(args.filters.split(",")),
+    outcome = run_directory(args.directory, args.output, filters=args.filters,
                             progress=not args.quiet)
     print(outcome.summary, file=sys.stderr if args.json else sys.stdout)
     return EXIT_OK
@@ -134,18 +164,28 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from dtmbnav import evaluate
+    from fusion.run import FusionConfig
 
+    scenarios = evaluate.expand_scenarios(args.scenarios)
     if args.pdr:
         from dtmbnav.pdr_table import pdr_table
 
-        print(pdr_table(evaluate.expand_scenarios(args.scenarios)))
+        print(pdr_table(scenarios))
         return EXIT_OK
-    argv = [*args.scenarios, "--seeds", str(args.seeds), "--filters", args.filters]
-    if args.particles is not None:
-        argv += ["--particles", str(args.particles)]
+    config = FusionConfig() if args.particles is None else FusionConfig(n_particles=args.particles)
+    rows: list[evaluate.EvaluationRow] = []
+    for name in scenarios:
+        rows.extend(evaluate.evaluate(name, args.seeds, args.filters, config=config))
+        print(f"evaluated {name}", file=sys.stderr)
+    table = evaluate.format_table(rows)
+    if args.json == "-":
+        print(evaluate.rows_to_json(rows))
+        print(table, file=sys.stderr)
+        return EXIT_OK
+    print(table)
     if args.json:
-        argv += ["--json", args.json]
-    return evaluate.main(argv)
+        Path(args.json).write_text(evaluate.rows_to_json(rows))
+    return EXIT_OK
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -161,14 +201,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+FILTERS_HELP = f"comma-separated filters (default: all, {','.join(FILTER_NAMES)})"
+
+
 # --- parser -------------------------------------------------------------------------------
 
 def _add_receiver_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("receiver")
     g.add_argument("--pn-mode", choices=["PN420", "PN595", "PN945"], help="header mode (default: detect)")
-    g.add_argument("--static-window", type=float, default=10.0, metavar="S",
+    g.add_argument("--static-window", type=float, default=DEFAULT_STATIC_WINDOW_S, metavar="S",
                    help="seconds at the start during which the receiver stands still; f_s is measured there "
-                        "(default 10)")
+                        f"(default {DEFAULT_STATIC_WINDOW_S:g})")
     g.add_argument("--clock-offset", type=float, metavar="HZ",
                    help="oscillator offset f_s in Hz, if known (skips the static window)")
     g.add_argument("--conjugate", action="store_true", help="the front end swaps I and Q")
@@ -224,11 +267,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--receiver", required=True, help="HDF5 file with /receiver/frames")
     p.add_argument("--sensors", required=True, help="HDF5 file with /imu and /gnss (start fix)")
     p.add_argument("-o", "--output", required=True, type=Path, help="output HDF5 file (/pdr, /fusion/<filter>)")
-    p.add_argument("--filters", default="pf,ukf,wt-ukf,adaptive-kf,rank-kf", help="comma-separated filters")
+    p.add_argument("--filters", type=_filter_list(FILTER_NAMES), default=FILTER_NAMES, help=FILTERS_HELP)
     p.add_argument("--tower", type=_xy, metavar="X,Y", help="tower position, ENU m (default: from the sensors file)")
     p.add_argument("--start", type=_xy, metavar="X,Y", help="start fix P0, ENU m (default: from /gnss)")
-    p.add_argument("--particles", type=int,
-                   help="particle-filter Np (default: fusion.particle_filter.DEFAULT_PARTICLES)")
+    p.add_argument("--particles", type=_positive_int, help=f"particle-filter Np (default {DEFAULT_PARTICLES})")
     p.add_argument("--seed", type=int, default=0, help="particle-filter seed")
     _add_pdr_options(p)
     p.set_defaults(handler=cmd_fuse)
@@ -237,7 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("directory", nargs="?", default="captures", type=Path,
                    help="folder with one capture and its sensors/truth file (default: captures/)")
     p.add_argument("-o", "--output", type=Path, default=Path("out/run"), help="output folder (default out/run)")
-    p.add_argument("--filters", default="pf,ukf,wt-ukf,adaptive-kf,rank-kf", help="comma-separated filters")
+    p.add_argument("--filters", type=_filter_list(FILTER_NAMES), default=FILTER_NAMES, help=FILTERS_HELP)
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(handler=cmd_run)
 
@@ -249,9 +291,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("evaluate", help="Monte Carlo accuracy table of every filter against truth")
     p.add_argument("scenarios", nargs="+", help="scenario names/files; 'all', 'park-loop', 'street' = groups")
-    p.add_argument("--seeds", type=int, default=20, help="walks per scenario (default 20)")
-    p.add_argument("--filters", default="pf,ukf,wt-ukf,adaptive-kf,rank-kf", help="comma-separated filters")
-    p.add_argument("--particles", type=int, help="particle-filter Np")
+    p.add_argument("--seeds", type=_positive_int, default=20, help="walks per scenario (default 20)")
+    p.add_argument("--filters", type=_filter_list((*FILTER_NAMES, FOOT_INS)), default=FILTER_NAMES,
+                   help=f"{FILTERS_HELP}; {FOOT_INS} adds the foot-mounted ZUPT INS")
+    p.add_argument("--particles", type=_positive_int, help=f"particle-filter Np (default {DEFAULT_PARTICLES})")
     p.add_argument("--json", metavar="FILE", help="also write the table as JSON ('-' for stdout)")
     p.add_argument("--pdr", action="store_true", help="only the PDR figures (steps, step length, drift, error)")
     p.set_defaults(handler=cmd_evaluate)
@@ -275,9 +318,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.handler(args)
-    except CliError as exc:
-        print(f"dtmbnav {args.command}: {exc}", file=sys.stderr)
-        return exc.code
     except (ValueError, OSError) as exc:
         print(f"dtmbnav {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -15,17 +15,16 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-
 from dtmbnav.chain import fuse_files
+from dtmbnav.core.iqformat import decode, get_format
 from dtmbnav.report import write_report
+from dtmbnav.simulation import simulate_capture_set
 from fusion.pdr import PdrConfig
 from fusion.run import FILTERS
-from receiver.iqformat import decode, get_format
 from receiver.pipeline import Receiver, ReceiverConfig, receive_into_sink
 from receiver.writer import FrameSink
 from sim.rf import CaptureGenerator
 from sim.scenario import load_scenario
-from sim.simulate import simulate
 from sim.walk import simulate_walk
 
 #: Samples generated and received per step of the stream.
@@ -53,7 +52,7 @@ def run_demo(out_dir: Path, scenario: str = "park-loop", seconds: float | None =
     scn = load_scenario(scenario)
     out_dir = Path(out_dir)
     print(f"[1/4] simulating the {scn.name} walk, IMU and truth", file=sys.stderr)
-    truth_path = simulate(scn, out_dir, seconds=seconds, with_iq=False).truth_path
+    truth_path = simulate_capture_set(scn, out_dir, seconds=seconds, with_iq=False).truth_path
     print(f"[2/4] generating the IQ at {scn.receiver.sample_rate_hz / 1e6:g} Msps {scn.receiver.sample_format} "
           "and receiving it (streamed, nothing large on disk)", file=sys.stderr)
     rx_path = out_dir / "receiver.h5"

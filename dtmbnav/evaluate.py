@@ -6,7 +6,7 @@ scenario (with the seed) -> walk -> phone IMU -> PDR, and a range source
 plugs in through ``range_source``) -> :func:`fusion.run.fuse` -> error of
 every filter against the truth at the PDR step times.
 
-Figures, as the paper reports them (method.md §6):
+Figures, as the paper reports them (``docs/method.md`` §6):
 
 - 68 % / 95 % / max position error of each filter and of the PDR, computed
   per walk and averaged over the seeds (the paper's table is one walk per
@@ -20,32 +20,40 @@ way the paper reports PDR error: its relative track rotated by the true
 initial heading and started at the true start. The filters start from the
 GNSS start fix and the solved heading, as a user would; row ``pdr@fix`` is
 the PDR placed that same way, for a like-for-like comparison. It is also how
-the paper's own PDR must have been placed (method.md §4: the PDR starts at
+the paper's own PDR must have been placed (``docs/method.md`` §4: the PDR starts at
 the last GNSS fix P0, and its initial heading is what eq. 15 solves), so
 column ``red@fix`` is the closer match to the paper's reduction; column
 ``95%red`` measures against the stricter true-start, true-heading PDR.
 
-``python -m dtmbnav.evaluate all --seeds 20`` prints the table for the four
-reference walks; ``--json FILE`` also writes it (``-`` for stdout).
+``dtmbnav evaluate all --seeds 20`` prints the table for the four reference
+walks; ``--json FILE`` also writes it (``-`` for stdout). The protocol is
+``docs/evaluation.md``.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 from dataclasses import asdict, dataclass
 from typing import Callable
 
 import numpy as np
 
-from fusion.metrics import (error_stats, heading_error_rad, interpolate_track, place_pdr, position_errors_m,
-                            true_initial_heading_rad)
+from dtmbnav.core.records import ImuLog, PdrSteps, RangeSeries, Track
+from dtmbnav.paper import paper_figures
+from dtmbnav.simulation import calibration_walk_k_m
+from fusion import FILTER_NAMES, FOOT_INS
+from fusion.foot_ins import ZuptInsRankKf
+from fusion.metrics import (
+    PDR_AT_FIX,
+    PDR_BASELINE,
+    error_stats,
+    heading_error_rad,
+    interpolate_track,
+    pdr_baselines,
+    position_errors_m,
+)
 from fusion.pdr import PdrConfig, run_pdr
-from fusion.rank_kf import ZuptInsRankKf
-from fusion.records import ImuLog, PdrSteps, RangeSeries, Track
-from fusion.run import FILTERS, FusionConfig, fuse
-from sim.calibration import calibration_walk_k_m
+from fusion.run import FusionConfig, fuse
 from sim.gnss import simulate_start_fix
 from sim.imu import simulate_imu
 from sim.obs_range import simulate_obs_range
@@ -55,29 +63,6 @@ from sim.walk import simulate_walk
 #: The four reference walks, and the names that stand for groups of them here.
 REFERENCE_WALKS = ("park-loop-cw", "park-loop-ccw", "street-out", "street-back")
 GROUPS = {"all": REFERENCE_WALKS, "park-loop": REFERENCE_WALKS[:2], "street": REFERENCE_WALKS[2:]}
-
-
-@dataclass(frozen=True)
-class PaperFigures:
-    """One scene of the paper's Tables 1-2 (method.md §6): 68 % / 95 % / max, m."""
-
-    pdr: tuple[float, float, float]
-    pf: tuple[float, float, float]
-    reduction_95: float
-
-
-PAPER = {
-    "park-loop": PaperFigures(pdr=(2.67, 9.19, 10.84), pf=(2.08, 5.41, 7.31), reduction_95=0.41),
-    "street": PaperFigures(pdr=(9.70, 13.27, 15.41), pf=(6.50, 9.34, 11.21), reduction_95=0.30),
-}
-
-
-def paper_figures(scenario_name: str) -> PaperFigures | None:
-    """The paper's figures for a scenario (by its name's scene prefix), if it has any."""
-    for scene, figures in PAPER.items():
-        if scenario_name.startswith(scene):
-            return figures
-    return None
 
 
 @dataclass
@@ -111,12 +96,6 @@ class ChainOutput:
 RangeSource = Callable[[Scenario, Track], RangeSeries]
 Chain = Callable[[Scenario, RangeSource, bool], ChainOutput]
 
-#: Name of the foot-mounted ZUPT INS row (seed 004); it runs on its own IMU, not on fuse()'s inputs.
-ZUPT_INS = "zupt-ins"
-
-#: The PDR placed as a user without truth would place it: at the GNSS start fix, with the
-#: eq. 15 heading (the "pdr" row is the paper's baseline: true start, true heading).
-PDR_AT_FIX = "pdr@fix"
 
 
 def obs_range_source(scenario: Scenario, truth: Track) -> RangeSeries:
@@ -125,7 +104,7 @@ def obs_range_source(scenario: Scenario, truth: Track) -> RangeSeries:
 
 
 def calibrated_pdr_config(scenario: Scenario) -> PdrConfig:
-    """PDR settings with the Weinberg K from the walker's calibration walk (:mod:`sim.calibration`)."""
+    """PDR settings with the Weinberg K from the walker's calibration walk."""
     return PdrConfig(weinberg_k_m=calibration_walk_k_m(scenario))
 
 
@@ -171,27 +150,26 @@ def run_seed(scenario: Scenario, filters: tuple[str, ...], config: FusionConfig,
              range_source: RangeSource = obs_range_source, chain: Chain = simulated_chain) -> SeedResult:
     """Run one walk through the chain and the filters and measure the errors.
 
-    ``filters`` may include :data:`ZUPT_INS`: the foot-mounted ZUPT INS
-    (seed 004), which like the PDR baseline starts at the true start with the
+    ``filters`` may include :data:`FOOT_INS`: the foot-mounted ZUPT INS,
+    which like the PDR baseline starts at the true start with the
     true heading (it has no absolute heading either), evaluated at the PDR
     step times.
     """
-    out = chain(scenario, range_source, ZUPT_INS in filters)
+    out = chain(scenario, range_source, FOOT_INS in filters)
     tower = scenario.tower
-    fused = tuple(f for f in filters if f != ZUPT_INS)
+    fused = tuple(f for f in filters if f != FOOT_INS)
     result = fuse(out.pdr, out.ranges, out.start_fix_xy_m, (tower.x_m, tower.y_m), fused,
                   tower_height_m=tower.height_m - scenario.channel.antenna_height_m, config=config)
-    true_heading = true_initial_heading_rad(out.truth, out.walk_start_t_s)
-    start = (float(out.truth.x_m[0]), float(out.truth.y_m[0]))
-    tracks = {"pdr": place_pdr(out.pdr, *start, true_heading),
-              PDR_AT_FIX: place_pdr(out.pdr, *out.start_fix_xy_m, result.heading.heading_rad),
-              **result.tracks}
-    if ZUPT_INS in filters:
+    baselines, true_heading = pdr_baselines(out.pdr, out.truth, out.walk_start_t_s, out.start_fix_xy_m,
+                                            result.heading.heading_rad)
+    tracks = {**baselines, **result.tracks}
+    if FOOT_INS in filters:
         if out.foot_imu is None:
-            raise ValueError(f"run_seed: {ZUPT_INS!r} asked for but the chain produced no foot IMU")
+            raise ValueError(f"run_seed: {FOOT_INS!r} asked for but the chain produced no foot IMU")
         foot = out.foot_imu
+        start = (float(out.truth.x_m[0]), float(out.truth.y_m[0]))
         ins = ZuptInsRankKf().run(foot.t_s, foot.acc_mps2, foot.gyro_radps, start, true_heading)
-        tracks[ZUPT_INS] = interpolate_track(ins, out.pdr.t_s)
+        tracks[FOOT_INS] = interpolate_track(ins, out.pdr.t_s)
     return SeedResult(truth=out.truth, tracks=tracks,
                       errors_m={name: position_errors_m(track, out.truth) for name, track in tracks.items()},
                       heading_error_rad=float(heading_error_rad(result.heading.heading_rad, true_heading)))
@@ -232,11 +210,11 @@ def summarise(scenario_name: str, results: list[SeedResult]) -> list[EvaluationR
     rows = []
     for name in names:
         p68, p95, pmax = mean[name]
-        reference = {"pdr": paper.pdr, "pf": paper.pf}.get(name) if paper else None
+        reference = {PDR_BASELINE: paper.pdr, "pf": paper.pf}.get(name) if paper else None
         rows.append(EvaluationRow(
             scenario=scenario_name, filter=name, seeds=len(results), p68_m=p68, p95_m=p95, max_m=pmax,
-            reduction_95=None if name in ("pdr", PDR_AT_FIX) else 1.0 - p95 / mean["pdr"][1],
-            reduction_95_vs_fix=None if name in ("pdr", PDR_AT_FIX) else 1.0 - p95 / mean[PDR_AT_FIX][1],
+            reduction_95=None if name in (PDR_BASELINE, PDR_AT_FIX) else 1.0 - p95 / mean[PDR_BASELINE][1],
+            reduction_95_vs_fix=None if name in (PDR_BASELINE, PDR_AT_FIX) else 1.0 - p95 / mean[PDR_AT_FIX][1],
             heading_error_median_deg=heading_median,
             paper_p68_m=reference[0] if reference else None, paper_p95_m=reference[1] if reference else None,
             paper_max_m=reference[2] if reference else None,
@@ -244,7 +222,7 @@ def summarise(scenario_name: str, results: list[SeedResult]) -> list[EvaluationR
     return rows
 
 
-def run_seeds(scenario: str | Scenario, seeds: int = 20, filters: tuple[str, ...] = tuple(FILTERS),
+def run_seeds(scenario: str | Scenario, seeds: int = 20, filters: tuple[str, ...] = FILTER_NAMES,
               level: str = "obs", range_source: RangeSource | None = None, config: FusionConfig = FusionConfig(),
               first_seed: int = 0, chain: Chain = simulated_chain) -> tuple[str, list[SeedResult]]:
     """Monte Carlo walks of one scenario; returns its name and the per-walk results.
@@ -257,7 +235,7 @@ def run_seeds(scenario: str | Scenario, seeds: int = 20, filters: tuple[str, ...
         Number of Monte Carlo walks; walk k uses scenario seed
         ``1000 * scenario.seed + first_seed + k``.
     filters : tuple of str
-        Filters to run (:data:`fusion.run.FILTERS`, and :data:`ZUPT_INS`).
+        Filters to run (:data:`fusion.FILTER_NAMES`, and :data:`FOOT_INS`).
     level : {"obs", "iq"}
         Where the receiver range comes from: the observation-level model, or
         ``range_source`` (the IQ pipeline: scenario, truth -> RangeSeries).
@@ -280,7 +258,7 @@ def run_seeds(scenario: str | Scenario, seeds: int = 20, filters: tuple[str, ...
                       for k in range(seeds)]
 
 
-def evaluate(scenario: str | Scenario, seeds: int = 20, filters: tuple[str, ...] = tuple(FILTERS),
+def evaluate(scenario: str | Scenario, seeds: int = 20, filters: tuple[str, ...] = FILTER_NAMES,
              level: str = "obs", range_source: RangeSource | None = None, config: FusionConfig = FusionConfig(),
              first_seed: int = 0, chain: Chain = simulated_chain) -> list[EvaluationRow]:
     """Monte Carlo evaluation of one scenario (arguments as :func:`run_seeds`).
@@ -326,35 +304,3 @@ def expand_scenarios(names: list[str]) -> list[str]:
         out.extend(GROUPS.get(name, (name,)))
     return out
 
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m dtmbnav.evaluate SCENARIO... [--seeds N] [--json FILE]``."""
-    parser = argparse.ArgumentParser(prog="dtmbnav evaluate", description=__doc__.split("\n\n")[0])
-    parser.add_argument("scenarios", nargs="+", help="scenario names or files; 'all', 'park-loop', 'street' "
-                                                    "stand for the reference walks")
-    parser.add_argument("--seeds", type=int, default=20, help="Monte Carlo walks per scenario (default 20)")
-    parser.add_argument("--filters", default=",".join((*FILTERS, ZUPT_INS)),
-                        help="comma-separated filter names (default: all, and the foot ZUPT INS)")
-    parser.add_argument("--particles", type=int, default=FusionConfig().n_particles, help="particle-filter Np")
-    parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON ('-' for stdout)")
-    args = parser.parse_args(argv)
-    config = FusionConfig(n_particles=args.particles)
-    filters = tuple(f for f in args.filters.split(",") if f)
-    rows: list[EvaluationRow] = []
-    for name in expand_scenarios(args.scenarios):
-        rows.extend(evaluate(name, args.seeds, filters, config=config))
-        print(f"evaluated {name}", file=sys.stderr)
-    table = format_table(rows)
-    if args.json == "-":
-        print(rows_to_json(rows))
-        print(table, file=sys.stderr)
-    else:
-        print(table)
-        if args.json:
-            with open(args.json, "w") as fh:
-                fh.write(rows_to_json(rows))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -8,11 +8,11 @@ error placed as the paper reports it, next to the paper's PDR row.
 
 from __future__ import annotations
 
-from dtmbnav.evaluate import paper_figures
+from dtmbnav.paper import paper_figures
+from dtmbnav.simulation import calibration_walk_k_m
 from fusion.pdr.attitude import AttitudeConfig
 from fusion.pdr.evaluate import evaluate_pdr, predicted_gyro_drift_dpm
 from fusion.pdr.pipeline import PdrConfig, run_pdr
-from sim.calibration import calibration_walk_k_m
 from sim.imu import simulate_imu_with_errors
 from sim.scenario import load_scenario
 from sim.walk import simulate_walk

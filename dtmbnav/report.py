@@ -3,7 +3,7 @@
 Reads a results file (``/receiver/frames``, ``/pdr``, ``/fusion/<filter>``)
 and, when available, the truth (``/truth``) of the same walk. Figures are PNG
 (matplotlib, Agg backend); the table is written as Markdown and JSON, with the
-paper's figures (method.md §6) next to ours.
+paper's figures (``docs/method.md`` §6) next to ours.
 """
 
 from __future__ import annotations
@@ -21,13 +21,21 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (backend chosen first: reports run headless)
 import numpy as np  # noqa: E402
 
-from dtmbnav.evaluate import paper_figures  # noqa: E402
-from fusion.metrics import (error_cdf, error_stats, heading_error_rad, place_pdr, position_errors_m,  # noqa: E402
-                            true_initial_heading_rad)
-from fusion.records import PdrSteps, Track  # noqa: E402
-from receiver.h5io import read_attrs, read_columns  # noqa: E402
-from receiver.writer import FRAMES_GROUP  # noqa: E402
-
+from dtmbnav.core import schema  # noqa: E402
+from dtmbnav.core.h5io import read_attrs, read_columns  # noqa: E402
+from dtmbnav.core.records import PdrSteps, Track  # noqa: E402
+from dtmbnav.core.sensors import read_tower, read_walk_truth  # noqa: E402
+from dtmbnav.paper import paper_figures  # noqa: E402
+from fusion.metrics import (  # noqa: E402
+    PDR_AT_FIX,
+    PDR_BASELINE,
+    error_cdf,
+    error_stats,
+    heading_error_rad,
+    pdr_baselines,
+    place_pdr,
+    position_errors_m,
+)
 
 
 @dataclass(frozen=True)
@@ -43,30 +51,30 @@ class SummaryRow:
 
 
 def _track(columns: dict[str, np.ndarray]) -> Track:
-    return Track(**{k: columns[k] for k in ("t_s", "x_m", "y_m", "heading_rad", "speed_mps")})
+    return Track(**{k: columns[k] for k in schema.TRACK_COLUMNS})
 
 
 def load_results(results_path: str | os.PathLike) -> tuple[dict[str, Track], PdrSteps, float]:
     """Fused tracks by filter, the PDR steps and the initial heading used."""
     with h5py.File(results_path, "r") as f:
-        if "fusion" not in f:
-            raise ValueError(f"{results_path}: no /fusion group (run 'dtmbnav fuse' or 'dtmbnav run' first)")
-        names = list(f["fusion"])
-    tracks = {name: _track(read_columns(results_path, f"fusion/{name}")) for name in names}
-    pdr_cols = read_columns(results_path, "pdr")
-    pdr = PdrSteps(**{k: pdr_cols[k] for k in ("t_s", "x_m", "y_m", "heading_rad", "speed_mps", "step_length_m")})
-    heading = float(read_attrs(results_path, f"fusion/{names[0]}")["initial_heading_rad"])
+        if schema.FUSION not in f:
+            raise ValueError(f"{results_path}: no /{schema.FUSION} group (run 'dtmbnav fuse' or 'dtmbnav run' first)")
+        names = list(f[schema.FUSION])
+    tracks = {name: _track(read_columns(results_path, schema.fusion_group(name))) for name in names}
+    pdr_cols = read_columns(results_path, schema.PDR)
+    pdr = PdrSteps(**{k: pdr_cols[k] for k in (*schema.TRACK_COLUMNS, "step_length_m")})
+    heading = float(read_attrs(results_path, schema.fusion_group(names[0]))[schema.INITIAL_HEADING_ATTR])
     return tracks, pdr, heading
 
 
 def summary_rows(truth: Track, estimates: dict[str, Track], scenario_name: str) -> list[SummaryRow]:
     """68/95/max of every estimate against the truth, with the 95 % reduction vs the ``pdr`` row."""
     stats = {name: error_stats(position_errors_m(track, truth)) for name, track in estimates.items()}
-    pdr95 = stats["pdr"].p95_m if "pdr" in stats else None
+    pdr95 = stats[PDR_BASELINE].p95_m if PDR_BASELINE in stats else None
     figures = paper_figures(scenario_name)
-    paper = {"pdr": figures.pdr, "pf": figures.pf} if figures else {}
+    paper = {PDR_BASELINE: figures.pdr, "pf": figures.pf} if figures else {}
     return [SummaryRow(name, s.p68_m, s.p95_m, s.max_m,
-                       None if name == "pdr" or pdr95 is None else 1.0 - s.p95_m / pdr95, paper.get(name))
+                       None if name == PDR_BASELINE or pdr95 is None else 1.0 - s.p95_m / pdr95, paper.get(name))
             for name, s in stats.items()]
 
 
@@ -82,7 +90,7 @@ def format_rows(rows: list[SummaryRow]) -> str:
 
 
 def _scenario_name(truth_path: str | os.PathLike) -> str:
-    text = str(read_attrs(truth_path, "truth/trajectory").get("scenario", ""))
+    text = str(read_attrs(truth_path, schema.TRUTH_TRAJECTORY).get("scenario", ""))
     return tomllib.loads(text).get("name", "") if text else ""
 
 
@@ -91,7 +99,7 @@ def plot_trajectories(path: Path, truth: Track | None, estimates: dict[str, Trac
     if truth is not None:
         ax.plot(truth.x_m, truth.y_m, "k-", lw=2.5, label="truth")
     for name, track in estimates.items():
-        ax.plot(track.x_m, track.y_m, "--" if name == "pdr" else "-", lw=1.2, label=name)
+        ax.plot(track.x_m, track.y_m, "--" if name == PDR_BASELINE else "-", lw=1.2, label=name)
     if tower_xy is not None:
         span = max(np.ptp(truth.x_m), np.ptp(truth.y_m)) if truth is not None else 50.0
         bearing = np.arctan2(tower_xy[0] - truth.x_m[0], tower_xy[1] - truth.y_m[0]) if truth is not None else 0.0
@@ -154,25 +162,21 @@ def write_report(results_path: str | os.PathLike, out_dir: str | os.PathLike,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     tracks, pdr, heading = load_results(results_path)
-    frames = read_columns(results_path, FRAMES_GROUP)
+    frames = read_columns(results_path, schema.RECEIVER_FRAMES)
     truth = truth_frames = None
     tower = None
     offset = 0.0
+    first = next(iter(tracks.values()))
+    start_fix_xy = (float(first.x_m[0]), float(first.y_m[0]))  # every filter starts at the fix
+    estimates = {PDR_AT_FIX: place_pdr(pdr, *start_fix_xy, heading), **tracks}
     if truth_path is not None:
-        from sim.walk_io import read_walk_truth
-
         walk_truth = read_walk_truth(truth_path)
         truth = walk_truth.track
-        truth_frames = read_columns(truth_path, "truth/frames")
-        offset = float(read_attrs(truth_path, "truth/frames").get("capture_start_s", 0.0))
-        attrs = read_attrs(truth_path, "truth/trajectory")
-        tower = (float(attrs["tower_x_m"]), float(attrs["tower_y_m"]))
-    first = next(iter(tracks.values()))
-    estimates = {"pdr@fix": place_pdr(pdr, float(first.x_m[0]), float(first.y_m[0]), heading), **tracks}
-    if truth is not None:
-        # The paper's PDR baseline: the relative track rotated by the TRUE initial heading at the true start.
-        true_heading = true_initial_heading_rad(truth, walk_truth.walk_start_t_s)
-        estimates = {"pdr": place_pdr(pdr, float(truth.x_m[0]), float(truth.y_m[0]), true_heading), **estimates}
+        truth_frames = read_columns(truth_path, schema.TRUTH_FRAMES)
+        offset = float(read_attrs(truth_path, schema.TRUTH_FRAMES).get(schema.CAPTURE_START_ATTR, 0.0))
+        tower = read_tower(truth_path)[:2]
+        baselines, true_heading = pdr_baselines(pdr, truth, walk_truth.walk_start_t_s, start_fix_xy, heading)
+        estimates = {**baselines, **tracks}
         heading_error_deg = float(np.rad2deg(heading_error_rad(heading, true_heading)))
     plot_trajectories(out / "trajectory.png", truth, estimates, tower)
     plot_range(out / "range.png", frames, offset, truth_frames)
@@ -221,9 +225,9 @@ def write_receiver_report(receiver_path: str | os.PathLike, out_dir: str | os.Pa
     """Report of a receiver run alone: range plot and, with truth, its accuracy."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    frames = read_columns(receiver_path, FRAMES_GROUP)
-    attrs = read_attrs(receiver_path, FRAMES_GROUP)
-    truth_frames = read_columns(truth_path, "truth/frames") if truth_path is not None else None
+    frames = read_columns(receiver_path, schema.RECEIVER_FRAMES)
+    attrs = read_attrs(receiver_path, schema.RECEIVER_FRAMES)
+    truth_frames = read_columns(truth_path, schema.TRUTH_FRAMES) if truth_path is not None else None
     plot_range(out / "range.png", frames, 0.0, truth_frames)
     lines = ["# dtmbnav receiver report", "", f"Capture results: `{receiver_path}`", "",
              f"- header mode {attrs.get('pn_mode')}, SI word {attrs.get('si_index')}, "

@@ -1,0 +1,15 @@
+"""Fusion of PDR and DTMB range: initial heading, particle filter and Kalman-family filters.
+
+Consumes typed records (:mod:`dtmbnav.core.records`) and knows nothing of IQ.
+This module holds only the names and defaults that callers need without
+importing the numba kernels (the command line's parser uses them).
+"""
+
+#: The fusion filters, in table order ("pf" is the paper's particle filter); ``fusion.run.FILTERS``
+#: maps each to its runner.
+FILTER_NAMES = ("pf", "ukf", "wt-ukf", "adaptive-kf", "rank-kf")
+#: Particle-filter Np unless a caller says otherwise.
+DEFAULT_PARTICLES = 10_000
+#: Row name of the foot-mounted ZUPT INS (:mod:`fusion.foot_ins`) in evaluations: it runs on its own
+#: IMU, not on the range/PDR epochs the filters share.
+FOOT_INS = "zupt-ins"

@@ -21,11 +21,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fusion.model import (HEADING, HEADING_RATE, SPEED, STATE_SIZE, X, Y, EpochObservation, Geometry, ModelNoise,
-                          StepControl, initial_covariance, initial_state, observe, process_covariance, propagate,
-                          run_filter, wrap_angle)
+from dtmbnav.core.records import Track
+from fusion.model import (
+    HEADING,
+    HEADING_RATE,
+    SPEED,
+    STATE_SIZE,
+    EpochObservation,
+    Geometry,
+    ModelNoise,
+    StepControl,
+    X,
+    Y,
+    initial_covariance,
+    initial_state,
+    observe,
+    process_covariance,
+    propagate,
+    run_filter,
+    wrap_angle,
+)
 from fusion.observations import FilterEpochs
-from fusion.records import Track
 
 #: Seed 003's grade thresholds on P / C and the R multipliers of the grades.
 GRADE_THRESHOLDS = (1.2, 1.6)

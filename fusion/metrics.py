@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dtmbnav.core.records import PdrSteps, Track
 from fusion.heading_init import rotate_pdr
 from fusion.model import wrap_angle
-from fusion.records import PdrSteps, Track
 
 
 @dataclass(frozen=True)
@@ -109,3 +109,29 @@ def true_initial_heading_rad(truth: Track, walk_start_t_s: float, distance_m: fl
         raise ValueError(f"true_initial_heading_rad: truth never gets {distance_m} m from its start")
     j = i0 + far[0]
     return float(np.arctan2(truth.x_m[j] - truth.x_m[i0], truth.y_m[j] - truth.y_m[i0]) % (2.0 * np.pi))
+
+
+#: Name of the PDR baseline placed as the paper reports PDR error (true start, true initial heading).
+PDR_BASELINE = "pdr"
+#: Name of the PDR placed as a user without truth would place it (GNSS start fix, eq. 15 heading).
+PDR_AT_FIX = "pdr@fix"
+
+
+def pdr_baselines(pdr: PdrSteps, truth: Track, walk_start_t_s: float, start_fix_xy_m: tuple[float, float],
+                  solved_heading_rad: float) -> tuple[dict[str, Track], float]:
+    """The two PDR baselines a fused track is compared with.
+
+    Returns
+    -------
+    baselines : dict of str -> Track
+        :data:`PDR_BASELINE`: the relative track rotated by the true initial
+        heading and started at the true start (the paper's PDR row, the
+        reference of the reductions); :data:`PDR_AT_FIX`: started at the GNSS
+        fix with the solved (eq. 15) heading, like the filters.
+    true_heading_rad : float
+        The true initial heading, rad.
+    """
+    true_heading = true_initial_heading_rad(truth, walk_start_t_s)
+    start = (float(truth.x_m[0]), float(truth.y_m[0]))
+    return {PDR_BASELINE: place_pdr(pdr, *start, true_heading),
+            PDR_AT_FIX: place_pdr(pdr, *start_fix_xy_m, solved_heading_rad)}, true_heading

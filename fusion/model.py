@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from fusion.records import Track
+from dtmbnav.core.records import Track
 
 if TYPE_CHECKING:  # observations imports this module; the annotation alone needs the name
     from fusion.observations import FilterEpochs

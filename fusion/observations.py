@@ -47,8 +47,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dtmbnav.core.records import ColumnRecord, PdrSteps, RangeSeries
 from fusion.model import StepControl, wrap_angle
-from fusion.records import ColumnRecord, PdrSteps, RangeSeries
 
 
 @dataclass(frozen=True)

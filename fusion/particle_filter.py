@@ -61,15 +61,20 @@ from typing import Callable
 import numpy as np
 from numba import njit
 
-from fusion.model import HEADING, SPEED, STATE_SIZE, X, Y, Geometry, ModelNoise, StepControl, propagate
+from dtmbnav.core.records import Track
+from fusion import DEFAULT_PARTICLES
+from fusion.model import (
+    HEADING,
+    SPEED,
+    STATE_SIZE,
+    Geometry,
+    ModelNoise,
+    StepControl,
+    X,
+    Y,
+    propagate,
+)
 from fusion.observations import FilterEpochs
-from fusion.records import Track
-
-#: Default Np. With 2000 particles the 95 % error of one IQ-level walk moved between 1.8 m
-#: and 4.0 m from one filter seed to the next (park-loop-cw); with 10 000 it spans
-#: 0.3-1.3 m on the four reference walks, at about 2 s of filtering for a 6-minute walk.
-DEFAULT_PARTICLES = 10_000
-
 
 # --- numba kernels -------------------------------------------------------------------------
 

@@ -10,13 +10,19 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable
 
+from dtmbnav.core.records import PdrSteps, RangeSeries, Track
+from fusion import DEFAULT_PARTICLES, FILTER_NAMES
 from fusion.adaptive_kf import run_adaptive_kf
 from fusion.heading_init import HeadingSolution, solve_initial_heading
 from fusion.model import Geometry, ModelNoise
-from fusion.observations import AggregationConfig, FilterEpochs, aggregate_ranges, build_epochs
-from fusion.particle_filter import DEFAULT_PARTICLES, run_particle_filter
+from fusion.observations import (
+    AggregationConfig,
+    FilterEpochs,
+    aggregate_ranges,
+    build_epochs,
+)
+from fusion.particle_filter import run_particle_filter
 from fusion.rank_kf import run_rank_kf
-from fusion.records import PdrSteps, RangeSeries, Track
 from fusion.ukf import run_ukf
 from fusion.wt_ukf import run_wt_ukf
 
@@ -51,6 +57,7 @@ FILTERS: dict[str, FilterRunner] = {
     "adaptive-kf": lambda e, g, c: run_adaptive_kf(e, g, c.noise),
     "rank-kf": lambda e, g, c: run_rank_kf(e, g, c.noise),
 }
+assert tuple(FILTERS) == FILTER_NAMES, "fusion.FILTER_NAMES and fusion.run.FILTERS must list the same filters"
 
 
 @dataclass

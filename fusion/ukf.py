@@ -11,11 +11,23 @@ from __future__ import annotations
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
-from fusion.model import (STATE_SIZE, EpochObservation, Geometry, ModelNoise, StepControl, initial_covariance,
-                          initial_state, observe, process_covariance, propagate, run_filter, state_mean,
-                          state_residual)
+from dtmbnav.core.records import Track
+from fusion.model import (
+    STATE_SIZE,
+    EpochObservation,
+    Geometry,
+    ModelNoise,
+    StepControl,
+    initial_covariance,
+    initial_state,
+    observe,
+    process_covariance,
+    propagate,
+    run_filter,
+    state_mean,
+    state_residual,
+)
 from fusion.observations import FilterEpochs
-from fusion.records import Track
 
 
 class RangePdrUkf:

@@ -29,9 +29,9 @@ from __future__ import annotations
 import numpy as np
 import pywt
 
+from dtmbnav.core.records import Track
 from fusion.model import EpochObservation, Geometry, ModelNoise, run_filter
 from fusion.observations import FilterEpochs
-from fusion.records import Track
 from fusion.ukf import RangePdrUkf
 
 #: MAD-to-sigma factor of a Gaussian (seed 002 eq. 16).

@@ -1,0 +1,10 @@
+"""DTMB receiver: capture -> resampler -> acquisition -> tracking -> channel estimate -> body -> FFT -> CFO -> range.
+
+One stage per module (``receiver.pipeline`` wires them). This module holds only
+the defaults that callers need without importing the numba kernels (the
+command line's parser uses them).
+"""
+
+#: Seconds at the start of a capture during which the receiver stands still; the oscillator
+#: offset f_s is measured there (eq. 9-10) unless the user gives it.
+DEFAULT_STATIC_WINDOW_S = 10.0

@@ -34,8 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from receiver import gb20600
-from receiver.gb20600 import SYMBOL_RATE_HZ, PnMode
+from dtmbnav.core import gb20600
+from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
 
 #: Largest timing correction, samples, tested around the grid metric's peak.
 MAX_TIMING_OFFSET = 32

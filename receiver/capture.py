@@ -30,7 +30,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from receiver.iqformat import IqFormat, decode, from_sigmf_datatype, get_format
+from dtmbnav.core.iqformat import IqFormat, decode, from_sigmf_datatype, get_format
 
 
 @dataclass
@@ -68,7 +68,7 @@ class CaptureSource:
 
     @property
     def format(self) -> IqFormat:
-        """The :class:`receiver.iqformat.IqFormat` of the samples."""
+        """The :class:`dtmbnav.core.iqformat.IqFormat` of the samples."""
         return get_format(self.sample_format)
 
     def chunks(self, chunk_samples: int) -> Iterator[np.ndarray]:

@@ -11,7 +11,7 @@ import numpy as np
 import pyfftw
 from numba import njit
 
-from receiver import gb20600
+from dtmbnav.core import gb20600
 
 
 def si_carrier_numbers() -> np.ndarray:

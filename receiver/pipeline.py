@@ -29,16 +29,29 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from receiver import gb20600
+from dtmbnav.core import gb20600
+from dtmbnav.core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
+from dtmbnav.core.records import FrameBatch, FrameFlag
+from receiver import DEFAULT_STATIC_WINDOW_S
 from receiver.acquisition import Acquisition, acquire, window_length
-from receiver.body import (ChannelEstimates, ChannelEstimator, body_phases, derotate_segments, recover_bodies,
-                           rotation_table)
+from receiver.body import body_phases, recover_bodies
 from receiver.capture import CaptureSource
-from receiver.cfo import SiWordDetector, cfo_from_theta, pn_theta_kernel, si_theta_kernel
-from receiver.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
+from receiver.cfo import (
+    SiWordDetector,
+    cfo_from_theta,
+    pn_theta_kernel,
+    si_theta_kernel,
+)
+from receiver.channel_estimate import (
+    TAP_THRESHOLD,
+    TAPS_AFTER,
+    TAPS_BEFORE,
+    ChannelEstimates,
+    ChannelEstimator,
+)
+from receiver.derotate import derotate_segments, rotation_table
 from receiver.ofdm import OfdmDemodulator, si_carrier_numbers, si_snr_db
 from receiver.ranging import RangeIntegrator
-from receiver.records import FrameBatch, FrameFlag
 from receiver.resample import StreamResampler
 from receiver.tracking import FrameTracker, LockMonitor
 from receiver.writer import FrameSink
@@ -100,10 +113,10 @@ class ReceiverConfig:
     track_threshold: float = 0.15
     loss_frames: int = 16
     batch_frames: int = 128
-    taps_before: int = 16
-    taps_after: int = 48
-    tap_threshold: float = 10.0
-    static_window_s: float = 10.0
+    taps_before: int = TAPS_BEFORE
+    taps_after: int = TAPS_AFTER
+    tap_threshold: float = TAP_THRESHOLD
+    static_window_s: float = DEFAULT_STATIC_WINDOW_S
     clock_offset_hz: float | None = None
     conjugate_iq: bool = False
     si_polarity: int = 1

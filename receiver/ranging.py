@@ -2,7 +2,7 @@
 
 ``df_m = f_s + f_d,m + noise`` (eq. 9): f_s, the constant part of the carrier
 offset (oscillator mismatch plus the tuner's bulk offset), is measured while
-the receiver stands still at the start (``static_window_s``, default 10 s) or
+the receiver stands still at the start (``static_window_s``, default :data:`receiver.DEFAULT_STATIC_WINDOW_S`) or
 given by the user. Then per frame
 
 - ``doppler_hz = cfo_hz - f_s``,
@@ -25,10 +25,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from receiver.records import FrameBatch, FrameFlag
-
-#: Speed of light, m/s.
-SPEED_OF_LIGHT_MPS = 299_792_458.0
+from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav.core.records import FrameBatch, FrameFlag
+from receiver import DEFAULT_STATIC_WINDOW_S
 
 
 class RangeIntegrator:
@@ -44,7 +43,8 @@ class RangeIntegrator:
         Length of the static window at the start of the first lock, s.
     """
 
-    def __init__(self, carrier_hz: float, clock_offset_hz: float | None = None, static_window_s: float = 10.0) -> None:
+    def __init__(self, carrier_hz: float, clock_offset_hz: float | None = None,
+                 static_window_s: float = DEFAULT_STATIC_WINDOW_S) -> None:
         if not np.isfinite(carrier_hz) or carrier_hz <= 0:
             raise ValueError(f"carrier_hz must be a positive frequency, got {carrier_hz!r}")
         if clock_offset_hz is None and static_window_s <= 0:

@@ -15,11 +15,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from receiver import gb20600
+from dtmbnav.core import gb20600
+from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
 from receiver.acquisition import Acquisition
-from receiver.body import ChannelEstimator, derotate_segments_reference, recover_bodies_reference
+from receiver.body import recover_bodies_reference
 from receiver.cfo import cfo_from_theta, pn_theta_reference, si_theta_reference
-from receiver.gb20600 import SYMBOL_RATE_HZ
+from receiver.channel_estimate import (
+    TAP_THRESHOLD,
+    TAPS_AFTER,
+    TAPS_BEFORE,
+    ChannelEstimator,
+)
+from receiver.derotate import derotate_segments_reference
 from receiver.ofdm import si_carrier_numbers, si_carriers_reference
 from receiver.tracking import timing_loop_reference
 
@@ -34,8 +41,8 @@ class ReferenceFrames:
     snr_db: np.ndarray
 
 
-def receive_reference(r: np.ndarray, acq: Acquisition, n_frames: int, *, taps_before: int = 16,
-                      taps_after: int = 48, tap_threshold: float = 10.0, loop_alpha: float = 0.05,
+def receive_reference(r: np.ndarray, acq: Acquisition, n_frames: int, *, taps_before: int = TAPS_BEFORE,
+                      taps_after: int = TAPS_AFTER, tap_threshold: float = TAP_THRESHOLD, loop_alpha: float = 0.05,
                       loop_beta: float = 0.001, batch_frames: int = 128,
                       first_frame_index: int | None = None,
                       stage_seconds: dict[str, float] | None = None) -> ReferenceFrames:

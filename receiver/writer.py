@@ -1,6 +1,6 @@
 """Writing receiver results: HDF5 ``/receiver/frames`` (via receiver.h5io) and CSV.
 
-The HDF5 group holds one dataset per :class:`~receiver.records.FrameBatch`
+The HDF5 group holds one dataset per :class:`~dtmbnav.core.records.FrameBatch`
 column and the receiver's parameters as attributes (``pn_mode``,
 ``si_index``, ``sample_rate_hz``, ``clock_offset_hz`` = the f_s used,
 ``carrier_hz``, the resampling ratio, versions); the file is written
@@ -18,11 +18,9 @@ from typing import Any
 import h5py
 import numpy as np
 
-from receiver.h5io import atomic_h5, package_version
-from receiver.records import COLUMN_DTYPES, FrameBatch, FrameFlag
-
-#: HDF5 group of the per-frame results.
-FRAMES_GROUP = "receiver/frames"
+from dtmbnav.core import schema
+from dtmbnav.core.h5io import atomic_h5, package_version
+from dtmbnav.core.records import FRAME_COLUMN_DTYPES, FrameBatch, FrameFlag
 
 #: Unit of each column (written as ``units`` attribute, "column:unit" pairs).
 COLUMN_UNITS = {
@@ -35,7 +33,7 @@ COLUMN_UNITS = {
 def frame_attributes(receiver_attrs: Mapping[str, Any]) -> dict[str, Any]:
     """Group attributes: the receiver's parameters plus versions and units."""
     attrs = dict(receiver_attrs)
-    attrs["dtmbnav_version"] = package_version()
+    attrs[schema.PACKAGE_VERSION_ATTR] = package_version()
     attrs["numpy_version"] = np.__version__
     attrs["h5py_version"] = h5py.__version__
     attrs["units"] = ", ".join(f"{k}:{v}" for k, v in COLUMN_UNITS.items())
@@ -58,7 +56,7 @@ class FrameSink:
     """Writes frame batches as they come: HDF5 ``/receiver/frames`` and/or CSV, memory flat.
 
     The HDF5 columns are resizable datasets that grow batch by batch inside an
-    :func:`~receiver.h5io.atomic_h5` file, so the file appears only when
+    :func:`~dtmbnav.core.h5io.atomic_h5` file, so the file appears only when
     complete; the attributes are set at :meth:`close`. Counts of frames and
     gaps and the time span are kept for a summary.
 
@@ -76,14 +74,14 @@ class FrameSink:
         self._h5_context = atomic_h5(h5_path) if h5_path is not None else None
         self._h5 = self._h5_context.__enter__() if self._h5_context is not None else None
         if self._h5 is not None:
-            group = self._h5.create_group(FRAMES_GROUP)
-            for name, dtype in COLUMN_DTYPES.items():
+            group = self._h5.create_group(schema.RECEIVER_FRAMES)
+            for name, dtype in FRAME_COLUMN_DTYPES.items():
                 group.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(4096,))
         self._csv_stream = None
         if csv_path is not None:
             self._csv_stream = sys.stdout if str(csv_path) == "-" else open(csv_path, "w", newline="")
             self._csv = csv.writer(self._csv_stream)
-            self._csv.writerow(COLUMN_DTYPES)
+            self._csv.writerow(FRAME_COLUMN_DTYPES)
 
     def append(self, batch: FrameBatch) -> None:
         """Write the rows of one batch."""
@@ -91,7 +89,7 @@ class FrameSink:
         if n == 0:
             return
         if self._h5 is not None:
-            group = self._h5[FRAMES_GROUP]
+            group = self._h5[schema.RECEIVER_FRAMES]
             for name, values in batch.columns().items():
                 group[name].resize((self.frames + n,))
                 group[name][self.frames:] = values
@@ -107,7 +105,7 @@ class FrameSink:
         """Finish the files; ``attrs`` become the group's attributes."""
         if self._h5 is not None:
             for key, value in frame_attributes(attrs).items():
-                self._h5[FRAMES_GROUP].attrs[key] = value
+                self._h5[schema.RECEIVER_FRAMES].attrs[key] = value
             self._h5_context.__exit__(None, None, None)
             self._h5 = None
         self._close_csv()

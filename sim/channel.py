@@ -53,10 +53,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from fusion.records import Track
+from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav.core.records import Track
 from sim.scenario import Building, Scenario, Wall
-
-SPEED_OF_LIGHT_MPS = 299_792_458.0
 
 #: Sinusoids summed in each diffuse tap (sum-of-sinusoids Rayleigh fading).
 DIFFUSE_SINUSOIDS = 16

@@ -19,8 +19,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from receiver import gb20600
-from receiver.gb20600 import PnMode
+from dtmbnav.core import gb20600
+from dtmbnav.core.gb20600 import PnMode
 
 
 @dataclass(frozen=True)

@@ -16,17 +16,17 @@ Order (sim.rf applies it to the noise-free multipath signal):
    every frequency.
 4. **AGC**: one fixed gain for the whole capture, putting the expected per-rail
    RMS of (direct-path signal + noise) ``receiver.agc_backoff_db`` below the
-   quantiser's full scale (+-1 after ``receiver.iqformat.decode``).
+   quantiser's full scale (+-1 after ``dtmbnav.core.iqformat.decode``).
 5. **Quantisation** with clipping to ``cu8``/``ci8``/``ci16``/``cf32``
-   (``receiver.iqformat.encode``).
+   (``dtmbnav.core.iqformat.encode``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from receiver import gb20600
-from receiver.iqformat import encode, get_format
+from dtmbnav.core import gb20600
+from dtmbnav.core.iqformat import encode, get_format
 from sim.frames import FrameConfig
 from sim.scenario import ReceiverConfig
 

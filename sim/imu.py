@@ -44,7 +44,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from fusion.records import ImuLog
+from dtmbnav.core.constants import GRAVITY_MPS2
+from dtmbnav.core.records import ImuLog
 from sim.scenario import Building, Scenario
 from sim.walk import Walk
 
@@ -52,8 +53,6 @@ from sim.walk import Walk
 IMU_STREAM = 2
 #: Sub-stream of the IMU stream for the magnetic disturbance directions.
 MAG_SCENE_SUBSTREAM = 1
-#: Standard gravity, m/s^2.
-GRAVITY_MPS2 = 9.80665
 #: Earth field in ENU, uT: Wuhan (30.5 N, 114.3 E), total about 50 uT,
 #: inclination about 45 deg down, declination about -3.5 deg (west), WMM-like.
 EARTH_FIELD_UT = 50.0 * np.array([np.cos(np.radians(45.0)) * np.sin(np.radians(-3.5)),

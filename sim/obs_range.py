@@ -1,7 +1,7 @@
 """Observation-level DTMB range: what the receiver's integrated range would be, without IQ.
 
 For Monte Carlo studies of the fusion filters (scenarios.md allows it), this
-module produces a :class:`fusion.records.RangeSeries` straight from the truth
+module produces a :class:`dtmbnav.core.records.RangeSeries` straight from the truth
 track, with the errors the IQ receiver actually makes (method.md §1-2). It
 uses the *same* channel (:class:`sim.channel.Channel`) and receiver clock
 (:func:`sim.oscillator.scenario_oscillator`) as the IQ simulation, drawn from
@@ -46,10 +46,11 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from fusion.records import RangeSeries, Track
-from receiver import gb20600
-from receiver.gb20600 import PnMode
-from sim.channel import SPEED_OF_LIGHT_MPS, Channel
+from dtmbnav.core import gb20600
+from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav.core.gb20600 import PnMode
+from dtmbnav.core.records import RangeSeries, Track
+from sim.channel import Channel
 from sim.oscillator import scenario_oscillator
 from sim.rf import STREAM_CHANNEL, STREAM_CLOCK
 from sim.scenario import Scenario

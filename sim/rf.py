@@ -47,10 +47,11 @@ from functools import lru_cache
 
 import numpy as np
 
-from fusion.records import ColumnRecord, Track
-from receiver import gb20600
-from receiver.gb20600 import PnMode
-from sim.channel import SPEED_OF_LIGHT_MPS, Channel
+from dtmbnav.core import gb20600
+from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav.core.gb20600 import PnMode
+from dtmbnav.core.records import ColumnRecord, Track
+from sim.channel import Channel
 from sim.frames import FrameConfig, FrameSource
 from sim.frontend import FrontEnd, mean_signal_power
 from sim.oscillator import scenario_oscillator

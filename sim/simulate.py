@@ -28,7 +28,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from receiver.h5io import atomic_h5, write_columns
+from dtmbnav.core import schema
+from dtmbnav.core.h5io import atomic_h5, write_columns
 from sim.capture_writer import CaptureWriter
 from sim.gnss import simulate_gnss
 from sim.imu import simulate_imu
@@ -64,7 +65,8 @@ class SimulationResult:
 def simulate(scenario: Scenario, out_dir: str | Path, *, seconds: float | None = None, start_s: float = 0.0,
              sample_rate_hz: float | None = None, sample_format: str | None = None, pn_mode: str | None = None,
              seed: int | None = None, container: str = "sigmf", with_iq: bool = True,
-             chunk_samples: int = DEFAULT_CHUNK_SAMPLES, progress: bool = False) -> SimulationResult:
+             chunk_samples: int = DEFAULT_CHUNK_SAMPLES, progress: bool = False,
+             weinberg_k_m: float | None = None) -> SimulationResult:
     """Write the capture and ``truth.h5`` of a scenario (module docstring).
 
     Parameters
@@ -85,6 +87,9 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, seconds: float | None =
         Generation chunk; the output does not depend on it.
     progress : bool
         Show a progress bar on stderr.
+    weinberg_k_m : float, optional
+        The walker's calibrated Weinberg gain, stored with ``/imu`` for the
+        PDR (see :func:`sim.walk_io.write_walk_groups`).
     """
     if seed is not None:
         scenario = scenario.replace(seed=int(seed))
@@ -114,11 +119,11 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, seconds: float | None =
 
     truth_path = out_dir / "truth.h5"
     with atomic_h5(truth_path) as h5:
-        write_walk_groups(h5, scenario, walk, imu, gnss)
-        write_columns(h5, "truth/frames", generator.frame_truth(), attrs={
+        write_walk_groups(h5, scenario, walk, imu, gnss, weinberg_k_m)
+        write_columns(h5, schema.TRUTH_FRAMES, generator.frame_truth(), attrs={
             "pn_mode": generator.frame_config.pn_mode.name, "si_index": scenario.tower.si_index,
             "sample_rate_hz": generator.sample_rate_hz, "carrier_hz": generator.carrier_hz,
             "seed": generator.seed, "sample_format": generator.sample_format,
-            "capture_start_s": capture_start_s, "num_samples": generator.num_samples,
+            schema.CAPTURE_START_ATTR: capture_start_s, "num_samples": generator.num_samples,
             "scenario": scenario_to_toml(scenario)})
     return SimulationResult(capture_path, truth_path)

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from receiver import gb20600
+from dtmbnav.core import gb20600
 
 
 def srrc_pulse(x: np.ndarray, rolloff: float = gb20600.SRRC_ROLLOFF) -> np.ndarray:

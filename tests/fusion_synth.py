@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fusion.records import PdrSteps, RangeSeries, Track
+from dtmbnav.core.records import PdrSteps, RangeSeries, Track
 from fusion.model import Geometry
 
 
@@ -75,7 +75,7 @@ def foot_imu_straight(n_strides=12, stride_m=1.4, stride_s=1.1, stance_s=0.45, h
     at heel strike), as a real foot does, so a stance detector sees rotation and a specific
     force that is not gravity alone.
 
-    Returns t_s, acc_mps2 (specific force in the foot frame of fusion.records.ImuLog: x right,
+    Returns t_s, acc_mps2 (specific force in the foot frame of dtmbnav.core.records.ImuLog: x right,
     y forward, z up), gyro_radps and the true foot position (N x 2) in ENU.
     """
     rng = np.random.default_rng(seed)

@@ -21,9 +21,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from receiver.iqformat import decode  # noqa: E402
+from dtmbnav.core.iqformat import decode  # noqa: E402
+from dtmbnav.core.records import FrameBatch, FrameFlag  # noqa: E402
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream  # noqa: E402
-from receiver.records import FrameBatch, FrameFlag  # noqa: E402
 from sim.rf import CaptureGenerator, FrameTruth  # noqa: E402
 from sim.scenario import Scenario, load_scenario  # noqa: E402
 from sim.walk import simulate_walk  # noqa: E402

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from receiver.gb20600 import SYMBOL_RATE_HZ, PnMode
+from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
 from sim.frames import FrameConfig, FrameSource
 
 #: Half-length of the fractional-delay interpolator, samples.

@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fusion.records import Track
-from receiver import iqformat
+from dtmbnav.core import iqformat
+from dtmbnav.core.records import Track
 from receiver.capture import open_capture
 from sim.capture_writer import CaptureWriter
 from sim.rf import CaptureGenerator

@@ -6,9 +6,10 @@ Run ``python tests/test_channel_walls.py`` to print the street-out range-error f
 import numpy as np
 import pytest
 
+from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav.core.records import Track
 from fusion.metrics import interpolate_track
-from fusion.records import Track
-from sim.channel import SPEED_OF_LIGHT_MPS, WALL_EDGE_TAPER_M, Channel, blocking_loss_db
+from sim.channel import WALL_EDGE_TAPER_M, Channel, blocking_loss_db
 from sim.obs_range import simulate_obs_range
 from sim.scenario import load_scenario
 from sim.walk import simulate_walk

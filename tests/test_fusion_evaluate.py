@@ -4,11 +4,11 @@ import json
 
 import numpy as np
 import pytest
+from fusion_synth import make_pdr, polyline_truth
 
 from dtmbnav import evaluate as ev
-from fusion.metrics import error_stats, place_pdr, position_errors_m
+from fusion.metrics import error_stats, place_pdr, position_errors_m, true_initial_heading_rad
 from fusion.run import FusionConfig
-from fusion_synth import make_pdr, polyline_truth
 
 
 def synthetic_chain(scenario, range_source, foot_imu=False):
@@ -46,7 +46,7 @@ def test_pdr_row_is_the_true_start_true_heading_baseline(park_rows):
     p95 = []
     for k in range(2):
         out = synthetic_chain(scn.replace(seed=1000 * scn.seed + k), ev.obs_range_source)
-        placed = place_pdr(out.pdr, 0.0, 0.0, ev.true_initial_heading_rad(out.truth, out.walk_start_t_s))
+        placed = place_pdr(out.pdr, 0.0, 0.0, true_initial_heading_rad(out.truth, out.walk_start_t_s))
         p95.append(error_stats(position_errors_m(placed, out.truth)).p95_m)
     assert park_rows[0].p95_m == pytest.approx(np.mean(p95))
 

@@ -2,17 +2,27 @@
 
 import numpy as np
 import pytest
+from fusion_synth import (
+    exact_ranges,
+    foot_imu_straight,
+    park_like_walk,
+    ranges_with_blockage,
+)
 from scipy.stats import norm
 
-from fusion import rank_kf
-from fusion.adaptive_kf import GnssFixes, quality_grade_factors, run_adaptive_kf, transition_jacobian
+from fusion import foot_ins, rank_kf
+from fusion.adaptive_kf import (
+    GnssFixes,
+    quality_grade_factors,
+    run_adaptive_kf,
+    transition_jacobian,
+)
 from fusion.metrics import error_stats, place_pdr, position_errors_m
 from fusion.model import ModelNoise, StepControl, epoch_observation, propagate
 from fusion.observations import aggregate_ranges, build_epochs
 from fusion.run import FILTERS, FusionConfig, fuse
 from fusion.ukf import run_ukf
 from fusion.wt_ukf import WaveletUkf, run_wt_ukf, wavelet_noise_estimate
-from fusion_synth import exact_ranges, foot_imu_straight, park_like_walk, ranges_with_blockage
 
 
 @pytest.fixture(scope="module")
@@ -154,12 +164,12 @@ def test_strapdown_kernel_covariance_equals_rank_sampled_prediction():
     rng = np.random.default_rng(2)
     a = rng.normal(size=(15, 15))
     P0 = a @ a.T * 1e-3 + np.eye(15) * 1e-4
-    C = rank_kf.level_attitude(np.array([[0.3, -0.2, 9.8]]), 0.4)
+    C = foot_ins.level_attitude(np.array([[0.3, -0.2, 9.8]]), 0.4)
     gyro, acc, dt = np.array([[0.1, -0.2, 0.3]]), np.array([[1.0, 0.5, 9.9]]), np.array([0.01])
     q = np.zeros(15)
     P = P0.copy()
     out = np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3, 3))
-    rank_kf.strapdown_kernel(C.copy(), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), P, gyro, acc, dt, q, *out)
+    foot_ins.strapdown_kernel(C.copy(), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), P, gyro, acc, dt, q, *out)
     C1 = out[2][0]
     F = np.eye(15)
     F[0:3, 3:6] = -C1 * dt[0]
@@ -178,12 +188,12 @@ def test_strapdown_kernel_matches_reference():
     n = 50
     gyro, acc = rng.normal(0, 0.5, (n, 3)), rng.normal(0, 2.0, (n, 3)) + [0.0, 0.0, 9.81]
     dt, q = np.full(n, 0.01), rng.uniform(0, 1e-4, 15)
-    a = [rank_kf.level_attitude(acc[:5], 0.3), np.zeros(3), np.zeros(3), rng.normal(0, 1e-3, 3),
+    a = [foot_ins.level_attitude(acc[:5], 0.3), np.zeros(3), np.zeros(3), rng.normal(0, 1e-3, 3),
          rng.normal(0, 1e-2, 3), np.eye(15) * 1e-3]
     b = [x.copy() for x in a]
     out = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3, 3))
-    rank_kf.strapdown_kernel(*a, gyro, acc, dt, q, *out)
-    ref = rank_kf.strapdown_reference(*b, gyro, acc, dt, q)
+    foot_ins.strapdown_kernel(*a, gyro, acc, dt, q, *out)
+    ref = foot_ins.strapdown_reference(*b, gyro, acc, dt, q)
     for x, y in zip(a + list(out), b + list(ref)):
         np.testing.assert_allclose(x, y, rtol=1e-10, atol=1e-12)
 
@@ -191,19 +201,19 @@ def test_strapdown_kernel_matches_reference():
 def test_zupt_ins_bounds_the_drift_of_a_foot_imu():
     heading = np.deg2rad(30.0)
     t, acc, gyro, pos = foot_imu_straight(heading_rad=heading)
-    stance = rank_kf.shoe_stance(acc, gyro)
+    stance = foot_ins.shoe_stance(acc, gyro)
     moving = np.r_[False, np.hypot(*np.diff(pos, axis=0).T) > 0]
     assert not np.any(stance & moving)                   # never a ZUPT while the foot moves
-    track = rank_kf.ZuptInsRankKf().run(t, acc, gyro, (0.0, 0.0), heading)
+    track = foot_ins.ZuptInsRankKf().run(t, acc, gyro, (0.0, 0.0), heading)
     err = np.hypot(track.x_m - pos[:, 0], track.y_m - pos[:, 1])
     assert err.max() < 0.02 * 16.8                       # < 2 % of the distance walked
-    free = rank_kf.ZuptInsRankKf(rank_kf.ZuptConfig(shoe_threshold=-1.0)).run(t, acc, gyro, (0.0, 0.0), heading)
+    free = foot_ins.ZuptInsRankKf(foot_ins.ZuptConfig(shoe_threshold=-1.0)).run(t, acc, gyro, (0.0, 0.0), heading)
     assert np.hypot(free.x_m - pos[:, 0], free.y_m - pos[:, 1]).max() > 10 * err.max()
 
 
 def test_zupt_ins_rejects_mismatched_logs():
     with pytest.raises(ValueError, match="must agree"):
-        rank_kf.ZuptInsRankKf().run(np.arange(5.0), np.zeros((5, 3)), np.zeros((4, 3)), (0.0, 0.0), 0.0)
+        foot_ins.ZuptInsRankKf().run(np.arange(5.0), np.zeros((5, 3)), np.zeros((4, 3)), (0.0, 0.0), 0.0)
 
 
 def test_noise_model_defaults_used_by_all_filters_are_consistent():

@@ -2,13 +2,17 @@
 
 import numpy as np
 import pytest
+from fusion_synth import make_pdr, park_like_walk, polyline_truth
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fusion.heading_init import predicted_range_change, rotate_pdr, solve_initial_heading
+from fusion.heading_init import (
+    predicted_range_change,
+    rotate_pdr,
+    solve_initial_heading,
+)
 from fusion.metrics import heading_error_rad
 from fusion.model import Geometry
-from fusion_synth import make_pdr, park_like_walk, polyline_truth
 
 GEOMETRY = Geometry(0.0, 0.0, 2000.0, 2200.0, 150.0)
 

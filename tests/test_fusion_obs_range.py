@@ -2,14 +2,19 @@
 
 import numpy as np
 import pytest
+from fusion_synth import polyline_truth
 
+from dtmbnav.core.gb20600 import PnMode
 from fusion.metrics import interpolate_track
 from fusion.model import Geometry
-from receiver.gb20600 import PnMode
 from sim.channel import segment_crosses_polygon
-from sim.obs_range import ObsRangeConfig, si_phase_steps_kernel, si_phase_steps_reference, simulate_obs_range
+from sim.obs_range import (
+    ObsRangeConfig,
+    si_phase_steps_kernel,
+    si_phase_steps_reference,
+    simulate_obs_range,
+)
 from sim.scenario import load_scenario
-from fusion_synth import polyline_truth
 
 
 def true_range_change(scenario, truth, t_s):

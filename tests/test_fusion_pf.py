@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from fusion_synth import exact_ranges, park_like_walk, ranges_with_blockage
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -9,7 +10,6 @@ from fusion import particle_filter as pf
 from fusion.metrics import error_stats, place_pdr, position_errors_m
 from fusion.model import Geometry, ModelNoise
 from fusion.observations import FilterEpochs, aggregate_ranges, build_epochs
-from fusion_synth import exact_ranges, park_like_walk, ranges_with_blockage
 
 
 def epochs_for(walk, ranges):

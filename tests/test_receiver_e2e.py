@@ -10,11 +10,11 @@ figures come from ``python tests/receiver_accuracy.py``.
 import h5py
 import numpy as np
 import pytest
+from receiver_accuracy import accuracy, match_truth, run_capture
 
+from dtmbnav.core.records import FrameFlag
 from receiver.capture import open_capture
 from receiver.pipeline import ReceiverConfig, receive_file
-from receiver.records import FrameFlag
-from receiver_accuracy import accuracy, match_truth, run_capture
 from sim.scenario import load_scenario
 from sim.simulate import simulate
 

@@ -3,21 +3,41 @@ the body recovery and estimators are right on signals with known answers."""
 
 import numpy as np
 import pytest
+from receiver_signals import make_signal
 
-from receiver import gb20600
-from receiver.body import (ChannelEstimator, body_phases, derotate_segments, derotate_segments_reference,
-                           hadamard_slots, m_sequence_correlation_kernel, recover_bodies, recover_bodies_reference,
-                           rotation_table, walsh_hadamard_inplace)
-from receiver.cfo import cfo_from_theta, pn_theta_kernel, pn_theta_reference, si_theta_kernel, si_theta_reference
-from receiver.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
-from receiver.ofdm import (OfdmDemodulator, si_carrier_numbers, si_carriers_reference, si_twiddle_kernel,
-                           si_twiddle_reference)
+from dtmbnav.core import gb20600
+from dtmbnav.core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
+from dtmbnav.core.records import FrameBatch
+from receiver.body import body_phases, recover_bodies, recover_bodies_reference
+from receiver.cfo import (
+    cfo_from_theta,
+    pn_theta_kernel,
+    pn_theta_reference,
+    si_theta_kernel,
+    si_theta_reference,
+)
+from receiver.channel_estimate import (
+    ChannelEstimator,
+    hadamard_slots,
+    m_sequence_correlation_kernel,
+    walsh_hadamard_inplace,
+)
+from receiver.derotate import (
+    derotate_segments,
+    derotate_segments_reference,
+    rotation_table,
+)
+from receiver.ofdm import (
+    OfdmDemodulator,
+    si_carrier_numbers,
+    si_carriers_reference,
+    si_twiddle_kernel,
+    si_twiddle_reference,
+)
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
-from receiver.records import FrameBatch
 from receiver.reference import receive_reference
 from receiver.resample import StreamResampler, polyphase_reference
 from receiver.tracking import LockMonitor, timing_loop_kernel, timing_loop_reference
-from receiver_signals import make_signal
 from sim.frames import FrameConfig, FrameSource
 
 RNG = np.random.default_rng(7)

@@ -10,14 +10,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fusion.records import Track
-from receiver import gb20600
-from receiver.gb20600 import PnMode
-from sim.channel import SPEED_OF_LIGHT_MPS
+from dtmbnav.core import gb20600
+from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav.core.gb20600 import PnMode
+from dtmbnav.core.records import Track
 from sim.rf import CaptureGenerator
 from sim.scenario import Building, ClockConfig, Scenario
-from sim.transmitter import (multipath_kernel, multipath_reference, pulse_table, shape_kernel, shape_reference,
-                             srrc_pulse)
+from sim.transmitter import (
+    multipath_kernel,
+    multipath_reference,
+    pulse_table,
+    shape_kernel,
+    shape_reference,
+    srrc_pulse,
+)
 
 RS = gb20600.SYMBOL_RATE_HZ
 FC = 666e6
@@ -349,9 +355,9 @@ def test_simulate_writes_capture_and_truth(tmp_path):
     pytest.importorskip("sim.walk_io")
     import h5py
 
+    from dtmbnav.core.h5io import read_columns
+    from dtmbnav.core.iqformat import decode
     from receiver.capture import open_capture
-    from receiver.h5io import read_columns
-    from receiver.iqformat import decode
     from sim.scenario import load_scenario
     from sim.simulate import simulate
     from sim.walk import simulate_walk

@@ -1,6 +1,6 @@
 """HDF5 helpers shared by every stage that writes or reads the project's files.
 
-One schema for every file (``conventions.md``): a group per stage holding
+One schema for every file (``docs/schema.md``, names in :mod:`dtmbnav.core.schema`): a group per stage holding
 equal-length 1-D datasets (N x 3 for vector sensors), one per column, with
 parameters, units and versions as attributes. Files are written to a temporary
 name and renamed into place only when complete, so an interrupted run never
@@ -19,8 +19,12 @@ from typing import Any
 import h5py
 import numpy as np
 
-#: Attribute written on the root group once a file is complete.
-COMPLETE_ATTR = "dtmbnav_complete"
+from dtmbnav.core.schema import (
+    COMPLETE_ATTR,
+    PACKAGE_VERSION_ATTR,
+    SCHEMA_VERSION,
+    SCHEMA_VERSION_ATTR,
+)
 
 
 def package_version() -> str:
@@ -52,7 +56,8 @@ def atomic_h5(path: str | os.PathLike, mode: str = "w") -> Iterator[h5py.File]:
             f.attrs[COMPLETE_ATTR] = False
             yield f
             f.attrs[COMPLETE_ATTR] = True
-            f.attrs["dtmbnav_version"] = package_version()
+            f.attrs[PACKAGE_VERSION_ATTR] = package_version()
+            f.attrs[SCHEMA_VERSION_ATTR] = SCHEMA_VERSION
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)

@@ -1,0 +1,290 @@
+"""Typed records that the stages exchange (receiver, simulator, fusion, CLI).
+
+Each record is a dataclass of equal-length 1-D numpy arrays (one per column,
+N x 3 for vector sensors; names carry units, ``docs/conventions.md``). The
+HDF5 layer writes them column by column, so a record's fields are its file
+schema (``docs/schema.md``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from enum import IntFlag
+from typing import Self
+
+import numpy as np
+
+
+class ColumnRecord:
+    """Mixin for dataclasses whose fields are equal-length numpy columns."""
+
+    def __post_init__(self) -> None:
+        lengths = {f.name: len(getattr(self, f.name)) for f in fields(self)}  # type: ignore[arg-type]
+        if len(set(lengths.values())) > 1:
+            raise ValueError(f"{type(self).__name__}: columns differ in length: {lengths}")
+
+    def __len__(self) -> int:
+        first = fields(self)[0].name  # type: ignore[arg-type]
+        return len(getattr(self, first))
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The columns by name, in field order."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}  # type: ignore[arg-type]
+
+    def select(self, rows: slice | np.ndarray) -> Self:
+        """The rows picked by a slice, index array or boolean mask, as a new record."""
+        return type(self)(**{k: v[rows] for k, v in self.columns().items()})
+
+
+@dataclass
+class Track(ColumnRecord):
+    """A 2-D trajectory (truth, PDR or a filter's estimate).
+
+    Attributes
+    ----------
+    t_s : ndarray
+        Time since the start of the capture, s.
+    x_m, y_m : ndarray
+        East and north position, m.
+    heading_rad : ndarray
+        Heading, clockwise from north, rad.
+    speed_mps : ndarray
+        Ground speed, m/s.
+    """
+
+    t_s: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    heading_rad: np.ndarray
+    speed_mps: np.ndarray
+
+
+@dataclass
+class PdrSteps(ColumnRecord):
+    """Pedestrian dead reckoning, one row per detected step.
+
+    Position is in the PDR's own frame: it starts at (0, 0) and its heading is
+    relative (the initial heading is unknown until fusion solves it).
+
+    Attributes
+    ----------
+    t_s : ndarray
+        Time of the step (its acceleration peak), s.
+    x_m, y_m : ndarray
+        Position after the step, m, PDR frame.
+    heading_rad : ndarray
+        Relative heading during the step, rad (clockwise).
+    speed_mps : ndarray
+        Step length / step duration, m/s.
+    step_length_m : ndarray
+        Step length, m.
+    """
+
+    t_s: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    heading_rad: np.ndarray
+    speed_mps: np.ndarray
+    step_length_m: np.ndarray
+
+
+@dataclass
+class RangeSeries(ColumnRecord):
+    """Integrated DTMB range (range change since a reference) with quality.
+
+    Attributes
+    ----------
+    t_s : ndarray
+        Time, s.
+    range_change_m : ndarray
+        Range to the tower minus the range at the reference time, m (eq. 11).
+    snr_db : ndarray
+        Receiver SNR estimate, dB.
+    valid : ndarray of bool
+        False where the receiver flagged a gap, loss of lock or bad quality.
+    """
+
+    t_s: np.ndarray
+    range_change_m: np.ndarray
+    snr_db: np.ndarray
+    valid: np.ndarray
+
+
+@dataclass
+class ImuLog(ColumnRecord):
+    """Inertial and magnetic samples of one IMU.
+
+    The sensor (body) frame is the device's own: for the handheld phone
+    x = right, y = forward (towards the top of the phone), z = out of the
+    screen; for the foot-mounted unit x = right, y = forward along the foot,
+    z = up out of the instep. Each writer states its frame in the file.
+
+    Attributes
+    ----------
+    t_s : ndarray
+        Sample time since the start of the capture, s.
+    acc_mps2 : ndarray, shape (N, 3)
+        Specific force (acceleration minus gravity; reads +9.8 m/s^2 up at
+        rest), m/s^2, sensor frame.
+    gyro_radps : ndarray, shape (N, 3)
+        Angular rate, rad/s, sensor frame (right-handed).
+    mag_ut : ndarray, shape (N, 3)
+        Magnetic flux density, uT, sensor frame.
+    """
+
+    t_s: np.ndarray
+    acc_mps2: np.ndarray
+    gyro_radps: np.ndarray
+    mag_ut: np.ndarray
+
+
+@dataclass
+class GnssLog(ColumnRecord):
+    """Per-epoch GNSS position fixes with their signal strength.
+
+    Attributes
+    ----------
+    t_s : ndarray
+        Epoch time since the start of the capture, s.
+    x_m, y_m : ndarray
+        Fixed east and north position, m.
+    cn0_dbhz : ndarray
+        Mean carrier-to-noise density of the satellites used, dB-Hz.
+    """
+
+    t_s: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    cn0_dbhz: np.ndarray
+
+
+@dataclass(frozen=True)
+class StartFix:
+    """The GNSS fix P0 where the PDR starts (the last fix before GNSS is given up).
+
+    Attributes
+    ----------
+    t_s : float
+        Time of the fix, s.
+    x_m, y_m : float
+        Fixed east and north position, m.
+    sigma_m : float
+        Stated 1-sigma horizontal error per axis, m.
+    """
+
+    t_s: float
+    x_m: float
+    y_m: float
+    sigma_m: float
+
+
+
+@dataclass(frozen=True)
+class WalkTruth:
+    """A walk's truth as read back from a truth file.
+
+    Attributes
+    ----------
+    track : Track
+        Truth trajectory.
+    step_t_s, step_length_m : ndarray
+        Heel-strike times (s) and truth step lengths (m).
+    walk_start_t_s : float
+        When the walker sets off, s.
+    start_fix : StartFix
+        The GNSS start fix P0.
+    """
+
+    track: Track
+    step_t_s: np.ndarray
+    step_length_m: np.ndarray
+    walk_start_t_s: float
+    start_fix: StartFix
+
+# --- receiver frames (/receiver/frames) ------------------------------------------------------
+
+class FrameFlag(IntFlag):
+    """Per-frame quality bits (``flags`` column of ``/receiver/frames``)."""
+
+    #: First frame of a lock (acquisition or re-acquisition): no CFO pair.
+    LOCK_START = 1
+    #: First frame after a loss of lock: the samples before it were not tracked.
+    GAP = 2
+    #: Header correlation below the lock threshold (frame kept, not trusted).
+    LOW_QUALITY = 4
+    #: Frame inside the static window used to estimate the clock offset f_s.
+    CALIBRATION = 8
+
+
+#: Storage type of each ``/receiver/frames`` column.
+FRAME_COLUMN_DTYPES: dict[str, type] = {
+    "t_s": np.float64, "sample_index": np.int64, "frame_index": np.int64, "pn_phase": np.int32,
+    "cfo_hz": np.float64, "cfo_pn_hz": np.float64, "doppler_hz": np.float64, "velocity_mps": np.float64,
+    "range_change_m": np.float64, "snr_db": np.float32, "si_snr_db": np.float32,
+    "peak_metric": np.float32, "flags": np.uint8,
+}
+
+
+@dataclass
+class FrameBatch(ColumnRecord):
+    """Per-frame receiver results, one row per received signal frame.
+
+    The field names are the ``/receiver/frames`` schema; the receiver yields
+    frames as a stream of such batches.
+
+    Notes
+    -----
+    Columns:
+
+    - ``t_s``: frame start (first header sample of the main path) on the capture's
+      clock, s: the frame's first sample index in the 7.56 Msps stream divided by
+      7.56e6 (the resampler aligns that stream's sample n with input time
+      ``n / 7.56e6``), never accumulated.
+    - ``sample_index``: index in the INPUT stream (before resampling) of the
+      input sample at or just before the frame start, so rows can be matched
+      to the capture file.
+    - ``frame_index``: the receiver's frame counter. With a rotating header it is
+      congruent to the frame's place in the superframe (modulo the frames per
+      superframe); it keeps counting across gaps (frame periods elapsed).
+    - ``pn_phase``: cyclic phase of the frame's header (``docs/dtmb.md`` §2.3).
+    - ``cfo_hz``: total carrier offset (coarse + SI estimate, eq. 5-8) measured
+      between this frame and the previous one; NaN on the first frame of a lock.
+    - ``cfo_pn_hz``: the independent estimate from the PN headers, same pair.
+    - ``doppler_hz``: ``cfo_hz - f_s`` (eq. 9); ``velocity_mps``: eq. 10,
+      positive when closing on the tower.
+    - ``range_change_m``: eq. 11, range since the first frame, m (shrinks when
+      closing); continued across a gap with the last velocity (flagged).
+    - ``snr_db``: header-based SNR (over the whole band); ``si_snr_db``: SNR on
+      the 36 SI carriers (a 72 kHz slice at the band centre), which fades where
+      paths with different delays cancel there, and which the CFO estimate
+      (eq. 5-8) lives on; ``peak_metric``: share of the header-window power
+      captured by the channel taps (0 on noise, ~1 on a clean signal).
+    - ``flags``: :class:`FrameFlag` bits.
+    """
+
+    t_s: np.ndarray
+    sample_index: np.ndarray
+    frame_index: np.ndarray
+    pn_phase: np.ndarray
+    cfo_hz: np.ndarray
+    cfo_pn_hz: np.ndarray
+    doppler_hz: np.ndarray
+    velocity_mps: np.ndarray
+    range_change_m: np.ndarray
+    snr_db: np.ndarray
+    si_snr_db: np.ndarray
+    peak_metric: np.ndarray
+    flags: np.ndarray
+
+    @classmethod
+    def empty(cls) -> "FrameBatch":
+        """A batch with no rows (typed columns)."""
+        return cls.concatenate([])
+
+    @classmethod
+    def concatenate(cls, batches: list["FrameBatch"]) -> "FrameBatch":
+        """Rows of ``batches`` in order, as one batch."""
+        if not batches:
+            return cls(**{name: np.empty(0, dtype=dt) for name, dt in FRAME_COLUMN_DTYPES.items()})
+        return cls(**{name: np.concatenate([getattr(b, name) for b in batches]).astype(dt, copy=False)
+                      for name, dt in FRAME_COLUMN_DTYPES.items()})

@@ -1,0 +1,59 @@
+"""The HDF5 file schema: group, column and attribute names, defined once.
+
+Every file the project writes follows one layout (``docs/schema.md``): one
+group per stage holding equal-length columns (N x 3 for vector sensors), with
+parameters, units and versions as attributes. Writers and readers take the
+names from here, so a rename happens in one place.
+"""
+
+from __future__ import annotations
+
+#: Version of this layout, written on every file's root group. Bumped when a
+#: group or column changes meaning; readers accept files without it (written
+#: before the attribute existed, same layout as version 1).
+SCHEMA_VERSION = 1
+SCHEMA_VERSION_ATTR = "dtmbnav_schema_version"
+#: Root attribute set to True only once a file is complete (atomic writing).
+COMPLETE_ATTR = "dtmbnav_complete"
+#: Root attribute holding the package version that wrote the file.
+PACKAGE_VERSION_ATTR = "dtmbnav_version"
+
+# --- groups ----------------------------------------------------------------------------------
+TRUTH_TRAJECTORY = "truth/trajectory"
+TRUTH_FRAMES = "truth/frames"
+TRUTH_STEPS = "truth/steps"
+IMU = "imu"
+GNSS = "gnss"
+RECEIVER_FRAMES = "receiver/frames"
+PDR = "pdr"
+PDR_TRACK = "pdr/track"
+FUSION = "fusion"
+
+
+def fusion_group(filter_name: str) -> str:
+    """Group of one filter's fused track, ``fusion/<filter name>``."""
+    return f"{FUSION}/{filter_name}"
+
+
+# --- columns ---------------------------------------------------------------------------------
+TRACK_COLUMNS = ("t_s", "x_m", "y_m", "heading_rad", "speed_mps")
+STEP_COLUMNS = ("t_s", "step_length_m")
+IMU_COLUMNS = ("t_s", "acc_mps2", "gyro_radps", "mag_ut")
+GNSS_COLUMNS = ("t_s", "x_m", "y_m", "cn0_dbhz")
+
+# --- attributes ------------------------------------------------------------------------------
+#: On /truth/trajectory: tower position (ENU, m), its height above the receiver antenna (m).
+TOWER_X_ATTR = "tower_x_m"
+TOWER_Y_ATTR = "tower_y_m"
+TOWER_HEIGHT_ATTR = "tower_height_above_receiver_m"
+#: On /truth/trajectory: when the walker sets off and stops, s.
+WALK_START_ATTR = "walk_start_t_s"
+WALK_END_ATTR = "walk_end_t_s"
+#: On /truth/trajectory and /gnss: the GNSS start fix P0 (time s, position m, 1-sigma m).
+START_FIX_ATTRS = ("start_fix_t_s", "start_fix_x_m", "start_fix_y_m", "start_fix_sigma_m")
+#: On /truth/frames: where a simulated capture starts on the sensors' clock, s.
+CAPTURE_START_ATTR = "capture_start_s"
+#: On /imu: the Weinberg gain K calibrated for the walker and device, m.
+WEINBERG_K_ATTR = "weinberg_k_m"
+#: On /fusion/<filter>: the initial heading used and how it was chosen.
+INITIAL_HEADING_ATTR = "initial_heading_rad"
