@@ -99,7 +99,7 @@ def resolve_pdr_config(config: PdrConfig, sensors_path: str | os.PathLike) -> Pd
     """Fill in the Weinberg gain from the sensors file when the user gave none.
 
     A file without a calibrated gain falls back to the linear step-frequency
-    model, which needs no calibration (method.md §3).
+    model, which needs no calibration (docs/method.md §3).
     """
     if config.step_model != "weinberg" or config.weinberg_k_m is not None:
         return config

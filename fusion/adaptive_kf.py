@@ -1,6 +1,6 @@
-"""Quality-adaptive Kalman filter (seed 003): inflate R where the link is graded poor.
+"""Quality-adaptive Kalman filter ([CN0-KF]): inflate R where the link is graded poor.
 
-Seed 003 grades the GNSS environment each epoch from the mean satellite C/N0:
+[CN0-KF] grades the GNSS environment each epoch from the mean satellite C/N0:
 ``P = 10^((40 - C/N0) / 10)`` is compared with the running mean ``C`` of P;
 the epoch is good if ``P <= 1.2 C``, medium if ``P <= 1.6 C`` and bad
 otherwise, and the measurement noise is multiplied by 1, 5 or 10. Here the
@@ -43,7 +43,7 @@ from fusion.model import (
 )
 from fusion.observations import FilterEpochs
 
-#: Seed 003's grade thresholds on P / C and the R multipliers of the grades.
+#: [CN0-KF]'s grade thresholds on P / C and the R multipliers of the grades.
 GRADE_THRESHOLDS = (1.2, 1.6)
 GRADE_FACTORS = (1.0, 5.0, 10.0)
 
@@ -112,7 +112,7 @@ def observation_jacobian(x: np.ndarray, geometry: Geometry) -> np.ndarray:
 
 
 class AdaptiveEkf:
-    """EKF on the shared model with seed 003's graded R.
+    """EKF on the shared model with [CN0-KF]'s graded R.
 
     Parameters
     ----------

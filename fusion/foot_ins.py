@@ -1,4 +1,4 @@
-"""Foot-mounted strapdown INS with rank-KF zero-velocity updates [Rank KF].
+"""Foot-mounted strapdown INS with rank-KF zero-velocity updates [Rank-KF].
 
 :class:`ZuptInsRankKf` is the rank-KF paper's pedestrian navigator: a
 strapdown INS on a foot-mounted IMU with a 15-state error model (attitude,
@@ -22,7 +22,7 @@ from dtmbnav.core.constants import GRAVITY_MPS2
 from dtmbnav.core.records import Track
 from fusion.rank_kf import RankKalmanFilter, rank_quantiles
 
-#: Error-state layout (method.md §7 order).
+#: Error-state layout (docs/method.md §7 order).
 ATT, BG, POS, VEL, BA = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15))
 ERROR_SIZE = 15
 
@@ -182,7 +182,7 @@ def level_attitude(acc_mps2: np.ndarray, heading_rad: float) -> np.ndarray:
 
 
 class ZuptInsRankKf:
-    """Foot-mounted strapdown INS corrected by rank-KF zero-velocity updates (seed 004).
+    """Foot-mounted strapdown INS corrected by rank-KF zero-velocity updates ([Rank-KF]).
 
     Parameters
     ----------

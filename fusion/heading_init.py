@@ -1,4 +1,4 @@
-"""Initial heading from the DTMB range constraint (method.md §4, eq. 14-15).
+"""Initial heading from the DTMB range constraint (docs/method.md §4, eq. 14-15).
 
 The PDR track is relative: it starts at (0, 0) with an unknown heading offset.
 Rotating it by a candidate ``phi0`` and placing it at P0 predicts a range
@@ -118,7 +118,7 @@ def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.
     """Solve eq. 15 for the initial heading.
 
     Three options extend the paper's eq. 15, aimed at the PDR errors that
-    bias it (scenarios.md: a step-length gain 10-20 % off, a heading that
+    bias it (docs/scenarios.md: a step-length gain 10-20 % off, a heading that
     drifts late in the walk) and at the mirror ambiguity of a straight start:
 
     - ``scale_bounds``: the PDR's distance scale is solved jointly as a

@@ -1,4 +1,4 @@
-"""Accuracy metrics as the paper reports them (method.md §6).
+"""Accuracy metrics as the paper reports them (docs/method.md §6).
 
 Position error is the horizontal distance between an estimate and the truth
 interpolated at the estimate's own times; the statistics are the 68th and 95th

@@ -1,4 +1,4 @@
-"""The state-space model every fusion filter shares (method.md §5, eq. 16-19).
+"""The state-space model every fusion filter shares (docs/method.md §5, eq. 16-19).
 
 State, one row per hypothesis (particle or sigma point), project convention
 (heading clockwise from north, a step moves ``(s t sin(phi), s t cos(phi))``)::
@@ -187,7 +187,7 @@ def propagate(states: np.ndarray, control: StepControl) -> np.ndarray:
 
     Departures from eq. 17, so that the filter follows the walker through
     turns and pace changes instead of lagging a step behind, and so that the
-    PDR's two systematic errors (scenarios.md) become states the range can
+    PDR's two systematic errors (docs/scenarios.md) become states the range can
     correct:
 
     - the PDR's heading increment over the step (the gyro's turn, accurate

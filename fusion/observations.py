@@ -13,7 +13,7 @@ noise. The rule, applied per step time ``t_n``:
    interpolated across.
 4. Otherwise the observation is the mean range change of the valid frames.
    Averaging is not there to beat down per-frame noise (the integrated range
-   telescopes and its frame noise is millimetres, method.md §2): it makes the
+   telescopes and its frame noise is millimetres, docs/method.md §2): it makes the
    observation insensitive to which frame is nearest the step peak and to the
    odd flagged frame.
 5. Its standard deviation is ``base_sigma_m`` (the drift/multipath error the

@@ -1,4 +1,4 @@
-"""Particle-filter fusion of DTMB range and PDR (method.md §5, eq. 16-23, Algorithm 1).
+"""Particle-filter fusion of DTMB range and PDR (docs/method.md §5, eq. 16-23, Algorithm 1).
 
 State and observations are those of :mod:`fusion.model`. Each particle also
 carries a range offset: its own start range |P_0 - P_b| (eq. 19 uses the

@@ -1,6 +1,6 @@
-"""Rank Kalman filter [Rank KF], and the rank KF on the range/PDR fusion model.
+"""Rank Kalman filter [Rank-KF], and the rank KF on the range/PDR fusion model.
 
-Rank sampling ([Rank KF] eq. 4-5, 19; ``docs/method.md`` §7): with ``q`` layers, the
+Rank sampling ([Rank-KF] eq. 4-5, 19; ``docs/method.md`` §7): with ``q`` layers, the
 layer probabilities are ``p_j = (j - 0.3) / (2q + 1.4)`` for
 ``j = 1..2q+1, j != q+1``; ``lambda_j`` is the standard normal quantile at
 ``p_j`` and the correction factors are ``r_j = 1`` (the quantiles are

@@ -1,4 +1,4 @@
-"""Unscented Kalman filter on the fusion model (filterpy), the baseline of seed 002.
+"""Unscented Kalman filter on the fusion model (filterpy), the baseline of [WT-UKF].
 
 Same state, process and observations as the particle filter
 (:mod:`fusion.model`), so the two are compared on identical equations; the

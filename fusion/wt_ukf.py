@@ -1,6 +1,6 @@
-"""WT-UKF (seed 002): the UKF with wavelet-estimated measurement noise.
+"""WT-UKF [WT-UKF]: the UKF with wavelet-estimated measurement noise.
 
-Seed 002 estimates the unknown noise of each observation channel online: in a
+[WT-UKF] estimates the unknown noise of each observation channel online: in a
 sliding window of the last ``window`` observations, a discrete wavelet
 transform splits the series into an approximation (the signal) and details
 (the noise). Its eq. 15 takes the noise mean as ``mean(z) - mean(z*)`` with
@@ -9,7 +9,7 @@ noise standard deviation as ``median(|finest detail coefficients|) / 0.6745``
 (the MAD estimator). The mean is removed from the observation and the
 variance replaces that channel's R.
 
-Applied here by default to the range change only. In seed 002 the PDR drives
+Applied here by default to the range change only. In [WT-UKF] the PDR drives
 the state and the only measurement is the external fix (GPS there, the DTMB
 range here); our PDR heading and speed observations (eq. 18) are wide
 pseudo-observations that hold the state near the PDR, and their error is the
@@ -34,12 +34,12 @@ from fusion.model import EpochObservation, Geometry, ModelNoise, run_filter
 from fusion.observations import FilterEpochs
 from fusion.ukf import RangePdrUkf
 
-#: MAD-to-sigma factor of a Gaussian (seed 002 eq. 16).
+#: MAD-to-sigma factor of a Gaussian ([WT-UKF] eq. 16).
 MAD_TO_SIGMA = 0.6745
 
 
 def wavelet_noise_estimate(series: np.ndarray, wavelet: str = "db4", level: int = 2) -> tuple[float, float]:
-    """Noise mean and standard deviation of a series (seed 002 eq. 15-16).
+    """Noise mean and standard deviation of a series ([WT-UKF] eq. 15-16).
 
     Parameters
     ----------

@@ -2,7 +2,7 @@
 
 Works on a fixed window of the 7.56 Msps stream (``acquisition_frames`` + 1
 frames of the longest mode), with metrics that do not depend on the carrier
-phase, so a kHz-level CFO and echoes do not stop it (dtmb.md §5):
+phase, so a kHz-level CFO and echoes do not stop it (docs/dtmb.md §5):
 
 1. **Mode and grid.** PN420/PN945 headers repeat their first
    ``header - period`` chips one period P later, whatever the header phase:

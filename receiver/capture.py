@@ -1,6 +1,6 @@
 """Open an IQ capture and read it in chunks with flat memory.
 
-Accepted inputs (``conventions.md``):
+Accepted inputs (``docs/conventions.md``):
 
 - **SigMF**: ``name.sigmf-meta`` or ``name.sigmf-data`` (either file name);
   the metadata (read with the ``sigmf`` package) gives the datatype, sample

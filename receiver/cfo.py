@@ -1,6 +1,6 @@
 """Per-frame CFO estimators: the SI-carrier method (eq. 5-8) and the PN headers.
 
-**SI carriers (method.md §1).** The 36 SI carriers carry the same symbols in
+**SI carriers (docs/method.md §1).** The 36 SI carriers carry the same symbols in
 consecutive frames, so the phase of
 ``Theta_m = sum_k conj(Y_m(k)) Y_{m-1}(k) exp(j 2 pi k (delta_m - delta_{m-1}) / N)``
 (eq. 6, written for the pair (m-1, m)) is ``-2 pi df (n_m - n_{m-1}) T_rx``.
@@ -24,7 +24,7 @@ symbols at power 1).
 
 **SI word.** Equalising the SI carriers with the PN-based channel estimate and
 correlating with the 24 known words identifies the transmission mode; the sign
-is absolute (the PN estimate anchors it), as dtmb.md §3.2 asks.
+is absolute (the PN estimate anchors it), as docs/dtmb.md §3.2 asks.
 """
 
 from __future__ import annotations

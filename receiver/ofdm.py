@@ -62,7 +62,7 @@ class OfdmDemodulator:
 
     The DFT is unnormalised: a carrier symbol X[k] sent through a channel
     H[k] comes out as ``sqrt(3780) H[k] X[k]`` (the transmitter's IDFT is
-    unitary, dtmb.md §3.3). :func:`si_carriers_reference` is the full
+    unitary, docs/dtmb.md §3.3). :func:`si_carriers_reference` is the full
     ``np.fft`` equivalent.
 
     Parameters

@@ -1,4 +1,4 @@
-"""Clock-offset calibration and Doppler ranging (method.md §2, eq. 9-11).
+"""Clock-offset calibration and Doppler ranging (docs/method.md §2, eq. 9-11).
 
 ``df_m = f_s + f_d,m + noise`` (eq. 9): f_s, the constant part of the carrier
 offset (oscillator mismatch plus the tuner's bulk offset), is measured while
@@ -8,7 +8,7 @@ given by the user. Then per frame
 - ``doppler_hz = cfo_hz - f_s``,
 - ``velocity_mps = doppler_hz * c / fc`` (eq. 10; positive when closing),
 - ``range_change_m = -(c / fc) * sum (cfo_hz - f_s) * dt`` (eq. 11 with the
-  sign of conventions.md: range shrinks when closing), with dt the time
+  sign of docs/conventions.md: range shrinks when closing), with dt the time
   between the frame and the one before it.
 
 The f_s of the static window is the time-weighted mean of the CFO over it,

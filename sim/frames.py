@@ -107,7 +107,7 @@ class FrameSource:
         """Header + body symbols of one frame (complex128, read-only)."""
         if frame_number < 0:
             raise ValueError("frame numbers start at 0")
-        # Unitary IDFT: x[t] = (1/sqrt(N)) sum_k X[k] exp(+j 2 pi k t / N)  (dtmb.md §3.3)
+        # Unitary IDFT: x[t] = (1/sqrt(N)) sum_k X[k] exp(+j 2 pi k t / N)  (docs/dtmb.md §3.3)
         body = np.fft.ifft(self.carriers(frame_number), norm="ortho")
         frame = np.concatenate([self.header(self.config.header_phase(frame_number)), body])
         frame.flags.writeable = False

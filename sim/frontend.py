@@ -28,7 +28,7 @@ import numpy as np
 from dtmbnav.core import gb20600
 from dtmbnav.core.iqformat import encode, get_format
 from sim.frames import FrameConfig
-from sim.scenario import ReceiverConfig
+from sim.scenario import FrontEndConfig
 
 #: Samples per independently seeded noise block.
 NOISE_BLOCK = 1 << 16
@@ -51,7 +51,7 @@ class FrontEnd:
 
     Parameters
     ----------
-    receiver : ReceiverConfig
+    receiver : FrontEndConfig
         ``cn_db``, ``bulk_cfo_hz``, ``iq_conjugate``, ``agc_backoff_db``,
         ``sample_format``.
     signal_power : float
@@ -65,7 +65,7 @@ class FrontEnd:
         Noise seed (module docstring).
     """
 
-    def __init__(self, receiver: ReceiverConfig, signal_power: float, sample_rate_hz: float, sample_format: str,
+    def __init__(self, receiver: FrontEndConfig, signal_power: float, sample_rate_hz: float, sample_format: str,
                  seed: int, stream_id: int) -> None:
         self.receiver = receiver
         self.format = get_format(sample_format)

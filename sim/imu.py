@@ -118,7 +118,7 @@ class ImuPreset:
     mount_yaw_sigma_rad: float
 
 
-#: The presets of ``ImuConfig.preset`` (scenarios.md: phone accel noise ~0.02 m/s^2,
+#: The presets of ``ImuConfig.preset`` (docs/scenarios.md: phone accel noise ~0.02 m/s^2,
 #: gyro 0.01 deg/s/sqrt(Hz), bias 0.1-0.5 deg/s that wanders).
 PRESETS: dict[str, ImuPreset] = {
     "phone": ImuPreset(mount="hand", accel_noise_mps2=0.02, accel_bias_mps2=0.03, accel_scale_error=0.005,

@@ -1,8 +1,8 @@
 """Observation-level DTMB range: what the receiver's integrated range would be, without IQ.
 
-For Monte Carlo studies of the fusion filters (scenarios.md allows it), this
+For Monte Carlo studies of the fusion filters (docs/scenarios.md allows it), this
 module produces a :class:`dtmbnav.core.records.RangeSeries` straight from the truth
-track, with the errors the IQ receiver actually makes (method.md §1-2). It
+track, with the errors the IQ receiver actually makes (docs/method.md §1-2). It
 uses the *same* channel (:class:`sim.channel.Channel`) and receiver clock
 (:func:`sim.oscillator.scenario_oscillator`) as the IQ simulation, drawn from
 the same random streams (``sim.rf.STREAM_CHANNEL``, ``STREAM_CLOCK``), so for a
@@ -22,7 +22,7 @@ wander; what this module leaves out is the receiver's signal processing.
   over the start-still window (minus a guard before the walker moves) and is
   removed; what remains is the f_s estimation error times time plus the
   wander since the calibration.
-- **Noise.** The integrated phase's noise telescopes (method.md §2), so it is
+- **Noise.** The integrated phase's noise telescopes (docs/method.md §2), so it is
   white per output sample, with the phase standard deviation of the SI sum,
   ``1 / sqrt(2 * sum_k snr_k)``.
 - **Quality.** ``snr_db`` is the SI-carrier SNR (C/N times the composite

@@ -17,7 +17,7 @@ How it enters the capture (sim.rf):
   ``-2 pi fc x(t)`` on the baseband.
 
 Sign convention: ``clock_offset_hz = -fc * y(t)`` is the apparent CFO the clock
-adds at RF (positive = received carrier appears above nominal, conventions.md),
+adds at RF (positive = received carrier appears above nominal, docs/conventions.md),
 so a measured CFO is ``doppler_hz + clock_offset_hz`` (+ the tuner's constant
 ``bulk_cfo_hz``). A fast clock (y > 0) lowers the apparent carrier and takes
 samples early.
@@ -25,7 +25,7 @@ samples early.
 Presets (:data:`CLOCK_PRESETS`; the fractional offset is drawn uniformly
 within +-offset unless the scenario gives it): ``gnss-disciplined`` +-30 ppb
 with adev 1e-12 at 1 s, the wander that keeps the integrated range error a
-fraction of a wavelength over a minute (scenarios.md); ``free-running`` TCXO
+fraction of a wavelength over a minute (docs/scenarios.md); ``free-running`` TCXO
 +-500 ppb with adev 1e-9. The IQ simulation (sim.rf) and the
 observation-level one (sim.obs_range) draw the same clock from here.
 """

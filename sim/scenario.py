@@ -2,7 +2,7 @@
 
 A scenario names the tower and its signal, the walk, the receiver front end and
 clock, the propagation scene, the IMU and the GNSS start fix, plus the seed. The
-four reference walks of ``shared/spec/scenarios.md`` ship as package data
+four reference walks of ``docs/scenarios.md`` ship as package data
 (``park-loop-cw``, ``park-loop-ccw``, ``street-out``, ``street-back``; the aliases
 ``park-loop`` and ``street`` name the first run of each).
 
@@ -154,7 +154,7 @@ class ClockConfig:
 
 
 @dataclass(frozen=True)
-class ReceiverConfig:
+class FrontEndConfig:
     """The SDR front end that records the capture.
 
     Attributes
@@ -338,7 +338,7 @@ class Scenario:
     seed: int = 1
     tower: TowerConfig = field(default_factory=TowerConfig)
     walk: WalkConfig = field(default_factory=WalkConfig)
-    receiver: ReceiverConfig = field(default_factory=ReceiverConfig)
+    receiver: FrontEndConfig = field(default_factory=FrontEndConfig)
     channel: ChannelConfig = field(default_factory=ChannelConfig)
     imu: ImuConfig = field(default_factory=ImuConfig)
     gnss: GnssConfig = field(default_factory=GnssConfig)
@@ -386,7 +386,7 @@ def _to_dict(obj: Any) -> dict[str, Any]:
 
 
 _SECTIONS = {
-    "tower": TowerConfig, "walk": WalkConfig, "receiver": ReceiverConfig,
+    "tower": TowerConfig, "walk": WalkConfig, "receiver": FrontEndConfig,
     "channel": ChannelConfig, "imu": ImuConfig, "gnss": GnssConfig,
 }
 

@@ -4,7 +4,7 @@ The transmitted baseband is ``s(u) = sum_n a_n p(u - n)`` with ``u`` the
 transmitter time in symbol periods (u = 0 is the first symbol of frame 0, the
 start of a superframe), ``a_n`` the symbols of :class:`sim.frames.FrameSource`
 and ``p`` the square-root raised-cosine pulse of roll-off
-``gb20600.SRRC_ROLLOFF`` (dtmb.md §1), truncated to ``+-span`` symbols.
+``gb20600.SRRC_ROLLOFF`` (docs/dtmb.md §1), truncated to ``+-span`` symbols.
 Because ``s`` is evaluated at any real ``u``, a receiver whose path delays
 change continuously (walking) or whose ADC clock runs fast or slow (sampling
 offset), at any output rate, gets exactly the samples it would record.

@@ -74,7 +74,7 @@ def test_transition_jacobian_matches_finite_differences():
     np.testing.assert_allclose(f, numeric, atol=1e-6)
 
 
-# --- seed 003 grading ------------------------------------------------------------------------
+# --- [CN0-KF] grading ------------------------------------------------------------------------
 
 def test_quality_grades_follow_seed_003():
     snr = np.array([15.0, 15.0, 15.0, 15.0, 13.0, 15.0, 5.0, np.nan])
@@ -97,7 +97,7 @@ def test_adaptive_filter_uses_good_gnss_fixes():
     assert with_gnss < 0.7 * without and with_gnss < 2.0
 
 
-# --- seed 002 wavelet noise estimation -------------------------------------------------------
+# --- [WT-UKF] wavelet noise estimation -------------------------------------------------------
 
 def test_wavelet_noise_estimate_recovers_white_noise_on_a_smooth_signal():
     rng = np.random.default_rng(3)
@@ -125,7 +125,7 @@ def test_wt_ukf_re_estimates_only_the_chosen_channels(gain_walk, rows, monkeypat
     assert list(changed[1:]) == [1 in rows, 2 in rows]
 
 
-# --- seed 004 rank sampling -------------------------------------------------------------------
+# --- [Rank-KF] rank sampling -------------------------------------------------------------------
 
 def test_rank_quantiles_follow_seed_004():
     lambdas, omega = rank_kf.rank_quantiles(2)

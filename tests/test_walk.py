@@ -100,7 +100,7 @@ def test_track_is_smooth_and_speed_is_consistent(park_walk):
 def test_loop_length_start_and_end_still(park_walk):
     scenario, walk = park_walk
     tr = walk.track
-    assert walk.path.total_m == pytest.approx(116.0, abs=1.0)  # scenarios.md: a loop of about 116 m
+    assert walk.path.total_m == pytest.approx(116.0, abs=1.0)  # docs/scenarios.md: a loop of about 116 m
     assert tr.t_s[0] == 0.0
     assert walk.walk_start_t_s == pytest.approx(scenario.walk.start_still_s)
     assert tr.t_s[-1] == pytest.approx(walk.walk_end_t_s + scenario.walk.end_still_s, abs=1.0 / walk.rate_hz)

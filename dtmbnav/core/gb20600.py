@@ -5,7 +5,7 @@ frame-header modes and their PN generators, the variable-phase header schedule,
 the system-information (SI / TPS) words and their mapping, the C=3780 carrier
 placement (frequency interleaver) and the data constellations.
 
-Facts follow ``shared/spec/dtmb.md``; where the spec marks a fact uncertain
+Facts follow ``docs/dtmb.md``; where the spec marks a fact uncertain
 (SI polarity, SI power) it is a keyword option, never a hidden constant.
 """
 
@@ -17,7 +17,7 @@ from functools import cache
 
 import numpy as np
 
-#: Symbol rate, symbols/s (dtmb.md §1).
+#: Symbol rate, symbols/s (docs/dtmb.md §1).
 SYMBOL_RATE_HZ = 7.56e6
 #: Number of carriers / frame-body length in symbols (C=3780 mode).
 BODY_LENGTH = 3780
@@ -94,7 +94,7 @@ class HeaderMode:
 
 
 class PnMode(Enum):
-    """The three header modes of GB 20600 (dtmb.md §2, §2.1)."""
+    """The three header modes of GB 20600 (docs/dtmb.md §2, §2.1)."""
 
     PN420 = HeaderMode("PN420", 420, 255, 82, 83, 225, 2.0, True, 8, "10110000", (0, 2, 3, 7))
     PN595 = HeaderMode("PN595", 595, 1023, 0, 0, 216, 1.0, False, 10, "0000000001", (0, 7))
@@ -169,7 +169,7 @@ def header_phase(mode: PnMode, frame_in_superframe: int | np.ndarray) -> int | n
     Returns
     -------
     int or ndarray
-        The phase: 0, +1, -1, +2, -2, ... then back (dtmb.md §2.3).
+        The phase: 0, +1, -1, +2, -2, ... then back (docs/dtmb.md §2.3).
     """
     m = mode.value
     i = np.asarray(frame_in_superframe) % m.frames_per_superframe
@@ -198,7 +198,7 @@ def header_symbols(mode: PnMode, phase: int = 0) -> np.ndarray:
     return chips_to_symbols(header_chips(mode, phase), mode.value.header_amplitude)
 
 
-# --- System information (dtmb.md §3.1, §3.2) -------------------------------------------
+# --- System information (docs/dtmb.md §3.1, §3.2) -------------------------------------------
 
 #: SI code words 1..24 (32 chips each, first chip on the left).
 SI_WORDS: dict[int, str] = {
@@ -264,7 +264,7 @@ def si_symbols(index: int, *, polarity: int = +1, power_db: float = 0.0) -> np.n
         SI word number (1..24), e.g. 15 for 16QAM 0.8 mode 1.
     polarity : {+1, -1}
         +1 (default, validated on air): chip 0 -> +(1+j)a; -1: chip 0 -> -(1+j)a.
-        The four C=3780 mode symbols are -(1+j)a either way (dtmb.md §3.2).
+        The four C=3780 mode symbols are -(1+j)a either way (docs/dtmb.md §3.2).
     power_db : float
         SI symbol power relative to the unit-power data, dB (0 = equal power).
 
@@ -280,7 +280,7 @@ def si_symbols(index: int, *, polarity: int = +1, power_db: float = 0.0) -> np.n
     return np.concatenate([mode_flags, word])
 
 
-# --- C=3780 carrier placement (dtmb.md §3.3) ---------------------------------------------
+# --- C=3780 carrier placement (docs/dtmb.md §3.3) ---------------------------------------------
 
 #: Logical positions of the 36 SI symbols in the 3780-vector, in SI order.
 SI_LOGICAL_POSITIONS = (np.array([0, 140, 279, 419])[None, :] + 420 * np.arange(9)[:, None]).ravel()
@@ -338,7 +338,7 @@ def bin_frequency_hz(bins: np.ndarray) -> np.ndarray:
     return np.where(k < BODY_LENGTH // 2, k, k - BODY_LENGTH) * CARRIER_SPACING_HZ
 
 
-# --- Constellations (dtmb.md §4) -------------------------------------------------------
+# --- Constellations (docs/dtmb.md §4) -------------------------------------------------------
 
 def _square_levels(levels: list[float]) -> np.ndarray:
     lv = np.array(levels, dtype=np.float64)

@@ -1,6 +1,6 @@
 """Interleaved IQ sample formats shared by the capture writer and reader.
 
-Four formats (``conventions.md``): ``cu8`` (unsigned bytes, offset 128),
+Four formats (``docs/conventions.md``): ``cu8`` (unsigned bytes, offset 128),
 ``ci8`` (signed bytes), ``ci16`` (little-endian int16) and ``cf32``
 (little-endian float32), each an interleaved I, Q pair per sample. Decoding
 normalises to complex64 with full scale at +-1: cu8 ``(v - 128) / 128``, ci8

@@ -1,4 +1,4 @@
-"""Relative heading from an AHRS (method.md §3) built on the maintained ``ahrs`` package.
+"""Relative heading from an AHRS (docs/method.md §3) built on the maintained ``ahrs`` package.
 
 Choice of filter. ``ahrs.filters.Madgwick`` (MARG form) is used:
 
@@ -16,7 +16,7 @@ Choice of filter. ``ahrs.filters.Madgwick`` (MARG form) is used:
 
 The phone's static gyro bias is removed first, estimated over the standing
 period before the walk (zero angular-rate update; rest is detected from the
-gyro's own moving standard deviation, so the first, gentle step is excluded): scenarios.md's walker stands still
+gyro's own moving standard deviation, so the first, gentle step is excluded): docs/scenarios.md's walker stands still
 there, and a 0.1-0.5 deg/s bias would otherwise dominate the heading drift.
 
 Frames: the ``ahrs`` quaternion rotates the sensor frame into an earth frame

@@ -1,4 +1,4 @@
-"""Positions from steps (eq. 12-13 of method.md §3) and their fixed-rate resampling.
+"""Positions from steps (eq. 12-13 of docs/method.md §3) and their fixed-rate resampling.
 
 Each step moves the walker by its length along the mean heading over the
 step's window: ``x += L sin(psi)``, ``y += L cos(psi)`` (psi clockwise from

@@ -1,4 +1,4 @@
-"""PDR accuracy against truth, as the paper reports it (method.md §6, Tables 1-2 "PDR" rows).
+"""PDR accuracy against truth, as the paper reports it (docs/method.md §6, Tables 1-2 "PDR" rows).
 
 The PDR's relative track is placed with the TRUE initial heading and the TRUE
 start (:func:`fusion.metrics.place_pdr`); the position error is taken at the

@@ -1,4 +1,4 @@
-"""The PDR chain: IMU log -> steps -> step lengths -> heading -> positions (method.md §3).
+"""The PDR chain: IMU log -> steps -> step lengths -> heading -> positions (docs/method.md §3).
 
 The Weinberg gain K is never assumed: either the caller passes one calibrated
 beforehand with :func:`calibrate_weinberg_k_from_walk` (a walk of known

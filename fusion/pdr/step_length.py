@@ -1,11 +1,11 @@
-"""Step-length models (method.md §3): Weinberg with a calibrated gain, and the linear frequency model.
+"""Step-length models (docs/method.md §3): Weinberg with a calibrated gain, and the linear frequency model.
 
 Weinberg: ``L = K (a_max - a_min)^(1/4)`` with the extremes of the vertical
 (here: gravity-free norm) acceleration over the step. K depends on the person,
 the carriage and the smoothing, so it is calibrated from a walk of known
 length: ``K = D / sum_i (a_max,i - a_min,i)^(1/4)``.
 
-Linear frequency model (seed 003): ``L = 0.4 f - 0.01`` m for a cadence
+Linear frequency model ([CN0-KF]): ``L = 0.4 f - 0.01`` m for a cadence
 0.5 < f < 3 Hz, else 0.7 m.
 """
 

@@ -1,4 +1,4 @@
-"""Step detection from the acceleration norm (method.md §3).
+"""Step detection from the acceleration norm (docs/method.md §3).
 
 The norm of the specific force is orientation-free; its slowly varying part
 (gravity, plus whatever bias and scale error the accelerometer has) is removed
@@ -103,7 +103,7 @@ def _window_extremes(signal: np.ndarray, start: np.ndarray, stop: np.ndarray) ->
 
 
 def detect_steps(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDetectorConfig) -> DetectedSteps:
-    """Detect steps: peaks of the smoothed dynamic acceleration (method.md §3).
+    """Detect steps: peaks of the smoothed dynamic acceleration (docs/method.md §3).
 
     Parameters
     ----------
