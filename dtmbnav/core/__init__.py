@@ -11,5 +11,5 @@
   truth groups.
 
 Nothing here imports ``receiver``, ``sim`` or ``fusion``; they import this and
-never each other (``docs/architecture.md``).
+never each other (README, "Layout").
 """
