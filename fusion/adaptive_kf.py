@@ -22,13 +22,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from dtmbnav.core.records import Track
+from fusion.driver import run_filter
+from fusion.kalman import RangeKalmanFilter
 from fusion.model import (
     HEADING,
     HEADING_RATE,
     SPEED,
     STATE_SIZE,
-    EpochObservation,
     Geometry,
+    KalmanObservation,
     ModelNoise,
     StepControl,
     X,
@@ -38,7 +40,6 @@ from fusion.model import (
     observe,
     process_covariance,
     propagate,
-    run_filter,
     wrap_angle,
 )
 from fusion.observations import FilterEpochs
@@ -111,7 +112,7 @@ def observation_jacobian(x: np.ndarray, geometry: Geometry) -> np.ndarray:
     return h
 
 
-class AdaptiveEkf:
+class AdaptiveEkf(RangeKalmanFilter):
     """EKF on the shared model with [CN0-KF]'s graded R.
 
     Parameters
@@ -129,9 +130,8 @@ class AdaptiveEkf:
 
     def __init__(self, geometry: Geometry, noise: ModelNoise, epochs: FilterEpochs,
                  gnss: GnssFixes | None = None, gnss_max_age_s: float = 0.5) -> None:
-        self.geometry = geometry
-        self.start_range_m = geometry.start_range_m()
-        self.x = initial_state(geometry, float(epochs.pdr_heading_rad[0]), float(epochs.pdr_speed_mps[0]))
+        super().__init__(geometry, noise)
+        self._x = initial_state(geometry, float(epochs.pdr_heading_rad[0]), float(epochs.pdr_speed_mps[0]))
         self.P = initial_covariance(noise)
         self.Q = process_covariance(noise)
         self.range_factors = quality_grade_factors(epochs.snr_db)
@@ -146,10 +146,15 @@ class AdaptiveEkf:
     def predict(self, control: StepControl) -> None:
         """EKF prediction through :func:`fusion.model.propagate`."""
         f = transition_jacobian(self.x, control)
-        self.x = propagate(self.x, control)
+        self._x = propagate(self.x, control)
         self.P = f @ self.P @ f.T + self.Q
 
-    def update(self, observation: EpochObservation, epoch: int) -> None:
+    @property
+    def x(self) -> np.ndarray:
+        """Current state estimate."""
+        return self._x
+
+    def correct(self, observation: KalmanObservation, epoch: int) -> None:
         """EKF update with the graded range R (and a graded GNSS fix if one is near)."""
         variance = observation.sigma**2
         if observation.rows[0] == 0:
@@ -169,8 +174,8 @@ class AdaptiveEkf:
     def _correct(self, residual: np.ndarray, h: np.ndarray, r: np.ndarray) -> None:
         s = h @ self.P @ h.T + r
         gain = np.linalg.solve(s, h @ self.P).T
-        self.x = self.x + gain @ residual
-        self.x[HEADING] = wrap_angle(self.x[HEADING])
+        self._x = self.x + gain @ residual
+        self._x[HEADING] = wrap_angle(self.x[HEADING])
         # Joseph form keeps P symmetric positive definite.
         i_kh = np.eye(STATE_SIZE) - gain @ h
         self.P = i_kh @ self.P @ i_kh.T + gain @ r @ gain.T
@@ -179,4 +184,4 @@ class AdaptiveEkf:
 def run_adaptive_kf(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise(),
                     gnss: GnssFixes | None = None) -> Track:
     """Run the quality-adaptive EKF over all epochs."""
-    return run_filter(AdaptiveEkf(geometry, noise, epochs, gnss), epochs, noise)
+    return run_filter(AdaptiveEkf(geometry, noise, epochs, gnss), epochs)

@@ -9,15 +9,17 @@ Observations per filter epoch (one PDR step)::
 
     Z = [range_change_m, pdr_heading_rad, pdr_speed_mps]
 
-with ``range_change = |P - P_b| - |P_0 - P_b|`` (eq. 19, 3-D distance to the
+with ``range_change = |P - P_b| - |P_0 - P_b|`` (eq. 18, 3-D distance to the
 tower antenna, which stands ``tower_height_m`` above the walker's plane).
 The process model also takes the PDR's step-to-step heading change and speed
 ratio as a control input (:class:`StepControl`, :func:`propagate` says why),
 which makes the heading-rate state the drift of the PDR heading.
 
-The module also holds what the Kalman-type filters share: the noise
-covariances, the observation vector of an epoch (without the range where the
-epoch has none), and the loop that drives a filter over the epochs.
+The module also holds the observation record every filter's ``update``
+takes (:class:`EpochObservation`) and what the Kalman-type filters share: the
+noise covariances and the observation vector of an epoch without the range
+where the epoch has none (:class:`KalmanObservation`). The loop that drives
+any filter over the epochs is :func:`fusion.driver.run_filter`.
 
 Keeping the model here lets the particle filter, the UKF family and the rank
 Kalman filter be compared on exactly the same equations.
@@ -26,18 +28,14 @@ Kalman filter be compared on exactly the same equations.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
-
-from dtmbnav.core.records import Track
-
-if TYPE_CHECKING:  # observations imports this module; the annotation alone needs the name
-    from fusion.observations import FilterEpochs
 
 #: Column indices of the state vector.
 X, Y, HEADING_RATE, HEADING, SPEED = range(5)
 STATE_SIZE = 5
+#: Component indices of the observation vector (eq. 18).
+RANGE_ROW, HEADING_ROW, SPEED_ROW = range(3)
 
 
 @dataclass(frozen=True)
@@ -273,16 +271,16 @@ def initial_covariance(noise: ModelNoise) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class EpochObservation:
-    """The observations of one epoch that a Kalman-type filter uses.
+class KalmanObservation:
+    """An epoch's observations as a Kalman-type filter uses them: the present components of eq. 18.
 
     Attributes
     ----------
     z : ndarray
         Observed values, in the order of ``rows``.
     rows : ndarray of int
-        Which components of eq. 18 they are (0 range change, 1 heading,
-        2 speed); the range is left out where the epoch has none.
+        Which components of eq. 18 they are (:data:`RANGE_ROW`, :data:`HEADING_ROW`,
+        :data:`SPEED_ROW`); the range is left out where the epoch has none.
     sigma : ndarray
         Their standard deviations.
     """
@@ -294,7 +292,7 @@ class EpochObservation:
     @property
     def heading_index(self) -> int:
         """Position of the heading in ``z``."""
-        return int(np.nonzero(self.rows == 1)[0][0])
+        return int(np.nonzero(self.rows == HEADING_ROW)[0][0])
 
     def residual(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """``a - b`` for observation vectors, the heading wrapped."""
@@ -310,53 +308,38 @@ class EpochObservation:
         return mean
 
 
-def epoch_observation(range_change_m: float, range_sigma_m: float, pdr_heading_rad: float, pdr_speed_mps: float,
-                      noise: ModelNoise) -> EpochObservation:
-    """Observation vector of one epoch (eq. 18), without the range when it is NaN."""
-    z = np.array([range_change_m, pdr_heading_rad, pdr_speed_mps])
-    sigma = np.array([range_sigma_m, noise.pdr_heading_rad, noise.pdr_speed_mps])
-    rows = np.array([1, 2]) if np.isnan(range_change_m) else np.array([0, 1, 2])
-    return EpochObservation(z=z[rows], rows=rows, sigma=sigma[rows])
+@dataclass(frozen=True)
+class EpochObservation:
+    """Everything one epoch observes (eq. 18); every filter's ``update`` takes this.
 
-
-class KalmanLikeFilter(Protocol):
-    """What :func:`run_filter` needs from a filter."""
-
-    x: np.ndarray
-    geometry: Geometry
-    start_range_m: float
-
-    def predict(self, control: StepControl) -> None: ...
-
-    def update(self, observation: EpochObservation, epoch: int) -> None: ...
-
-
-def run_filter(kf: KalmanLikeFilter, epochs: "FilterEpochs", noise: ModelNoise) -> Track:
-    """Drive a filter over :class:`fusion.observations.FilterEpochs`; one estimate per epoch.
-
-    The filter has been initialised (state and covariance at P0) by the caller.
-
-    The Kalman-type filters have no range-offset state (the particle filter
-    has, :mod:`fusion.particle_filter`). Their stand-in: when the range comes
-    back after ``k`` epochs without it and the offset a random walk of
-    ``noise.range_offset_m`` per epoch would have gathered,
-    ``range_offset_m * sqrt(k)``, exceeds three times the returning
-    observation's sigma, the filter re-anchors: its range origin is moved so
-    that this observation agrees with the predicted position, and the range
-    says only how the range changes from there.
+    Attributes
+    ----------
+    index : int
+        Epoch number (filters that keep per-epoch side information look it up).
+    range_change_m : float
+        Range change since P0, m; NaN when the epoch has no range.
+    range_sigma_m : float
+        Its standard deviation, m (NaN with the range).
+    pdr_heading_rad : float
+        PDR heading made absolute with the solved initial heading, rad.
+    pdr_speed_mps : float
+        PDR speed, m/s.
     """
-    states = np.empty((len(epochs), STATE_SIZE))
-    missing = 0
-    for n in range(len(epochs)):
-        kf.predict(epochs.control(n))
-        if np.isnan(epochs.range_change_m[n]):
-            missing += 1
-        else:
-            if noise.range_offset_m * np.sqrt(missing) > 3.0 * epochs.range_sigma_m[n]:
-                kf.start_range_m = float(kf.geometry.range_m(kf.x[X], kf.x[Y])) - float(epochs.range_change_m[n])
-            missing = 0
-        kf.update(epoch_observation(epochs.range_change_m[n], epochs.range_sigma_m[n], epochs.pdr_heading_rad[n],
-                                    epochs.pdr_speed_mps[n], noise), n)
-        states[n] = kf.x
-    return Track(t_s=np.asarray(epochs.t_s, dtype=np.float64).copy(), x_m=states[:, X], y_m=states[:, Y],
-                 heading_rad=states[:, HEADING] % (2.0 * np.pi), speed_mps=states[:, SPEED])
+
+    index: int
+    range_change_m: float
+    range_sigma_m: float
+    pdr_heading_rad: float
+    pdr_speed_mps: float
+
+    @property
+    def has_range(self) -> bool:
+        """Whether the epoch has a range observation."""
+        return not np.isnan(self.range_change_m)
+
+    def kalman(self, noise: ModelNoise) -> KalmanObservation:
+        """The present components with their sigmas (the PDR's from ``noise``)."""
+        z = np.array([self.range_change_m, self.pdr_heading_rad, self.pdr_speed_mps])
+        sigma = np.array([self.range_sigma_m, noise.pdr_heading_rad, noise.pdr_speed_mps])
+        rows = np.array([RANGE_ROW, HEADING_ROW, SPEED_ROW]) if self.has_range else np.array([HEADING_ROW, SPEED_ROW])
+        return KalmanObservation(z=z[rows], rows=rows, sigma=sigma[rows])

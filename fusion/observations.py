@@ -48,7 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dtmbnav.core.records import ColumnRecord, PdrSteps, RangeSeries
-from fusion.model import StepControl, wrap_angle
+from fusion.model import EpochObservation, StepControl, wrap_angle
 
 
 @dataclass(frozen=True)
@@ -166,6 +166,13 @@ class FilterEpochs(ColumnRecord):
         """The process-model control input of epoch ``n``."""
         return StepControl(float(self.dt_s[n]), float(self.pdr_heading_increment_rad[n]),
                            float(self.pdr_speed_ratio[n]))
+
+    def observation(self, n: int) -> EpochObservation:
+        """The observation record of epoch ``n`` (the range NaN where it has none)."""
+        return EpochObservation(index=n, range_change_m=float(self.range_change_m[n]),
+                                range_sigma_m=float(self.range_sigma_m[n]),
+                                pdr_heading_rad=float(self.pdr_heading_rad[n]),
+                                pdr_speed_mps=float(self.pdr_speed_mps[n]))
 
 
 def _check_ranges(ranges: RangeSeries) -> None:

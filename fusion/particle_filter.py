@@ -63,10 +63,16 @@ from numba import njit
 
 from dtmbnav.core.records import Track
 from fusion import DEFAULT_PARTICLES
+from fusion.driver import run_filter
 from fusion.model import (
     HEADING,
+    HEADING_RATE,
+    HEADING_ROW,
+    RANGE_ROW,
     SPEED,
+    SPEED_ROW,
     STATE_SIZE,
+    EpochObservation,
     Geometry,
     ModelNoise,
     StepControl,
@@ -83,13 +89,13 @@ def propagate_kernel(particles: np.ndarray, dt_s: float, heading_increment_rad: 
                      noise: np.ndarray) -> None:
     """Eq. 17 as :func:`fusion.model.propagate` in place, plus the drawn noise."""
     for i in range(particles.shape[0]):
-        heading = particles[i, 3] + heading_increment_rad + particles[i, 2] * dt_s
-        speed = particles[i, 4] * speed_ratio
-        particles[i, 0] += speed * dt_s * np.sin(heading) + noise[i, 0]
-        particles[i, 1] += speed * dt_s * np.cos(heading) + noise[i, 1]
-        particles[i, 2] += noise[i, 2]
-        particles[i, 3] = heading + noise[i, 3]
-        particles[i, 4] = speed + noise[i, 4]
+        heading = particles[i, HEADING] + heading_increment_rad + particles[i, HEADING_RATE] * dt_s
+        speed = particles[i, SPEED] * speed_ratio
+        particles[i, X] += speed * dt_s * np.sin(heading) + noise[i, X]
+        particles[i, Y] += speed * dt_s * np.cos(heading) + noise[i, Y]
+        particles[i, HEADING_RATE] += noise[i, HEADING_RATE]
+        particles[i, HEADING] = heading + noise[i, HEADING]
+        particles[i, SPEED] = speed + noise[i, SPEED]
 
 
 @njit(cache=True)
@@ -115,23 +121,23 @@ def log_likelihood_kernel(particles: np.ndarray, range_offset_m: np.ndarray, tow
     float
         Mean of that probability over the particles (1.0 without a range).
     """
-    use_range = not np.isnan(observation[0])
+    use_range = not np.isnan(observation[RANGE_ROW])
     inlier_sum = 0.0
     for i in range(particles.shape[0]):
         ll = 0.0
         if use_range:
-            dx = particles[i, 0] - tower[0]
-            dy = particles[i, 1] - tower[1]
+            dx = particles[i, X] - tower[0]
+            dy = particles[i, Y] - tower[1]
             r = np.sqrt(dx * dx + dy * dy + tower[2] * tower[2])
-            innovation = observation[0] - (r - range_offset_m[i])
-            d = innovation / sigma[0]
+            innovation = observation[RANGE_ROW] - (r - range_offset_m[i])
+            d = innovation / sigma[RANGE_ROW]
             gaussian = outlier[0] - 0.5 * d * d
             ll = np.logaddexp(gaussian, outlier[1])
             inlier = np.exp(gaussian - ll)
             range_offset_m[i] -= inlier * offset_gain * innovation
             inlier_sum += inlier
-        dh = ((particles[i, 3] - observation[1] + np.pi) % (2.0 * np.pi) - np.pi) / sigma[1]
-        ds = (particles[i, 4] - observation[2]) / sigma[2]
+        dh = ((particles[i, HEADING] - observation[HEADING_ROW] + np.pi) % (2.0 * np.pi) - np.pi) / sigma[HEADING_ROW]
+        ds = (particles[i, SPEED] - observation[SPEED_ROW]) / sigma[SPEED_ROW]
         log_w[i] += ll - 0.5 * (dh * dh + ds * ds)
     if not use_range:
         return 1.0
@@ -200,13 +206,13 @@ def log_likelihood_reference(particles: np.ndarray, range_offset_m: np.ndarray, 
                              observation: np.ndarray, sigma: np.ndarray, outlier: np.ndarray, offset_gain: float,
                              log_w: np.ndarray) -> float:
     """Numpy twin of :func:`log_likelihood_kernel`."""
-    ll = -0.5 * (((particles[:, HEADING] - observation[1] + np.pi) % (2.0 * np.pi) - np.pi) / sigma[1]) ** 2
-    ll -= 0.5 * ((particles[:, SPEED] - observation[2]) / sigma[2]) ** 2
+    ll = -0.5 * (((particles[:, HEADING] - observation[HEADING_ROW] + np.pi) % (2.0 * np.pi) - np.pi) / sigma[HEADING_ROW]) ** 2
+    ll -= 0.5 * ((particles[:, SPEED] - observation[SPEED_ROW]) / sigma[SPEED_ROW]) ** 2
     inlier_mean = 1.0
-    if not np.isnan(observation[0]):
+    if not np.isnan(observation[RANGE_ROW]):
         r = np.sqrt((particles[:, X] - tower[0]) ** 2 + (particles[:, Y] - tower[1]) ** 2 + tower[2] ** 2)
-        innovation = observation[0] - (r - range_offset_m)
-        gaussian = outlier[0] - 0.5 * (innovation / sigma[0]) ** 2
+        innovation = observation[RANGE_ROW] - (r - range_offset_m)
+        gaussian = outlier[0] - 0.5 * (innovation / sigma[RANGE_ROW]) ** 2
         mixture = np.logaddexp(gaussian, outlier[1])
         inlier = np.exp(gaussian - mixture)
         range_offset_m -= inlier * offset_gain * innovation
@@ -316,28 +322,28 @@ class ParticleFilter:
         self.kernels.propagate(self.particles, control.dt_s, control.heading_increment_rad, control.speed_ratio,
                                noise)
 
-    def update(self, range_change_m: float, range_sigma_m: float, pdr_heading_rad: float,
-               pdr_speed_mps: float) -> None:
+    def update(self, observation: EpochObservation) -> None:
         """Weight by the observation (eq. 20-21) and resample on low ESS (eq. 23).
 
-        ``range_change_m`` may be NaN (no range this epoch): only the PDR
-        heading and speed then weigh, and the range offsets' variance grows
-        by one random-walk step (module docstring).
+        The observation may lack the range (NaN): only the PDR heading and
+        speed then weigh, and the range offsets' variance grows by one
+        random-walk step (module docstring).
         """
         offset_gain = 0.0
-        innovation_sigma_m = range_sigma_m
-        if np.isnan(range_change_m):
+        innovation_sigma_m = observation.range_sigma_m
+        if not observation.has_range:
             self.range_offset_var_m2 += self.noise.range_offset_m**2
         else:
-            innovation_var_m2 = range_sigma_m**2 + self.range_offset_var_m2
+            innovation_var_m2 = observation.range_sigma_m**2 + self.range_offset_var_m2
             innovation_sigma_m = np.sqrt(innovation_var_m2)
             offset_gain = self.range_offset_var_m2 / innovation_var_m2
-        observation = np.array([range_change_m, pdr_heading_rad, pdr_speed_mps], dtype=np.float64)
+        z = np.array([observation.range_change_m, observation.pdr_heading_rad, observation.pdr_speed_mps],
+                     dtype=np.float64)
         sigma = np.array([innovation_sigma_m, self.noise.pdr_heading_rad, self.noise.pdr_speed_mps])
         p = self.noise.range_outlier_probability
         outlier = np.array([np.log1p(-p) - np.log(innovation_sigma_m * np.sqrt(2.0 * np.pi)),
                             np.log(p / self.noise.range_outlier_span_m)])
-        inlier = self.kernels.log_likelihood(self.particles, self.range_offset_m, self._tower, observation, sigma,
+        inlier = self.kernels.log_likelihood(self.particles, self.range_offset_m, self._tower, z, sigma,
                                              outlier, offset_gain, self.log_w)
         self.range_offset_var_m2 *= 1.0 - inlier * offset_gain
         self.ess = self.kernels.normalise(self.log_w, self.weights)
@@ -373,14 +379,7 @@ def run_particle_filter(epochs: FilterEpochs, geometry: Geometry, noise: ModelNo
     """
     pf = ParticleFilter(geometry, noise, n_particles, seed, resample_ess_fraction, backend)
     pf.initialise(float(epochs.pdr_heading_rad[0]), float(epochs.pdr_speed_mps[0]))
-    states = np.empty((len(epochs), STATE_SIZE))
-    for n in range(len(epochs)):
-        pf.predict(epochs.control(n))
-        pf.update(epochs.range_change_m[n], epochs.range_sigma_m[n], epochs.pdr_heading_rad[n],
-                  epochs.pdr_speed_mps[n])
-        states[n] = pf.estimate()
-    return Track(t_s=epochs.t_s.copy(), x_m=states[:, X], y_m=states[:, Y],
-                 heading_rad=states[:, HEADING], speed_mps=states[:, SPEED])
+    return run_filter(pf, epochs)
 
 
 def particle_updates_per_second(n_particles: int, backend: str, n_epochs: int = 50, seed: int = 0) -> float:
@@ -399,7 +398,7 @@ def particle_updates_per_second(n_particles: int, backend: str, n_epochs: int = 
 
     def epoch(n: int) -> None:
         pf.predict(StepControl(0.54))
-        pf.update(-0.7 * n * float(direction @ tower_dir), 1.0, heading, 1.3)
+        pf.update(EpochObservation(n, -0.7 * n * float(direction @ tower_dir), 1.0, heading, 1.3))
         pf.estimate()
 
     epoch(1)

@@ -23,9 +23,11 @@ import numpy as np
 from scipy.stats import norm
 
 from dtmbnav.core.records import Track
+from fusion.driver import run_filter
+from fusion.kalman import RangeKalmanFilter
 from fusion.model import (
-    EpochObservation,
     Geometry,
+    KalmanObservation,
     ModelNoise,
     StepControl,
     initial_covariance,
@@ -33,7 +35,6 @@ from fusion.model import (
     observe,
     process_covariance,
     propagate,
-    run_filter,
     state_mean,
     state_residual,
 )
@@ -102,13 +103,12 @@ class RankKalmanFilter:
         self.P = 0.5 * (self.P + self.P.T)
 
 
-class RangePdrRankKf:
-    """Rank KF on the shared range/PDR model, driven by :func:`fusion.model.run_filter`."""
+class RangePdrRankKf(RangeKalmanFilter):
+    """Rank KF on the shared range/PDR model (:class:`fusion.kalman.RangeKalmanFilter`)."""
 
     def __init__(self, geometry: Geometry, noise: ModelNoise, initial_heading_rad: float,
                  initial_speed_mps: float, layers: int = 2) -> None:
-        self.geometry = geometry
-        self.start_range_m = geometry.start_range_m()
+        super().__init__(geometry, noise)
         self.Q = process_covariance(noise)
         self.rkf = RankKalmanFilter(initial_state(geometry, initial_heading_rad, initial_speed_mps),
                                     initial_covariance(noise), self._mean, state_residual, layers)
@@ -126,7 +126,7 @@ class RangePdrRankKf:
         """Rank-sampled prediction through :func:`fusion.model.propagate`."""
         self.rkf.predict(lambda pts: propagate(pts, control), self.Q)
 
-    def update(self, observation: EpochObservation, epoch: int) -> None:
+    def correct(self, observation: KalmanObservation, epoch: int) -> None:
         """Rank-sampled update with the epoch's observations (``epoch`` unused)."""
         self.rkf.update(
             observation.z,
@@ -139,4 +139,4 @@ class RangePdrRankKf:
 def run_rank_kf(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise()) -> Track:
     """Run the rank KF over all epochs."""
     kf = RangePdrRankKf(geometry, noise, float(epochs.pdr_heading_rad[0]), float(epochs.pdr_speed_mps[0]))
-    return run_filter(kf, epochs, noise)
+    return run_filter(kf, epochs)

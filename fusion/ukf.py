@@ -12,10 +12,12 @@ import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from dtmbnav.core.records import Track
+from fusion.driver import run_filter
+from fusion.kalman import RangeKalmanFilter
 from fusion.model import (
     STATE_SIZE,
-    EpochObservation,
     Geometry,
+    KalmanObservation,
     ModelNoise,
     StepControl,
     initial_covariance,
@@ -23,15 +25,14 @@ from fusion.model import (
     observe,
     process_covariance,
     propagate,
-    run_filter,
     state_mean,
     state_residual,
 )
 from fusion.observations import FilterEpochs
 
 
-class RangePdrUkf:
-    """filterpy's UKF driven by :func:`fusion.model.run_filter`.
+class RangePdrUkf(RangeKalmanFilter):
+    """filterpy's UKF on the shared model (:class:`fusion.kalman.RangeKalmanFilter`).
 
     Parameters
     ----------
@@ -47,8 +48,7 @@ class RangePdrUkf:
 
     def __init__(self, geometry: Geometry, noise: ModelNoise, initial_heading_rad: float, initial_speed_mps: float,
                  alpha: float = 0.3, beta: float = 2.0, kappa: float = 0.0) -> None:
-        self.geometry = geometry
-        self.start_range_m = geometry.start_range_m()
+        super().__init__(geometry, noise)
         points = MerweScaledSigmaPoints(STATE_SIZE, alpha=alpha, beta=beta, kappa=kappa, subtract=state_residual)
         self.ukf = UnscentedKalmanFilter(
             dim_x=STATE_SIZE, dim_z=3, dt=1.0, hx=self._hx, fx=self._fx, points=points,
@@ -78,11 +78,11 @@ class RangePdrUkf:
         """Unscented prediction through :func:`fusion.model.propagate`."""
         self.ukf.predict(dt=control.dt_s, control=control)
 
-    def update(self, observation: EpochObservation, epoch: int) -> None:
+    def correct(self, observation: KalmanObservation, epoch: int) -> None:
         """Unscented update with the epoch's observations (``epoch`` is unused here)."""
         self._update(observation.z, np.diag(observation.sigma**2), observation)
 
-    def _update(self, z: np.ndarray, R: np.ndarray, observation: EpochObservation) -> None:
+    def _update(self, z: np.ndarray, R: np.ndarray, observation: KalmanObservation) -> None:
         # The observation vector's length and heading position change when the range is
         # missing, so the circular mean and wrapped residual are set per update.
         self.ukf.z_mean = observation.mean
@@ -93,4 +93,4 @@ class RangePdrUkf:
 def run_ukf(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise()) -> Track:
     """Run the UKF over all epochs; initial heading and speed from the first epoch's PDR."""
     kf = RangePdrUkf(geometry, noise, float(epochs.pdr_heading_rad[0]), float(epochs.pdr_speed_mps[0]))
-    return run_filter(kf, epochs, noise)
+    return run_filter(kf, epochs)

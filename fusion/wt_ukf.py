@@ -30,7 +30,8 @@ import numpy as np
 import pywt
 
 from dtmbnav.core.records import Track
-from fusion.model import EpochObservation, Geometry, ModelNoise, run_filter
+from fusion.driver import run_filter
+from fusion.model import Geometry, KalmanObservation, ModelNoise
 from fusion.observations import FilterEpochs
 from fusion.ukf import RangePdrUkf
 
@@ -93,7 +94,7 @@ class WaveletUkf(RangePdrUkf):
         self.channels = np.stack([epochs.range_change_m, np.unwrap(epochs.pdr_heading_rad), epochs.pdr_speed_mps],
                                  axis=1)
 
-    def update(self, observation: EpochObservation, epoch: int) -> None:
+    def correct(self, observation: KalmanObservation, epoch: int) -> None:
         """Update with the window's wavelet noise estimates replacing the nominal R."""
         z = observation.z.copy()
         sigma = observation.sigma.copy()
@@ -113,4 +114,4 @@ class WaveletUkf(RangePdrUkf):
 def run_wt_ukf(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise(), window: int = 32,
                wavelet_rows: tuple[int, ...] = (0,)) -> Track:
     """Run the WT-UKF over all epochs (``wavelet_rows``: see :class:`WaveletUkf`)."""
-    return run_filter(WaveletUkf(geometry, noise, epochs, window, wavelet_rows=wavelet_rows), epochs, noise)
+    return run_filter(WaveletUkf(geometry, noise, epochs, window, wavelet_rows=wavelet_rows), epochs)

@@ -18,7 +18,7 @@ from fusion.adaptive_kf import (
     transition_jacobian,
 )
 from fusion.metrics import error_stats, place_pdr, position_errors_m
-from fusion.model import ModelNoise, StepControl, epoch_observation, propagate
+from fusion.model import ModelNoise, StepControl, propagate
 from fusion.observations import aggregate_ranges, build_epochs
 from fusion.run import FILTERS, FusionConfig, fuse
 from fusion.ukf import run_ukf
@@ -117,8 +117,7 @@ def test_wt_ukf_re_estimates_only_the_chosen_channels(gain_walk, rows, monkeypat
     seen = {}
     monkeypatch.setattr(kf, "_update", lambda z, r, observation: seen.update(r=np.sqrt(np.diag(r))))
     n = int(np.nonzero(np.isfinite(epochs.range_change_m[40:]))[0][0]) + 40
-    kf.update(epoch_observation(epochs.range_change_m[n], epochs.range_sigma_m[n], epochs.pdr_heading_rad[n],
-                                epochs.pdr_speed_mps[n], noise), n)
+    kf.update(epochs.observation(n))
     nominal = np.array([epochs.range_sigma_m[n], noise.pdr_heading_rad, noise.pdr_speed_mps])
     changed = ~np.isclose(seen["r"], nominal)
     assert changed[0]  # a smooth exact range: the wavelet sees far less than the nominal sigma

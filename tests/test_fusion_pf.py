@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from fusion import particle_filter as pf
 from fusion.metrics import error_stats, place_pdr, position_errors_m
-from fusion.model import Geometry, ModelNoise
+from fusion.model import EpochObservation, Geometry, ModelNoise
 from fusion.observations import FilterEpochs, aggregate_ranges, build_epochs
 
 
@@ -197,12 +197,12 @@ def test_range_offset_kalman_step_matches_the_closed_form():
     f = pf.ParticleFilter(geometry, ModelNoise(range_outlier_probability=1e-12), n_particles=300, seed=3)
     f.initialise(0.7, 1.3)
     for _ in range(25):  # 25 epochs without a range: P = 25 range_offset_m^2
-        f.update(np.nan, np.nan, 0.7, 1.3)
+        f.update(EpochObservation(0, np.nan, np.nan, 0.7, 1.3))
     p_m2 = 25 * ModelNoise().range_offset_m ** 2
     assert f.range_offset_var_m2 == pytest.approx(p_m2)
     before = f.range_offset_m.copy()
     predicted = geometry.range_m(f.particles[:, 0], f.particles[:, 1]) - before
-    f.update(4.0, 0.5, 0.7, 1.3)
+    f.update(EpochObservation(25, 4.0, 0.5, 0.7, 1.3))
     s_m2 = p_m2 + 0.25
     np.testing.assert_allclose(f.range_offset_m, before - p_m2 / s_m2 * (4.0 - predicted), atol=1e-9)
     assert f.range_offset_var_m2 == pytest.approx(p_m2 * 0.25 / s_m2, rel=1e-6)
@@ -223,8 +223,7 @@ def test_range_returning_far_off_after_a_long_gap_keeps_the_cloud():
     f.initialise(float(epochs.pdr_heading_rad[0]), float(epochs.pdr_speed_mps[0]))
     for n in range(back + 1):
         f.predict(epochs.control(n))
-        f.update(epochs.range_change_m[n], epochs.range_sigma_m[n], epochs.pdr_heading_rad[n],
-                 epochs.pdr_speed_mps[n])
+        f.update(epochs.observation(n))
     after = f.estimate()
     true_x = np.interp(epochs.t_s[back], walk.truth.t_s, walk.truth.x_m)
     true_y = np.interp(epochs.t_s[back], walk.truth.t_s, walk.truth.y_m)
