@@ -93,10 +93,9 @@ class ModelNoise:
         where the range is missing only the wide PDR-heading observation
         holds this random walk, so the cloud widens to about
         ``sqrt(heading_rad * pdr_heading_rad)``; the mean position of a
-        cloud that is 10-15 deg wide falls 2 % short of the distance walked
-        (1.5 deg per step did that on the IQ-level street-back walk: 10.2 m
-        95 % error against 8.4 m with 0.5 deg). The range corrects a heading
-        error mostly through the heading rate instead.
+        cloud that is 10-15 deg wide falls short of the distance walked.
+        The range corrects a heading error mostly through the heading rate
+        instead.
     speed_mps : float
         xi5: speed random walk per step, m/s.
     pdr_heading_rad : float

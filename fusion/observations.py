@@ -62,12 +62,10 @@ class AggregationConfig:
     min_valid_fraction : float
         Fraction of the window's expected frames that must be valid.
     base_sigma_m : float
-        Range observation standard deviation on a good link, m. The
-        receiver's integrated range stays within 0.1 m (95 %) of the truth
-        over a minute of line-of-sight walking; 0.25 m leaves room for weak
-        multipath the rules let through (on the tuning seeds 0.5 m gave
-        0-6 points less reduction of the 95 % error, 0.15 m lost 2-4 points
-        on the streets).
+        Range observation standard deviation on a good link, m: above the
+        integrated range's own error over a line-of-sight minute, with room
+        for the weak multipath the rules let through (chosen on the tuning
+        seeds, ``docs/evaluation.md``).
     good_snr_db : float
         SNR at and above which no inflation applies, dB.
     fading_window_s : float

@@ -19,9 +19,8 @@ moves its offset by the Kalman gain ``P / S``; ``P`` then shrinks to
 particle) fails where it matters: after a blocked stretch the offsets are
 spread over tens of metres, the first returning range keeps only the few
 particles whose draw happens to match it, and the cloud collapses onto
-positions picked by the offset noise (measured on the IQ-level street walk:
-2000 particles fell to 86 distinct ones, and each such collapse kicked the
-track a few metres along the line of sight).
+positions picked by the offset noise, and each such collapse kicks the track
+along the line of sight (a test measures the effective sample size both ways).
 With the outlier mixture below, the Kalman step of each particle is scaled by
 its probability that the observation is an inlier, and ``P`` shrinks by the
 mean of that probability.

@@ -13,10 +13,9 @@ Applied here by default to the range change only. In [WT-UKF] the PDR drives
 the state and the only measurement is the external fix (GPS there, the DTMB
 range here); our PDR heading and speed observations (eq. 18) are wide
 pseudo-observations that hold the state near the PDR, and their error is the
-PDR's drift, which a wavelet cannot see: estimating them too replaced the
-40 deg heading sigma by its floor (a few degrees of fine-scale noise), tied the
-heading to a drifting gyro and cost 1.3 m of 95 % error on park-loop-cw
-(``wavelet_rows=(0, 1, 2)`` restores it). Until a channel's window is full, and below a floor
+PDR's drift, which a wavelet cannot see: estimating them too replaces the
+wide heading sigma by its floor (a few degrees of fine-scale noise) and ties
+the heading to a drifting gyro (``wavelet_rows=(0, 1, 2)`` does that). Until a channel's window is full, and below a floor
 (``floor_fraction`` of the nominal sigma, so that a window that happens to be
 smooth does not make the filter trust the channel without limit), the
 nominal R of :mod:`fusion.model` applies. Note what the method can and

@@ -59,7 +59,7 @@ from receiver.writer import FrameSink
 #: Search position after the end of the stream (no acquisition window can fit).
 END_OF_STREAM = np.iinfo(np.int64).max // 4
 #: Frames per body-recovery + DFT block: the bodies (30 kB per frame; 3.9 MB for a 128-frame batch) are still
-#: in the cache when the DFT reads them, and the per-call overhead is amortised (16 measured fastest of 4..32).
+#: in the cache when the DFT reads them, and the per-call overhead is amortised (``dtmbnav bench`` times it).
 DEMODULATION_BLOCK_FRAMES = 16
 #: Stage names of :attr:`Receiver.stage_seconds`: acquisition (searches and lock set-up, a one-off
 #: cost per lock) and, per batch, sync (timing loop), channel estimate, body recovery, SI DFT, estimators.
