@@ -25,13 +25,7 @@ import numpy as np
 from dtmbnav.core import schema
 from dtmbnav.core.h5io import atomic_h5, read_attrs, read_columns, write_columns
 from dtmbnav.core.records import FrameFlag, RangeSeries
-from dtmbnav.core.sensors import (
-    read_capture_start_s,
-    read_gnss,
-    read_imu,
-    read_tower,
-    read_weinberg_k_m,
-)
+from dtmbnav.core.sensors import read_capture_start_s, read_gnss, read_imu, read_tower, read_weinberg_k_m
 from fusion.pdr import PdrConfig, PdrResult, run_pdr
 from fusion.run import FusionConfig, FusionResult, fuse
 from receiver.capture import CaptureSource, open_capture

@@ -43,15 +43,8 @@ from dtmbnav.paper import paper_figures
 from dtmbnav.simulation import calibration_walk_k_m
 from fusion import FILTER_NAMES, FOOT_INS
 from fusion.foot_ins import ZuptInsRankKf
-from fusion.metrics import (
-    PDR_AT_FIX,
-    PDR_BASELINE,
-    error_stats,
-    heading_error_rad,
-    interpolate_track,
-    pdr_baselines,
-    position_errors_m,
-)
+from fusion.metrics import (PDR_AT_FIX, PDR_BASELINE, error_stats, heading_error_rad, interpolate_track, pdr_baselines,
+                            position_errors_m)
 from fusion.pdr import PdrConfig, run_pdr
 from fusion.run import FusionConfig, fuse
 from sim.gnss import simulate_start_fix

@@ -24,24 +24,9 @@ import numpy as np
 from dtmbnav.core.records import Track
 from fusion.driver import run_filter
 from fusion.kalman import RangeKalmanFilter
-from fusion.model import (
-    HEADING,
-    HEADING_RATE,
-    SPEED,
-    STATE_SIZE,
-    Geometry,
-    KalmanObservation,
-    ModelNoise,
-    StepControl,
-    X,
-    Y,
-    initial_covariance,
-    initial_state,
-    observe,
-    process_covariance,
-    propagate,
-    wrap_angle,
-)
+from fusion.model import (HEADING, HEADING_RATE, SPEED, STATE_SIZE, Geometry, KalmanObservation, ModelNoise,
+                          StepControl, X, Y, initial_covariance, initial_state, observe, process_covariance, propagate,
+                          wrap_angle)
 from fusion.observations import FilterEpochs
 
 #: [CN0-KF]'s grade thresholds on P / C and the R multipliers of the grades.

@@ -16,15 +16,7 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from fusion.model import (
-    EpochObservation,
-    Geometry,
-    KalmanObservation,
-    ModelNoise,
-    StepControl,
-    X,
-    Y,
-)
+from fusion.model import EpochObservation, Geometry, KalmanObservation, ModelNoise, StepControl, X, Y
 
 #: Re-anchor when the offset gathered without range exceeds this many observation sigmas.
 REANCHOR_SIGMAS = 3.0

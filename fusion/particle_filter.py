@@ -63,22 +63,8 @@ from numba import njit
 from dtmbnav.core.records import Track
 from fusion import DEFAULT_PARTICLES
 from fusion.driver import run_filter
-from fusion.model import (
-    HEADING,
-    HEADING_RATE,
-    HEADING_ROW,
-    RANGE_ROW,
-    SPEED,
-    SPEED_ROW,
-    STATE_SIZE,
-    EpochObservation,
-    Geometry,
-    ModelNoise,
-    StepControl,
-    X,
-    Y,
-    propagate,
-)
+from fusion.model import (HEADING, HEADING_RATE, HEADING_ROW, RANGE_ROW, SPEED, SPEED_ROW, STATE_SIZE,
+                          EpochObservation, Geometry, ModelNoise, StepControl, X, Y, propagate)
 from fusion.observations import FilterEpochs
 
 # --- numba kernels -------------------------------------------------------------------------

@@ -15,12 +15,7 @@ from fusion import DEFAULT_PARTICLES, FILTER_NAMES
 from fusion.adaptive_kf import run_adaptive_kf
 from fusion.heading_init import HeadingSolution, solve_initial_heading
 from fusion.model import Geometry, ModelNoise
-from fusion.observations import (
-    AggregationConfig,
-    FilterEpochs,
-    aggregate_ranges,
-    build_epochs,
-)
+from fusion.observations import AggregationConfig, FilterEpochs, aggregate_ranges, build_epochs
 from fusion.particle_filter import run_particle_filter
 from fusion.rank_kf import run_rank_kf
 from fusion.ukf import run_ukf

@@ -14,20 +14,8 @@ from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from dtmbnav.core.records import Track
 from fusion.driver import run_filter
 from fusion.kalman import RangeKalmanFilter
-from fusion.model import (
-    STATE_SIZE,
-    Geometry,
-    KalmanObservation,
-    ModelNoise,
-    StepControl,
-    initial_covariance,
-    initial_state,
-    observe,
-    process_covariance,
-    propagate,
-    state_mean,
-    state_residual,
-)
+from fusion.model import (STATE_SIZE, Geometry, KalmanObservation, ModelNoise, StepControl, initial_covariance,
+                          initial_state, observe, process_covariance, propagate, state_mean, state_residual)
 from fusion.observations import FilterEpochs
 
 

@@ -36,19 +36,8 @@ from receiver import DEFAULT_STATIC_WINDOW_S
 from receiver.acquisition import Acquisition, acquire, window_length
 from receiver.body import body_phases, recover_bodies
 from receiver.capture import CaptureSource
-from receiver.cfo import (
-    SiWordDetector,
-    cfo_from_theta,
-    pn_theta_kernel,
-    si_theta_kernel,
-)
-from receiver.channel_estimate import (
-    TAP_THRESHOLD,
-    TAPS_AFTER,
-    TAPS_BEFORE,
-    ChannelEstimates,
-    ChannelEstimator,
-)
+from receiver.cfo import SiWordDetector, cfo_from_theta, pn_theta_kernel, si_theta_kernel
+from receiver.channel_estimate import TAP_THRESHOLD, TAPS_AFTER, TAPS_BEFORE, ChannelEstimates, ChannelEstimator
 from receiver.derotate import derotate_segments, rotation_table
 from receiver.ofdm import OfdmDemodulator, si_carrier_numbers, si_snr_db
 from receiver.ranging import RangeIntegrator

@@ -20,12 +20,7 @@ from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
 from receiver.acquisition import Acquisition
 from receiver.body import recover_bodies_reference
 from receiver.cfo import cfo_from_theta, pn_theta_reference, si_theta_reference
-from receiver.channel_estimate import (
-    TAP_THRESHOLD,
-    TAPS_AFTER,
-    TAPS_BEFORE,
-    ChannelEstimator,
-)
+from receiver.channel_estimate import TAP_THRESHOLD, TAPS_AFTER, TAPS_BEFORE, ChannelEstimator
 from receiver.derotate import derotate_segments_reference
 from receiver.ofdm import si_carrier_numbers, si_carriers_reference
 from receiver.tracking import timing_loop_reference

@@ -7,12 +7,7 @@ import pytest
 from fusion_synth import make_pdr, polyline_truth
 
 from dtmbnav import evaluate as ev
-from fusion.metrics import (
-    error_stats,
-    place_pdr,
-    position_errors_m,
-    true_initial_heading_rad,
-)
+from fusion.metrics import error_stats, place_pdr, position_errors_m, true_initial_heading_rad
 from fusion.run import FusionConfig
 
 

@@ -6,11 +6,7 @@ from fusion_synth import make_pdr, park_like_walk, polyline_truth
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fusion.heading_init import (
-    predicted_range_change,
-    rotate_pdr,
-    solve_initial_heading,
-)
+from fusion.heading_init import predicted_range_change, rotate_pdr, solve_initial_heading
 from fusion.metrics import heading_error_rad
 from fusion.model import Geometry
 

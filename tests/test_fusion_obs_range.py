@@ -8,12 +8,7 @@ from dtmbnav.core.gb20600 import PnMode
 from fusion.metrics import interpolate_track
 from fusion.model import Geometry
 from sim.channel import segment_crosses_polygon
-from sim.obs_range import (
-    ObsRangeConfig,
-    si_phase_steps_kernel,
-    si_phase_steps_reference,
-    simulate_obs_range,
-)
+from sim.obs_range import ObsRangeConfig, si_phase_steps_kernel, si_phase_steps_reference, simulate_obs_range
 from sim.scenario import load_scenario
 
 

@@ -11,11 +11,7 @@ from fusion.pdr.attitude import AttitudeConfig
 from fusion.pdr.dead_reckoning import dead_reckon, resample_steps
 from fusion.pdr.evaluate import evaluate_pdr, predicted_gyro_drift_dpm
 from fusion.pdr.pipeline import PdrResult
-from fusion.pdr.step_length import (
-    calibrate_weinberg_k,
-    frequency_length,
-    weinberg_length,
-)
+from fusion.pdr.step_length import calibrate_weinberg_k, frequency_length, weinberg_length
 from sim.imu import simulate_imu_with_errors
 from sim.scenario import Scenario
 from sim.walk import simulate_walk

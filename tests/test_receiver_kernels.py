@@ -9,31 +9,12 @@ from dtmbnav.core import gb20600
 from dtmbnav.core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
 from dtmbnav.core.records import FrameBatch
 from receiver.body import body_phases, recover_bodies, recover_bodies_reference
-from receiver.cfo import (
-    cfo_from_theta,
-    pn_theta_kernel,
-    pn_theta_reference,
-    si_theta_kernel,
-    si_theta_reference,
-)
-from receiver.channel_estimate import (
-    ChannelEstimator,
-    hadamard_slots,
-    m_sequence_correlation_kernel,
-    walsh_hadamard_inplace,
-)
-from receiver.derotate import (
-    derotate_segments,
-    derotate_segments_reference,
-    rotation_table,
-)
-from receiver.ofdm import (
-    OfdmDemodulator,
-    si_carrier_numbers,
-    si_carriers_reference,
-    si_twiddle_kernel,
-    si_twiddle_reference,
-)
+from receiver.cfo import cfo_from_theta, pn_theta_kernel, pn_theta_reference, si_theta_kernel, si_theta_reference
+from receiver.channel_estimate import (ChannelEstimator, hadamard_slots, m_sequence_correlation_kernel,
+                                       walsh_hadamard_inplace)
+from receiver.derotate import derotate_segments, derotate_segments_reference, rotation_table
+from receiver.ofdm import (OfdmDemodulator, si_carrier_numbers, si_carriers_reference, si_twiddle_kernel,
+                           si_twiddle_reference)
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
 from receiver.reference import receive_reference
 from receiver.resample import StreamResampler, polyphase_reference

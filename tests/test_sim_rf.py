@@ -16,14 +16,8 @@ from dtmbnav.core.gb20600 import PnMode
 from dtmbnav.core.records import Track
 from sim.rf import CaptureGenerator
 from sim.scenario import Building, ClockConfig, Scenario
-from sim.transmitter import (
-    multipath_kernel,
-    multipath_reference,
-    pulse_table,
-    shape_kernel,
-    shape_reference,
-    srrc_pulse,
-)
+from sim.transmitter import (multipath_kernel, multipath_reference, pulse_table, shape_kernel, shape_reference,
+                             srrc_pulse)
 
 RS = gb20600.SYMBOL_RATE_HZ
 FC = 666e6

@@ -14,11 +14,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dtmbnav.core.h5io import atomic_h5
+from dtmbnav.core.sensors import read_gnss, read_imu, read_walk_truth
 from sim.gnss import simulate_gnss, simulate_start_fix
 from sim.imu import simulate_imu
 from sim.scenario import Scenario, WalkConfig, load_scenario
 from sim.walk import START_STOP_ACCEL_MPS2, build_path, simulate_walk
-from dtmbnav.core.sensors import read_gnss, read_imu, read_walk_truth
 from sim.walk_io import write_walk_groups
 
 

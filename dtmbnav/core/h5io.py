@@ -19,12 +19,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from dtmbnav.core.schema import (
-    COMPLETE_ATTR,
-    PACKAGE_VERSION_ATTR,
-    SCHEMA_VERSION,
-    SCHEMA_VERSION_ATTR,
-)
+from dtmbnav.core.schema import COMPLETE_ATTR, PACKAGE_VERSION_ATTR, SCHEMA_VERSION, SCHEMA_VERSION_ATTR
 
 
 def package_version() -> str:

@@ -5,11 +5,6 @@ into per-step positions in the PDR's own frame (start at (0, 0), heading
 relative to the initial one) and a fixed-rate track.
 """
 
-from fusion.pdr.pipeline import (
-    PdrConfig,
-    PdrResult,
-    calibrate_weinberg_k_from_walk,
-    run_pdr,
-)
+from fusion.pdr.pipeline import PdrConfig, PdrResult, calibrate_weinberg_k_from_walk, run_pdr
 
 __all__ = ["PdrConfig", "PdrResult", "run_pdr", "calibrate_weinberg_k_from_walk"]
