@@ -324,6 +324,16 @@ def test_same_seed_same_bytes_other_seed_other_bytes(reference_stream):
     assert np.mean(other == rails) < 0.2
 
 
+def test_threads_give_the_same_bytes():
+    # Short blocks (a 0.1 ms grid) so that a 60 000-sample capture spans several batches.
+    gen = _noisy_generator(seconds=60_000 / RS, grid_step_s=1e-4)
+    assert gen.layout.batch_samples < 30_000
+    one = np.concatenate(list(gen.quantised_chunks(7_000)))
+    again = _noisy_generator(seconds=60_000 / RS, grid_step_s=1e-4)
+    three = np.concatenate(list(again.quantised_chunks(7_000, jobs=3)))
+    assert three.tobytes() == one.tobytes()
+
+
 # ---------------------------------------------------------------- motion, clock, blockage, noise
 
 @pytest.mark.parametrize("towards", [True, False])
