@@ -32,7 +32,10 @@ The channel, clock and CFO are evaluated on a receiver-time grid in fixed
 blocks of absolute grid indices and are linear in between. The grid step is
 1 ms, or less so that no path's carrier phase moves more than
 ``MAX_GRID_PHASE_STEP_RAD`` per step (linear interpolation of a unit phasor
-then loses < 0.03 % amplitude); walking needs < 0.06 rad at 1 ms.
+then loses < 0.03 % amplitude); walking needs < 0.06 rad at 1 ms. Block
+synthesis also keeps a step short enough that no path's delay drifts by more
+than ``sim.block_synthesis.MAX_BLOCK_DRIFT_SYMBOLS`` against its FFT grid
+(a clock tens of ppm off).
 
 Two syntheses compute the samples of that model (``synthesis``):
 
@@ -48,6 +51,7 @@ The tests bound their difference (below -50 dB of the signal power on a
 walking, multipath, free-running-clock capture). Everything is a pure
 function of absolute indices, so the output does not depend on the chunking
 (nor on how many threads generate it, ``jobs``).
+
 Random streams: ``default_rng([seed, STREAM_*, index, 1])``; the symbol data
 uses :class:`sim.frames.FrameSource` with the same seed.
 """
