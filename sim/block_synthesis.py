@@ -20,17 +20,18 @@ the block boundaries): ``u_p(j) = u_p0 + sigma_p j``,
 ``rho = N / M`` symbols per sample (N symbols in, M samples out). Each path's
 slope ``sigma_p`` differs from ``rho`` by ``eps_p``: the sampling-clock
 offset, the path's Doppler (its delay changes by picoseconds per frame at
-walking speed) and the rounding of the rate to ``N / M``, all 1e-6 or less.
-Around the block centre
+walking speed) and the rounding of the rate to ``N / M``; blocks are short
+enough that ``|eps_p| B`` stays below ``MAX_BLOCK_DRIFT_SYMBOLS``
+(:func:`choose_layout`). Around the block centre
 
 ``c_p(j) s(u_p(j)) = C_p s(x_p(j)) + delta [C'_p s(x_p(j)) + eps_p C_p s'(x_p(j))] + O(delta^2)``
 
 with ``x_p(j) = u_p(j) - eps_p delta`` on the FFT grid. The neglected terms
 are ``C_p (eps_p delta)^2 s'' / 2`` and ``C'_p eps_p delta^2 s'``: with the
 grid rule of sim.rf (a path's phase turns by at most
-``MAX_GRID_PHASE_STEP_RAD`` per block) and ``|eps_p delta|`` below 1e-2
-symbols they stay far below the -50 dB bound that the tests hold the
-synthesis to.
+``MAX_GRID_PHASE_STEP_RAD`` per block) and ``|eps_p delta|`` at most half of
+``MAX_BLOCK_DRIFT_SYMBOLS`` they stay far below the -50 dB bound that the
+tests hold the synthesis to.
 
 **Frequency domain (overlap-save).** Paths whose ``x_p`` lie within
 ``layout.spread_symbols`` of each other share a window of N symbols
@@ -49,7 +50,8 @@ and ``r(j) = exp(j phi(j)) (y0(j) + delta y1(j))``, ``y = IDFT_M(Y) / N``
 phase over the bins, the derivative ``s'`` a factor ``j 2 pi k / N``, the
 sampling at any rate ``fs = M Rs / N`` a fold of the bins modulo M (aliasing
 included, as sampling gives it). Bins stop at ``|k / N| <= BAND_EDGE``; the
-tapered pulse has ``-70 dB`` of its energy beyond.
+tapered pulse has less than -70 dB of its energy beyond. The transforms and
+the bin sums run in single precision (rounding about -140 dB of the signal).
 
 Every block is a pure function of its index; blocks are computed in batches
 of ``layout.batch_blocks`` that start at absolute multiples of the batch, so
