@@ -5,8 +5,13 @@ that loads the numba cache and plans the FFTs) and the plain-numpy version of
 the same computation on the same input, single-threaded (numba's thread pool
 is limited to one thread so that "one core" means one core):
 
-- generator: the transmitter + multipath channel kernel of the simulator
-  (samples/s of a park-loop-like 4-path channel at 7.56 Msps);
+- generator: the simulator's noise-free synthesis of the park-loop walk's
+  4-path channel at 7.56 Msps (samples/s, symbols and channel included):
+  block synthesis (the default) against its exact twin, and the exact twin's
+  numba kernel against its numpy reference; then the whole
+  ``dtmbnav simulate park-loop`` process (one job, numba on one thread) for a
+  short and a long capture, with its peak resident memory (flat when it does
+  not grow with the capture's length);
 - resampler: the streaming polyphase resampler, 20 Msps -> 7.56 Msps input;
 - receiver: the streaming receiver on an 8 s cf32 capture at 7.56 Msps (best
   of 3 runs): end to end including acquisition, steady state (acquisition
@@ -52,25 +57,101 @@ def _best_time(fn, repeats: int) -> float:
     return best
 
 
-def bench_generator(seconds: float) -> BenchRow:
-    """Simulator: samples/s of the shaped multipath stream (noise-free kernel)."""
+def _best_cpu_time(fn, repeats: int) -> float:
+    """Fewest CPU seconds of this process over ``repeats`` calls of a single-threaded ``fn``.
+
+    For work on one thread the CPU time is what a quiet core would take; unlike
+    the wall time it does not grow when other processes share the core.
+    """
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.process_time()
+        fn()
+        best = min(best, time.process_time() - t0)
+    return best
+
+
+def bench_generator(seconds: float) -> list[BenchRow]:
+    """Simulator: samples/s of the noise-free received stream, block synthesis and its exact twin.
+
+    One thread; CPU time (:func:`_best_cpu_time`). Block synthesis runs in the
+    simulator's chunks over samples not computed before, so symbols, channel
+    and FFTs are all counted.
+    """
     from sim.rf import CaptureGenerator
     from sim.scenario import load_scenario
+    from sim.simulate import DEFAULT_CHUNK_SAMPLES
     from sim.transmitter import multipath_kernel, multipath_reference
     from sim.walk import simulate_walk
 
     scenario = load_scenario("park-loop")
-    generator = CaptureGenerator(scenario, simulate_walk(scenario).track, seconds=max(seconds, 0.2), start_s=20.0)
-    n = int(seconds * generator.sample_rate_hz)
-    args = generator.kernel_arguments(0, n)
+    track = simulate_walk(scenario).track
+    span_s = 3 * seconds + 0.5
+    block = CaptureGenerator(scenario, track, seconds=span_s, start_s=20.0)
+    exact = CaptureGenerator(scenario, track, seconds=span_s, start_s=20.0, synthesis="exact")
+    n = int(seconds * block.sample_rate_hz)
+    starts = iter(block.first_sample + 1000 + i * n for i in range(3))
+
+    def synthesise() -> None:
+        first = next(starts)
+        for offset in range(0, n, DEFAULT_CHUNK_SAMPLES):
+            block.clean_samples(first + offset, min(DEFAULT_CHUNK_SAMPLES, n - offset))
+
+    block.clean_samples(block.first_sample, 1000)  # warm-up (numba cache, FFTW plans)
+    fast = _best_cpu_time(synthesise, 2)
+    args = exact.kernel_arguments(exact.first_sample, n)
     multipath_kernel(*args.kernel)  # warm-up (numba cache)
-    fast = _best_time(lambda: multipath_kernel(*args.kernel), 2)
-    n_ref = max(n // 20, 1000)
-    ref_args = generator.kernel_arguments(0, n_ref)
-    slow = _best_time(lambda: multipath_reference(*ref_args.reference), 1)
-    rate, ref_rate = n / fast, n_ref / slow
-    return BenchRow("generator (shaping + 4-path channel)", "samples/s", rate, ref_rate,
-                    rate / generator.sample_rate_hz, f"{generator.num_paths} paths")
+    exact_time = _best_cpu_time(lambda: multipath_kernel(*args.kernel), 1)
+    n_ref = max(n // 50, 1000)
+    ref_args = exact.kernel_arguments(exact.first_sample, n_ref)
+    slow = _best_cpu_time(lambda: multipath_reference(*ref_args.reference), 1)
+    rate, exact_rate = n / fast, n / exact_time
+    layout = block.layout
+    return [BenchRow(f"generator block synthesis ({block.num_paths} paths)", "samples/s", rate, exact_rate,
+                     rate / block.sample_rate_hz,
+                     f"ref: exact twin; CPU time; blocks of {layout.block_samples}, DFT {layout.window_symbols}/"
+                     f"{layout.output_bins}"),
+            BenchRow(f"generator exact twin ({exact.num_paths} paths)", "samples/s", exact_rate, n_ref / slow,
+                     exact_rate / exact.sample_rate_hz, f"CPU time; pulse span {exact.pulse.span} symbols")]
+
+
+def bench_simulate(seconds: tuple[float, ...]) -> list[BenchRow]:
+    """``dtmbnav simulate park-loop --seconds S`` as a whole process: wall time and peak RSS.
+
+    One job, numba on one thread; the child imports the same ``dtmbnav`` as
+    this process and reports its own peak RSS (Linux ``VmHWM``).
+    """
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
+    from sim.scenario import load_scenario
+
+    rate_hz = load_scenario("park-loop").receiver.sample_rate_hz
+    root = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "NUMBA_NUM_THREADS": "1", "PYTHONPATH": os.pathsep.join(
+        p for p in (root, os.environ.get("PYTHONPATH", "")) if p)}
+    # VmHWM is the peak RSS of the process's own address space; rusage's maxrss would also count the
+    # parent's pages that the child held between fork and exec.
+    child = ("import sys\nfrom dtmbnav.cli import main\ncode = main(sys.argv[1:])\n"
+             "print([l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM')][0])\n"
+             "sys.exit(code)")
+    rows = []
+    for length in seconds:
+        with tempfile.TemporaryDirectory() as out:
+            t0 = time.perf_counter()
+            done = subprocess.run([sys.executable, "-c", child, "-q", "simulate", "park-loop", "--seconds",
+                                   f"{length:g}", "-o", out], env=env, cwd=root, capture_output=True, text=True)
+            elapsed = time.perf_counter() - t0
+        if done.returncode != 0:
+            raise RuntimeError(f"dtmbnav simulate --seconds {length:g} failed (exit {done.returncode}): "
+                               f"{done.stderr.strip()[-300:]}")
+        rss_mib = int(done.stdout.split()[-1]) / 1024.0  # VmHWM is in KiB
+        samples = length * rate_hz
+        rows.append(BenchRow(f"simulate park-loop {length:g} s (whole process)", "samples/s", samples / elapsed,
+                             None, samples / elapsed / rate_hz,
+                             f"{elapsed:.1f} s wall incl. start-up, peak RSS {rss_mib:.0f} MiB"))
+    return rows
 
 
 def bench_resampler(seconds: float) -> BenchRow:
@@ -188,7 +269,8 @@ def run_benchmarks(json_path: str | None = None, quick: bool = False) -> int:
     # short capture would let dominate the end-to-end figure.
     receiver_seconds = 0.2 if quick else 8.0
     rows: list[BenchRow] = []
-    for name, fn in [("generator", lambda: [bench_generator(seconds / 2)]),
+    for name, fn in [("generator", lambda: bench_generator(seconds / 2)),
+                     ("simulate", lambda: bench_simulate((0.5, 1.0) if quick else (5.0, 60.0))),
                      ("resampler", lambda: [bench_resampler(seconds / 2)]),
                      ("receiver", lambda: bench_receiver(receiver_seconds, 50 if quick else 400, 1 if quick else 3)),
                      ("particle filter", lambda: bench_particle_filter((1000, 10_000) if quick else

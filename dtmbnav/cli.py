@@ -93,7 +93,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     result = simulate_capture_set(scenario, args.output, seconds=args.seconds, start_s=args.start,
                                   sample_rate_hz=args.rate, sample_format=args.format, pn_mode=args.pn_mode,
                                   seed=args.seed, container=args.container, with_iq=not args.no_iq,
-                                  progress=not args.quiet)
+                                  progress=not args.quiet, jobs=args.jobs)
     if result.capture_path is not None:
         print(f"capture: {result.capture_path}", file=sys.stderr)
     print(f"truth:   {result.truth_path}", file=sys.stderr)
@@ -244,6 +244,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, help="seed (default: the scenario's)")
     p.add_argument("--container", choices=["sigmf", "raw"], default="sigmf", help="raw = raw file + JSON sidecar")
     p.add_argument("--no-iq", action="store_true", help="write IMU, GNSS and truth only")
+    p.add_argument("--jobs", type=_positive_int, default=1, help="threads generating the IQ (same bytes for any N)")
     p.set_defaults(handler=cmd_simulate)
 
     p = sub.add_parser("receive", help="IQ capture -> per-frame CFO, Doppler, range (HDF5)")

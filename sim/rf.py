@@ -29,19 +29,40 @@ receiver time minus ``first_sample / fs``: seconds since the segment's first
 sample, on the receiver's clock, i.e. ``sample_index / fs``.
 
 The channel, clock and CFO are evaluated on a receiver-time grid in fixed
-blocks of absolute grid indices, and linearly interpolated per sample inside
-:func:`sim.transmitter.multipath_kernel`. The grid step is 1 ms, or less so
-that no path's carrier phase moves more than ``MAX_GRID_PHASE_STEP_RAD`` per
-step (linear interpolation of a unit phasor then loses < 0.03 % amplitude);
-walking needs < 0.06 rad at 1 ms. Everything is a pure function of absolute
-indices, so the output does not depend on the chunking.
+blocks of absolute grid indices and are linear in between. The grid step is
+1 ms, or less so that no path's carrier phase moves more than
+``MAX_GRID_PHASE_STEP_RAD`` per step (linear interpolation of a unit phasor
+then loses < 0.03 % amplitude); walking needs < 0.06 rad at 1 ms. Block
+synthesis also keeps a step short enough that no path's delay drifts by more
+than ``sim.block_synthesis.MAX_BLOCK_DRIFT_SYMBOLS`` against its FFT grid
+(a clock tens of ppm off).
+
+Two syntheses compute the samples of that model (``synthesis``):
+
+- ``"block"`` (default, :mod:`sim.block_synthesis`): the grid is the
+  boundaries of fixed blocks of output samples; each block is computed in the
+  frequency domain from the symbols' DFT, every path's fractional delay a
+  linear phase over the bins, its delay and coefficient slope over the block
+  a first-order term, the common phase a rotation per sample;
+- ``"exact"`` (:func:`sim.transmitter.multipath_kernel`, the reference twin):
+  the pulse is evaluated at every sample's time for every path.
+
+The tests bound their difference (below -50 dB of the signal power on a
+walking, multipath, free-running-clock capture). Everything is a pure
+function of absolute indices, so the output does not depend on the chunking
+(nor on how many threads generate it, ``jobs``).
+
 Random streams: ``default_rng([seed, STREAM_*, index, 1])``; the symbol data
 uses :class:`sim.frames.FrameSource` with the same seed.
 """
 
 from __future__ import annotations
 
+import copy
+import threading
+from collections import deque
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -51,12 +72,13 @@ from dtmbnav.core import gb20600
 from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
 from dtmbnav.core.gb20600 import PnMode
 from dtmbnav.core.records import ColumnRecord, Track
+from sim.block_synthesis import BlockSynthesizer, choose_layout
 from sim.channel import Channel
 from sim.frames import FrameConfig, FrameSource
 from sim.frontend import FrontEnd, mean_signal_power
 from sim.oscillator import scenario_oscillator
 from sim.scenario import Scenario
-from sim.transmitter import multipath_kernel, pulse_table, symbol_range
+from sim.transmitter import PULSE_SPAN, multipath_kernel, pulse_table, symbol_range
 
 #: Random stream ids (second element of every seed sequence of this package).
 STREAM_CLOCK = 0xC10C
@@ -67,6 +89,12 @@ STREAM_NOISE = 0x0A15E
 GRID_BLOCK = 512
 #: Largest carrier-phase change of any path between grid points, rad.
 MAX_GRID_PHASE_STEP_RAD = 0.05
+#: Longest grid step, s.
+MAX_GRID_STEP_S = 1e-3
+#: Syntheses of the noise-free samples (module docstring); the first is the default.
+SYNTHESES = ("block", "exact")
+#: Batches of block synthesis kept per thread (consecutive chunks share one).
+_CACHED_BATCHES = 2
 
 
 @dataclass(frozen=True)
@@ -128,15 +156,21 @@ class CaptureGenerator:
     sample_rate_hz, sample_format, pn_mode, seed : optional
         Override the scenario's values.
     pulse_span : int
-        SRRC half-length, symbols.
+        Pulse half-length, symbols.
     grid_step_s : float, optional
-        Channel/clock interpolation grid, s; default: 1 ms or finer (module docstring).
+        Longest channel/clock grid step, s; default: 1 ms or finer (module
+        docstring). Block synthesis steps by whole blocks of samples no longer.
+    synthesis : str
+        ``"block"`` or ``"exact"`` (module docstring).
     """
 
     def __init__(self, scenario: Scenario, track: Track, *, seconds: float | None = None, start_s: float = 0.0,
                  sample_rate_hz: float | None = None, sample_format: str | None = None,
-                 pn_mode: str | PnMode | None = None, seed: int | None = None, pulse_span: int = 16,
-                 grid_step_s: float | None = None) -> None:
+                 pn_mode: str | PnMode | None = None, seed: int | None = None, pulse_span: int = PULSE_SPAN,
+                 grid_step_s: float | None = None, synthesis: str = SYNTHESES[0]) -> None:
+        if synthesis not in SYNTHESES:
+            raise ValueError(f"synthesis must be one of {', '.join(SYNTHESES)}, got {synthesis!r}")
+        self.synthesis = synthesis
         self.scenario = scenario
         self.seed = int(scenario.seed if seed is None else seed)
         self.sample_rate_hz = float(sample_rate_hz or scenario.receiver.sample_rate_hz)
@@ -164,21 +198,31 @@ class CaptureGenerator:
 
         self.oscillator = scenario_oscillator(scenario, track_end_s + 2.0, self.seed, STREAM_CLOCK)
         self.channel = Channel(scenario, track, np.random.default_rng([self.seed, STREAM_CHANNEL, 0, 1]))
+        max_doppler_hz = self.channel.max_doppler_hz()
         if grid_step_s is None:
-            max_doppler_hz = self.channel.max_doppler_hz()
-            grid_step_s = 1e-3
+            grid_step_s = MAX_GRID_STEP_S
             if max_doppler_hz > 0:
                 grid_step_s = min(grid_step_s, MAX_GRID_PHASE_STEP_RAD / (2.0 * np.pi * max_doppler_hz))
+        self.pulse = pulse_table(pulse_span)
+        self.layout = None
+        if synthesis == "block":
+            max_rate_error = np.abs(self.oscillator.y_grid).max() + max_doppler_hz / self.carrier_hz
+            self.layout = choose_layout(self.sample_rate_hz, grid_step_s, max_rate_error, self.pulse)
+            grid_step_s = self.layout.block_samples / self.sample_rate_hz
         self.grid_step_s = float(grid_step_s)
         self.signal_power = mean_signal_power(self.frame_config)
         self.frontend = FrontEnd(scenario.receiver, self.signal_power, self.sample_rate_hz, self.sample_format,
                                  self.seed, STREAM_NOISE)
         self.frames = FrameSource(self.frame_config)
-        self.pulse = pulse_table(pulse_span)
-        self._grid_block = lru_cache(maxsize=4)(self._build_grid_block)
+        self._grid_block = lru_cache(maxsize=8)(self._build_grid_block)
+        self._local = threading.local()
 
-        first_u = self._grid(self.first_sample, 1)[0].min()
-        if first_u < pulse_span:
+        # The earliest sample computed: block synthesis computes whole batches.
+        first_computed = self.first_sample
+        if self.layout is not None:
+            first_computed -= self.first_sample % self.layout.batch_samples
+        first_u = self._grid_columns(*self._grid_span(first_computed, 1))[0].min()
+        if first_u < pulse_span + 1:
             raise ValueError(f"receiver.start_offset_s={self.start_offset_s} s is too small: the capture would need "
                              "symbols sent before frame 0 (raise start_offset_s above the propagation delay)")
 
@@ -192,22 +236,27 @@ class CaptureGenerator:
                  + self.frontend.tuner_phase_rad(true_t))
         return path_u, state.coef, phase
 
-    def _grid(self, first_sample: int, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-        """Grid columns covering samples ``[first_sample, first_sample + count)`` and the first column's index."""
+    def _grid_span(self, first_sample: int, count: int) -> tuple[int, int]:
+        """First and last grid column around samples ``[first_sample, first_sample + count)``."""
         g_lo = int(np.floor(first_sample / self.sample_rate_hz / self.grid_step_s))
         g_hi = int(np.floor((first_sample + count - 1) / self.sample_rate_hz / self.grid_step_s)) + 1
+        return g_lo, g_hi
+
+    def _grid_columns(self, g_lo: int, g_hi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Path symbol times, coefficients and common phase on grid columns ``g_lo .. g_hi``."""
         blocks = [self._grid_block(b) for b in range(g_lo // GRID_BLOCK, g_hi // GRID_BLOCK + 1)]
         path_u, coef, phase = (np.concatenate(parts, axis=-1) for parts in zip(*blocks))
-        return path_u, coef, phase, (g_lo // GRID_BLOCK) * GRID_BLOCK
+        first = (g_lo // GRID_BLOCK) * GRID_BLOCK
+        return path_u[:, g_lo - first: g_hi - first + 1], coef[:, g_lo - first: g_hi - first + 1], \
+            phase[g_lo - first: g_hi - first + 1]
 
     def kernel_arguments(self, first_sample: int, count: int) -> KernelArguments:
-        """Arguments of the shaping + channel kernel for absolute sample indices (also for benchmarks)."""
-        path_u, coef, phase, grid_first = self._grid(first_sample, count)
-        lo = int(np.floor(first_sample / self.sample_rate_hz / self.grid_step_s)) - grid_first
-        hi = int(np.floor((first_sample + count - 1) / self.sample_rate_hz / self.grid_step_s)) - grid_first + 2
-        first_symbol, stop_symbol = symbol_range(path_u[:, lo:hi].min(), path_u[:, lo:hi].max(), self.pulse.span)
+        """Arguments of the exact twin's kernel for absolute sample indices (also for benchmarks)."""
+        g_lo, g_hi = self._grid_span(first_sample, count)
+        path_u, coef, phase = self._grid_columns(g_lo, g_hi)
+        first_symbol, stop_symbol = symbol_range(path_u.min(), path_u.max(), self.pulse.span)
         symbols = self.frames.symbols(first_symbol, stop_symbol)
-        common = (first_sample, count, self.sample_rate_hz, grid_first, self.grid_step_s, path_u, coef, phase,
+        common = (first_sample, count, self.sample_rate_hz, g_lo, self.grid_step_s, path_u, coef, phase,
                   symbols, first_symbol)
         return KernelArguments(kernel=(*common, self.pulse.polyphase, self.pulse.oversampling),
                                reference=(*common, self.pulse))
@@ -217,23 +266,90 @@ class CaptureGenerator:
         """Number of propagation paths the channel kernel sums."""
         return self.channel.num_paths
 
+    def _thread_state(self) -> threading.local:
+        """This thread's synthesizer, symbol source, batch cache and front end (none of them is shared)."""
+        state = self._local
+        if not hasattr(state, "frontend"):
+            main = threading.current_thread() is threading.main_thread()
+            state.frontend = self.frontend if main else copy.copy(self.frontend)
+            state.frames = self.frames if main else FrameSource(self.frame_config)
+            state.synthesizer = BlockSynthesizer(self.layout) if self.layout is not None else None
+            state.batches = {}
+        return state
+
+    def _batch(self, state: threading.local, index: int) -> np.ndarray:
+        """Noise-free samples of block-synthesis batch ``index`` (samples from ``index * batch_samples``)."""
+        if index not in state.batches:
+            nb = self.layout.batch_blocks
+            path_u, coef, phase = self._grid_columns(index * nb, (index + 1) * nb)
+            if len(state.batches) >= _CACHED_BATCHES:
+                del state.batches[next(iter(state.batches))]
+            state.batches[index] = state.synthesizer.synthesize(path_u, coef, phase, state.frames.symbols)
+        return state.batches[index]
+
     def clean_samples(self, first_sample: int, count: int) -> np.ndarray:
         """Noise-free received samples (complex128, before AGC) for absolute sample indices."""
-        return multipath_kernel(*self.kernel_arguments(first_sample, count).kernel)
+        if self.layout is None:
+            return multipath_kernel(*self.kernel_arguments(first_sample, count).kernel)
+        state = self._thread_state()
+        size = self.layout.batch_samples
+        out = np.empty(count, dtype=np.complex128)
+        pos, stop = first_sample, first_sample + count
+        while pos < stop:
+            index, offset = divmod(pos, size)
+            take = min(size - offset, stop - pos)
+            out[pos - first_sample: pos - first_sample + take] = self._batch(state, index)[offset: offset + take]
+            pos += take
+        return out
 
-    def chunks(self, chunk_samples: int) -> Iterator[np.ndarray]:
-        """The capture as complex64 chunks at full scale 1 (after AGC), before quantisation."""
+    def _render(self, first_sample: int, count: int, quantise: bool) -> np.ndarray:
+        """Samples after the front end (quantised rails with ``quantise``) for absolute sample indices."""
+        frontend = self._thread_state().frontend
+        samples = frontend.apply(self.clean_samples(first_sample, count), first_sample)
+        return frontend.quantise(samples) if quantise else samples
+
+    def _stream(self, chunk_samples: int, quantise: bool, jobs: int) -> Iterator[np.ndarray]:
         if chunk_samples <= 0:
             raise ValueError(f"chunk_samples must be positive, got {chunk_samples}")
-        for offset in range(0, self.num_samples, chunk_samples):
-            count = min(chunk_samples, self.num_samples - offset)
-            start = self.first_sample + offset
-            yield self.frontend.apply(self.clean_samples(start, count), start)
+        if jobs < 1:
+            raise ValueError(f"jobs must be >= 1, got {jobs}")
+        stop = self.first_sample + self.num_samples
+        if self.layout is None:
+            jobs = 1  # the exact kernel runs on numba's own threads
+        # Several jobs: chunk ends on batch boundaries, so that no batch is computed twice.
+        align = self.layout.batch_samples if jobs > 1 else 1
+        ranges = []
+        pos = self.first_sample
+        while pos < stop:
+            end = min(-(-(pos + chunk_samples) // align) * align, stop)
+            ranges.append((pos, end - pos))
+            pos = end
+        if jobs == 1:
+            for first, count in ranges:
+                yield self._render(first, count, quantise)
+            return
+        with ThreadPoolExecutor(max_workers=jobs) as pool:
+            pending: deque = deque()
+            for first, count in ranges:
+                pending.append(pool.submit(self._render, first, count, quantise))
+                # Two chunks per job in flight: the threads stay busy and memory stays flat.
+                if len(pending) >= 2 * jobs:
+                    yield pending.popleft().result()
+            while pending:
+                yield pending.popleft().result()
 
-    def quantised_chunks(self, chunk_samples: int) -> Iterator[np.ndarray]:
+    def chunks(self, chunk_samples: int, jobs: int = 1) -> Iterator[np.ndarray]:
+        """The capture as complex64 chunks at full scale 1 (after AGC), before quantisation.
+
+        ``jobs`` threads compute chunks ahead with block synthesis (the stream
+        is the same for any ``jobs``); the exact twin's kernel runs on numba's
+        own threads instead.
+        """
+        return self._stream(chunk_samples, False, jobs)
+
+    def quantised_chunks(self, chunk_samples: int, jobs: int = 1) -> Iterator[np.ndarray]:
         """The capture as interleaved rails of the sample format (``.tobytes()`` is the file)."""
-        for chunk in self.chunks(chunk_samples):
-            yield self.frontend.quantise(chunk)
+        return self._stream(chunk_samples, True, jobs)
 
     def frame_truth(self) -> FrameTruth:
         """One row per signal frame whose first symbol arrives (direct path) within the capture."""

@@ -66,7 +66,7 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, seconds: float | None =
              sample_rate_hz: float | None = None, sample_format: str | None = None, pn_mode: str | None = None,
              seed: int | None = None, container: str = "sigmf", with_iq: bool = True,
              chunk_samples: int = DEFAULT_CHUNK_SAMPLES, progress: bool = False,
-             weinberg_k_m: float | None = None) -> SimulationResult:
+             weinberg_k_m: float | None = None, jobs: int = 1) -> SimulationResult:
     """Write the capture and ``truth.h5`` of a scenario (module docstring).
 
     Parameters
@@ -90,6 +90,8 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, seconds: float | None =
     weinberg_k_m : float, optional
         The walker's calibrated Weinberg gain, stored with ``/imu`` for the
         PDR (see :func:`sim.walk_io.write_walk_groups`).
+    jobs : int
+        Threads generating the capture; the bytes do not depend on it.
     """
     if seed is not None:
         scenario = scenario.replace(seed=int(seed))
@@ -112,7 +114,7 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, seconds: float | None =
                      "capture_start_s": capture_start_s})
         with writer, tqdm(total=generator.num_samples, unit="S", unit_scale=True, disable=not progress,
                           file=sys.stderr) as bar:
-            for rails in generator.quantised_chunks(chunk_samples):
+            for rails in generator.quantised_chunks(chunk_samples, jobs=jobs):
                 writer.write(rails)
                 bar.update(rails.size // 2)
         capture_path = writer.capture_path

@@ -4,18 +4,27 @@ The transmitted baseband is ``s(u) = sum_n a_n p(u - n)`` with ``u`` the
 transmitter time in symbol periods (u = 0 is the first symbol of frame 0, the
 start of a superframe), ``a_n`` the symbols of :class:`sim.frames.FrameSource`
 and ``p`` the square-root raised-cosine pulse of roll-off
-``gb20600.SRRC_ROLLOFF`` (docs/dtmb.md §1), truncated to ``+-span`` symbols.
-Because ``s`` is evaluated at any real ``u``, a receiver whose path delays
-change continuously (walking) or whose ADC clock runs fast or slow (sampling
-offset), at any output rate, gets exactly the samples it would record.
+``gb20600.SRRC_ROLLOFF`` (docs/dtmb.md §1), limited to ``+-span`` symbols the
+way a transmitter's FIR filter is: the outer ``taper`` symbols of each side
+are multiplied by a raised-cosine taper that falls smoothly to zero at
+``+-span`` (:func:`shaping_pulse`). A hard cut would leave a step at the ends
+whose spectrum decays only as 1/f; the taper makes the pulse's spectrum
+negligible a little past the SRRC band edge, which is what lets
+:mod:`sim.block_synthesis` work on a finite band of frequency bins
+(:func:`pulse_spectrum`). Because ``s`` is evaluated at any real ``u``, a
+receiver whose path delays change continuously (walking) or whose ADC clock
+runs fast or slow (sampling offset), at any output rate, gets exactly the
+samples it would record.
 
 The pulse is tabulated on a fine grid (``oversampling`` points per symbol,
 default T/512) and linearly interpolated; the table is scaled to unit energy,
 so the shaped signal's mean power equals the mean symbol power (1 for the
 body, ``header_power_ratio`` in the header).
 
-Two numba kernels do the work, each with a plain-numpy reference of the same
-arithmetic (``*_reference``) for the tests and the benchmarks:
+Two numba kernels evaluate the model sample by sample, each with a
+plain-numpy reference of the same arithmetic (``*_reference``) for the tests
+and the benchmarks; they are the exact twin of the block synthesis
+(``CaptureGenerator(synthesis="exact")``):
 
 - :func:`shape_kernel` evaluates ``s(u_k)`` for an array of times;
 - :func:`multipath_kernel` forms a received sample stream
@@ -57,9 +66,28 @@ def srrc_pulse(x: np.ndarray, rolloff: float = gb20600.SRRC_ROLLOFF) -> np.ndarr
     return out
 
 
+#: Half-length of the transmit pulse, symbols.
+PULSE_SPAN = 32
+#: Symbols at each end of the pulse over which the raised-cosine taper falls to zero.
+PULSE_TAPER = 12
+
+
+def shaping_pulse(x: np.ndarray, span: int = PULSE_SPAN, taper: int = PULSE_TAPER,
+                  rolloff: float = gb20600.SRRC_ROLLOFF) -> np.ndarray:
+    """The transmit pulse at times ``x`` (symbol periods), before unit-energy scaling.
+
+    :func:`srrc_pulse` times a window that is 1 for ``|x| <= span - taper``,
+    falls as a raised cosine to 0 at ``|x| = span`` and is 0 beyond.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    edge = np.clip((np.abs(x) - (span - taper)) / taper, 0.0, 1.0) if taper > 0 else (np.abs(x) > span) * 1.0
+    window = np.where(np.abs(x) <= span, 0.5 * (1.0 + np.cos(np.pi * edge)), 0.0)
+    return srrc_pulse(x, rolloff) * window
+
+
 @dataclass(frozen=True)
 class PulseTable:
-    """A truncated SRRC tabulated for the kernels.
+    """The transmit pulse tabulated for the kernels.
 
     Attributes
     ----------
@@ -71,28 +99,66 @@ class PulseTable:
     oversampling : int
         Table points per symbol.
     span : int
-        Half-length of the truncated pulse, symbols.
+        Half-length of the pulse, symbols.
     rolloff : float
         SRRC roll-off.
+    taper : int
+        Symbols of raised-cosine taper at each end (:func:`shaping_pulse`).
+    scale : float
+        Factor from :func:`shaping_pulse` to the unit-energy pulse of the table.
     """
 
     polyphase: np.ndarray
     oversampling: int
     span: int
     rolloff: float
+    taper: int
+    scale: float
 
 
-def pulse_table(span: int = 16, oversampling: int = 512, rolloff: float = gb20600.SRRC_ROLLOFF) -> PulseTable:
-    """Tabulate the SRRC over ``[-span, span]`` symbols with ``oversampling`` points per symbol."""
-    if span < 2 or oversampling < 2:
-        raise ValueError(f"pulse table needs span >= 2 and oversampling >= 2, got {span}, {oversampling}")
+def pulse_table(span: int = PULSE_SPAN, oversampling: int = 512, rolloff: float = gb20600.SRRC_ROLLOFF,
+                taper: int = PULSE_TAPER) -> PulseTable:
+    """Tabulate the pulse over ``[-span, span]`` symbols with ``oversampling`` points per symbol."""
+    if span < 2 or oversampling < 2 or not 0 <= taper <= span:
+        raise ValueError(f"pulse table needs span >= 2, oversampling >= 2 and 0 <= taper <= span, "
+                         f"got {span}, {oversampling}, {taper}")
     phase = np.arange(oversampling + 1)[:, None] / oversampling
     taps = span - 1 - np.arange(2 * span)[None, :]
-    polyphase = srrc_pulse(phase + taps, rolloff)
-    # Truncation loses a little energy; restore unit energy so the signal power is exact.
-    polyphase /= np.sqrt(np.sum(polyphase[:-1] ** 2) / oversampling)
+    polyphase = shaping_pulse(phase + taps, span, taper, rolloff)
+    # The window removes a little energy; restore unit energy so the signal power is exact.
+    scale = 1.0 / np.sqrt(np.sum(polyphase[:-1] ** 2) / oversampling)
+    polyphase *= scale
     polyphase.flags.writeable = False
-    return PulseTable(polyphase, oversampling, span, rolloff)
+    return PulseTable(polyphase, oversampling, span, rolloff, taper, float(scale))
+
+
+def pulse_spectrum(table: PulseTable, bins: np.ndarray, period_symbols: int, points_per_symbol: int = 16) -> np.ndarray:
+    """Fourier transform ``P(f) = integral p(x) exp(-j 2 pi f x) dx`` of the table's pulse at ``f = bins / period_symbols``.
+
+    The frequencies are the harmonics of a ``period_symbols``-symbol period (cycles per symbol), which is what a
+    DFT of that many symbols gives; ``P`` is real because the pulse is even.
+
+    Parameters
+    ----------
+    table : PulseTable
+    bins : ndarray of int
+        Harmonic numbers (any sign; ``|bins| < period_symbols * points_per_symbol / 2``).
+    period_symbols : int
+        Period, symbols.
+    points_per_symbol : int
+        Sampling of the pulse for the integral. The tapered pulse is smooth and
+        vanishes at its ends, so the sum over its samples converges like a
+        trapezoid rule on a periodic function (spectrally); its error is the
+        pulse's spectrum beyond ``points_per_symbol / 2`` cycles per symbol.
+    """
+    length = period_symbols * points_per_symbol
+    half = table.span * points_per_symbol
+    if 2 * half >= length:
+        raise ValueError(f"pulse spectrum: a {period_symbols}-symbol period is shorter than the pulse")
+    samples = np.zeros(length)
+    x = np.arange(-half, half + 1)
+    samples[x % length] = shaping_pulse(x / points_per_symbol, table.span, table.taper, table.rolloff) * table.scale
+    return np.fft.fft(samples)[np.asarray(bins) % length].real / points_per_symbol
 
 
 def symbol_range(u_min: float, u_max: float, span: int) -> tuple[int, int]:

@@ -14,10 +14,31 @@ from dtmbnav.core import gb20600
 from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
 from dtmbnav.core.gb20600 import PnMode
 from dtmbnav.core.records import Track
+from sim.block_synthesis import (
+    BAND_EDGE,
+    RATE_TOLERANCE_SYMBOLS,
+    choose_layout,
+    combine_kernel,
+    combine_reference,
+    path_spectrum_kernel,
+    path_spectrum_reference,
+    window_plan_kernel,
+    window_plan_reference,
+)
+from sim.frames import FrameConfig, FrameSource, carriers_kernel, carriers_reference
 from sim.rf import CaptureGenerator
-from sim.scenario import Building, ClockConfig, Scenario
-from sim.transmitter import (multipath_kernel, multipath_reference, pulse_table, shape_kernel, shape_reference,
-                             srrc_pulse)
+from sim.scenario import Building, ClockConfig, Scenario, load_scenario
+from sim.transmitter import (
+    multipath_kernel,
+    multipath_reference,
+    pulse_spectrum,
+    pulse_table,
+    shape_kernel,
+    shape_reference,
+    shaping_pulse,
+    srrc_pulse,
+)
+from sim.walk import simulate_walk
 
 RS = gb20600.SYMBOL_RATE_HZ
 FC = 666e6
@@ -61,7 +82,7 @@ def phase_slope_hz(t_s: np.ndarray, values: np.ndarray) -> float:
 # ---------------------------------------------------------------- kernels
 
 def test_pulse_is_unit_energy_and_nyquist():
-    table = pulse_table(span=24)
+    table = pulse_table(span=24, taper=8)
     x = np.arange(-24 * 512, 24 * 512) / 512
     p = srrc_pulse(x)
     assert np.sum(p**2) / 512 == pytest.approx(1.0, abs=2e-3)
@@ -69,11 +90,31 @@ def test_pulse_is_unit_energy_and_nyquist():
     for lag in range(1, 4):
         assert abs(np.sum(p[lag * 512:] * p[: len(p) - lag * 512]) / 512) < 5e-3
     assert table.polyphase.shape == (513, 48)
+    # The table holds the tapered pulse at unit energy.
+    assert np.sum(table.polyphase[:-1] ** 2) / 512 == pytest.approx(1.0, rel=1e-12)
+
+
+def test_tapered_pulse_is_the_srrc_in_its_core_and_band_limited():
+    table = pulse_table()
+    core = np.linspace(-(table.span - table.taper), table.span - table.taper, 999)
+    np.testing.assert_allclose(shaping_pulse(core), srrc_pulse(core), rtol=1e-15, atol=0)
+    assert np.all(shaping_pulse(np.array([-table.span - 0.5, table.span, table.span + 3.0])) == 0.0)
+    # The spectrum on a DFT's harmonics equals the Fourier integral of the pulse (midpoint rule, 1/2048 symbol).
+    period = 5000
+    bins = np.array([0, 1234, 2500, 2620, 2700, 3000])
+    x = (np.arange(-table.span * 2048, table.span * 2048) + 0.5) / 2048
+    direct = [np.sum(shaping_pulse(x) * np.cos(2 * np.pi * b / period * x)) / 2048 * table.scale for b in bins]
+    np.testing.assert_allclose(pulse_spectrum(table, bins, period), direct, rtol=0, atol=1e-9)
+    # Unit energy, and what block synthesis leaves out beyond BAND_EDGE is below -70 dB.
+    k = np.arange(-period, period + 1)
+    energy = pulse_spectrum(table, k, period) ** 2 / period
+    assert np.sum(energy) == pytest.approx(1.0, rel=1e-6)
+    assert 10 * np.log10(np.sum(energy[np.abs(k) > BAND_EDGE * period])) < -70.0
 
 
 def test_kernels_equal_their_numpy_references():
     rng = np.random.default_rng(5)
-    table = pulse_table(span=8, oversampling=64)
+    table = pulse_table(span=8, oversampling=64, taper=4)
     symbols = rng.standard_normal(500) + 1j * rng.standard_normal(500)
     u = rng.uniform(120.0, 380.0, 400)
     np.testing.assert_allclose(shape_kernel(u, symbols, 100, table.polyphase, 64),
@@ -85,6 +126,94 @@ def test_kernels_equal_their_numpy_references():
     np.testing.assert_allclose(
         multipath_kernel(*args, grid_u, coef, phase, symbols, 100, table.polyphase, 64),
         multipath_reference(*args, grid_u, coef, phase, symbols, 100, table), rtol=1e-12, atol=1e-12)
+
+
+def test_block_synthesis_kernels_equal_their_numpy_references():
+    rng = np.random.default_rng(8)
+    layout = choose_layout(10e6, 2e-4, 1e-6, pulse_table(), batch_blocks=3)
+    n_paths, nb = 5, layout.batch_blocks
+    # Two clusters of paths (the last two 200 symbols behind) and a path that is silent in block 1.
+    start = 1000.0 + rng.uniform(0, 3, n_paths) + np.array([0, 0, 0, 200, 200])
+    path_u = start[:, None] + np.arange(nb + 1) * layout.block_samples * layout.rho * (1 + 3e-7)
+    coef = rng.standard_normal((n_paths, nb + 1)) + 1j * rng.standard_normal((n_paths, nb + 1))
+    coef[2, 1:3] = 0.0
+    outputs = (np.empty(nb * n_paths, np.int64), np.empty((nb, n_paths), np.int64), np.zeros((nb, n_paths)),
+               *(np.empty((nb, n_paths), np.complex128) for _ in range(3)))
+    windows = window_plan_kernel(path_u, coef, layout.rho, layout.block_samples, layout.span,
+                                 layout.window_symbols, layout.spread_symbols, *outputs)
+    expected = window_plan_reference(path_u, coef, layout)
+    assert windows == len(expected[0]) == 2 * nb
+    np.testing.assert_array_equal(outputs[0][:windows], expected[0])
+    np.testing.assert_array_equal(outputs[1], expected[1])
+    assert outputs[1][1, 2] == -1
+    for got, want in zip(outputs[2:], expected[2:]):
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=0)
+
+    spectra = (rng.standard_normal((windows, layout.window_symbols))
+               + 1j * rng.standard_normal((windows, layout.window_symbols))).astype(np.complex64)
+    bins = np.empty((2 * nb, layout.output_bins), np.complex64)
+    path_spectrum_kernel(spectra, *outputs[1:], layout.pulse, layout.first_bin, bins)
+    want = path_spectrum_reference(spectra, *outputs[1:], layout.pulse, layout.first_bin, layout.output_bins)
+    # Single-precision sums: agree to float32 rounding of the largest bin.
+    np.testing.assert_allclose(bins, want, rtol=0, atol=3e-6 * np.abs(want).max())
+
+    phase = np.cumsum(rng.uniform(-2, 2, nb + 1))
+    out = np.empty(nb * layout.block_samples, np.complex128)
+    combine_kernel(bins, layout.block_samples, phase, 1 / layout.window_symbols, out)
+    np.testing.assert_allclose(out, combine_reference(bins, layout.block_samples, phase, 1 / layout.window_symbols),
+                               rtol=1e-9, atol=1e-12 * np.abs(out).max())
+
+    draws = rng.integers(0, 256, (3, gb20600.DATA_LENGTH), dtype=np.uint8)
+    source = FrameSource(FrameConfig())
+    carriers = np.empty((3, gb20600.BODY_LENGTH), np.complex128)
+    carriers_kernel(draws, source._points, source._bin_data, source._carriers_template, carriers)
+    np.testing.assert_array_equal(carriers, carriers_reference(draws, source._points, source._bin_data,
+                                                               source._carriers_template))
+
+
+@pytest.mark.parametrize("rate_hz", [7.56e6, 10e6, 12.5e6, 16e6, 20e6, 9.1234567e6, 2.5e6])
+def test_block_layout_carries_the_rate(rate_hz):
+    layout = choose_layout(rate_hz, 1e-3, 5e-7, pulse_table())
+    rho = RS / rate_hz
+    drift = abs(layout.window_symbols / layout.output_bins - rho) * layout.block_samples
+    assert drift <= RATE_TOLERANCE_SYMBOLS
+    if rate_hz in (7.56e6, 10e6, 12.5e6, 16e6, 20e6):  # exact ratios with FFT-friendly sizes
+        assert layout.window_symbols * rate_hz == pytest.approx(layout.output_bins * RS, rel=1e-15)
+    # The window holds a block, the pulse at both ends and a spread of paths.
+    assert layout.spread_symbols >= 32
+    assert layout.window_symbols >= layout.rho * (layout.block_samples - 1) + 2 * layout.span + layout.spread_symbols
+
+
+def _error_db(block: np.ndarray, exact: np.ndarray) -> float:
+    return 10 * np.log10(np.mean(np.abs(block - exact) ** 2) / np.mean(np.abs(exact) ** 2))
+
+
+@pytest.mark.parametrize("case", ["park-loop free-running 7.56 Msps", "street walls 10 Msps",
+                                  "fast 20 ppm 16 Msps"])
+def test_block_synthesis_matches_the_exact_twin(case):
+    """Walking, multipath, drifting clock: block synthesis within -50 dB of the sample-by-sample twin."""
+    if case.startswith("park-loop"):
+        scn = load_scenario("park-loop").replace(receiver={"clock": ClockConfig("free-running")})
+        rate, track = None, simulate_walk(scn).track
+    elif case.startswith("street"):
+        scn = load_scenario("street")
+        rate, track = 10e6, simulate_walk(scn).track
+    else:  # a car at 30 m/s with a scatterer, and a clock 20 ppm off (sampling offset as large as tests use)
+        scn = quiet(20e3, cn_db=20.0).replace(channel={"scatterers": [{"x_m": -300.0, "y_m": 250.0, "gain_db": -6.0}],
+                                                      "rician_k_db": 10.0, "ground_reflection": True})
+        rate, track = 16e6, line_track(30.0, seconds=3.0)
+    start_s = 20.0 if case.startswith(("park", "street")) else 0.5
+    block = CaptureGenerator(scn, track, start_s=start_s, seconds=2.0, sample_rate_hz=rate)
+    exact = CaptureGenerator(scn, track, start_s=start_s, seconds=2.0, sample_rate_hz=rate, synthesis="exact")
+    assert block.num_paths >= 4
+    # Windows spread over the two seconds (the exact twin is slow); both are pure functions of the index.
+    errors, power = [], []
+    for first in np.linspace(block.first_sample, block.first_sample + block.num_samples - 20_000, 6).astype(int):
+        a, b = block.clean_samples(first, 20_000), exact.clean_samples(first, 20_000)
+        errors.append(np.mean(np.abs(a - b) ** 2))
+        power.append(np.mean(np.abs(b) ** 2))
+    assert 10 * np.log10(np.mean(errors) / np.mean(power)) < -50.0
+    assert 10 * np.log10(max(errors) / min(power)) < -45.0
 
 
 # ---------------------------------------------------------------- frame structure
@@ -193,6 +322,16 @@ def test_same_seed_same_bytes_other_seed_other_bytes(reference_stream):
     assert again.tobytes() == rails.tobytes()
     assert other.tobytes() != rails.tobytes()
     assert np.mean(other == rails) < 0.2
+
+
+def test_threads_give_the_same_bytes():
+    # Short blocks (a 0.1 ms grid) so that a 60 000-sample capture spans several batches.
+    gen = _noisy_generator(seconds=60_000 / RS, grid_step_s=1e-4)
+    assert gen.layout.batch_samples < 30_000
+    one = np.concatenate(list(gen.quantised_chunks(7_000)))
+    again = _noisy_generator(seconds=60_000 / RS, grid_step_s=1e-4)
+    three = np.concatenate(list(again.quantised_chunks(7_000, jobs=3)))
+    assert three.tobytes() == one.tobytes()
 
 
 # ---------------------------------------------------------------- motion, clock, blockage, noise
