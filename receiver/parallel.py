@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
 from functools import partial
@@ -42,9 +43,11 @@ class BatchWindows:
 
     Attributes
     ----------
-    buf : ndarray, complex64
-        Stream samples; ``buf[0]`` is stream index ``buf_start``.
-    buf_start : int
+    samples : callable
+        ``samples(start, stop)``: stream samples ``[start, stop)`` as one
+        contiguous complex64 array (e.g. :meth:`receiver.pipeline.SampleQueue.view`).
+        Each block asks only for its own span, so only a block that straddles
+        two input chunks is copied.
     starts : ndarray, int64, (B,)
         Window start (first header sample) of each frame, stream index.
     phases : ndarray, int64, (B + 1,)
@@ -57,8 +60,7 @@ class BatchWindows:
         :func:`receiver.derotate.rotation_table` of the coarse CFO.
     """
 
-    buf: np.ndarray
-    buf_start: int
+    samples: Callable[[int, int], np.ndarray]
     starts: np.ndarray
     phases: np.ndarray
     headers: np.ndarray
@@ -147,16 +149,19 @@ class FrameWorkers:
                keep_bodies: bool) -> tuple[ChannelEstimates, np.ndarray, np.ndarray | None, tuple[float, ...]]:
         """Frames ``lo:hi`` of a batch, on this thread's buffers."""
         est, ofdm = self._estimator(mode), self._buffers()[1]
-        taps_before = self._taps[0]
+        taps_before, taps_after = self._taps[:2]
         ng = mode.value.header_length
         starts = w.starts[lo:hi]
         t0 = time.perf_counter()
-        derotate_segments(w.buf, w.buf_start, starts + est.window_offset, est.window_length, w.cfo_cycles_per_sample,
+        # A frame reads from taps_before before its header to the next header's first taps_after samples.
+        buf_start = int(starts[0]) - taps_before
+        buf = w.samples(buf_start, int(starts[-1]) + mode.value.frame_length + taps_after + 1)
+        derotate_segments(buf, buf_start, starts + est.window_offset, est.window_length, w.cfo_cycles_per_sample,
                           w.rot, est.windows)
         ch = est.estimate(hi - lo, w.phases[lo:hi])
         t1 = time.perf_counter()
         phase = body_phases(starts, ng, taps_before, w.cfo_cycles_per_sample)
-        recover_bodies(w.buf, w.buf_start, starts, ng, w.rot, phase, ch.taps, taps_before, w.headers[lo:hi],
+        recover_bodies(buf, buf_start, starts, ng, w.rot, phase, ch.taps, taps_before, w.headers[lo:hi],
                        w.headers[lo + 1: hi + 1], ofdm.bodies)
         t2 = time.perf_counter()
         si = ofdm.si_carriers(hi - lo, phase)

@@ -141,8 +141,11 @@ class SampleQueue:
 
     Chunks are held by reference (not copied): a contiguous view of a range
     is free when it lies inside one chunk, and only ranges that straddle
-    chunk boundaries are stitched (at most about one batch of samples per
-    boundary). The caller must not modify a chunk after handing it over.
+    chunk boundaries are stitched (the frame blocks of
+    :mod:`receiver.parallel` ask for their own span each, so at most one
+    block of samples per boundary). The caller must not modify a chunk after
+    handing it over. Reading (:meth:`view`) is safe from several threads
+    while nothing is appended or dropped.
     """
 
     def __init__(self) -> None:
@@ -360,11 +363,9 @@ class Receiver:
         if count < size and not (final and count > 0):
             return None
         starts = starts[:count]
-        buf_start = int(starts[0]) - cfg.taps_before
-        buf = self._queue.view(buf_start, int(stops[count - 1]))
         frame_index = lock.next_frame_index + np.arange(count)
         phases = lock.phases(np.concatenate([frame_index, frame_index[-1:] + 1]))
-        frames = self._workers.run(lock.mode, BatchWindows(buf, buf_start, starts, phases, lock.header_symbols(phases),
+        frames = self._workers.run(lock.mode, BatchWindows(self._queue.view, starts, phases, lock.header_symbols(phases),
                                                            lock.cfo_cycles_per_sample, lock.rot),
                                    keep_bodies=cfg.inspect is not None)
         ch, si = frames.channel, frames.si
