@@ -21,6 +21,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
 from functools import partial
+from itertools import pairwise
 
 import numpy as np
 
@@ -97,7 +98,7 @@ class FrameWorkers:
     Parameters
     ----------
     jobs : int
-        Threads (1: everything on the calling thread).
+        Threads, the calling one included (1: everything on the calling thread).
     taps_before, taps_after : int
         Channel-estimate delay span, samples.
     tap_threshold : float
@@ -109,7 +110,7 @@ class FrameWorkers:
             raise ValueError(f"jobs must be >= 1, got {jobs}")
         self.jobs = jobs
         self._taps = (taps_before, taps_after, tap_threshold)
-        self._pool = ThreadPoolExecutor(jobs, thread_name_prefix="frames") if jobs > 1 else None
+        self._pool = ThreadPoolExecutor(jobs - 1, thread_name_prefix="frames") if jobs > 1 else None
         self._local = threading.local()     # per thread: its estimators (one per mode) and demodulator
 
     def _estimator(self, mode: PnMode) -> ChannelEstimator:
@@ -124,8 +125,17 @@ class FrameWorkers:
         count = len(windows.starts)
         blocks = [(lo, min(lo + FRAME_BLOCK, count)) for lo in range(0, count, FRAME_BLOCK)]
         work = partial(self._block, mode, windows, keep_bodies=keep_bodies)
-        parts = (list(self._pool.map(lambda block: work(*block), blocks)) if self._pool is not None
-                 else [work(*block) for block in blocks])
+
+        def run_share(share: list[tuple[int, int]]) -> list[tuple]:
+            return [work(*block) for block in share]
+
+        # Thread i takes the i-th of `jobs` consecutive shares of the blocks; this thread takes the first
+        # and works while the others run theirs (one hand-off per thread and batch).
+        threads = min(self.jobs if self._pool is not None else 1, len(blocks))
+        edges = np.linspace(0, len(blocks), max(threads, 1) + 1).round().astype(int)
+        shares = [blocks[a:b] for a, b in pairwise(edges)]
+        others = [self._pool.submit(run_share, share) for share in shares[1:]] if self._pool is not None else []
+        parts = run_share(shares[0]) + [part for future in others for part in future.result()]
         channel = ChannelEstimates(**{f.name: np.concatenate([getattr(p[0], f.name) for p in parts])
                                       for f in fields(ChannelEstimates)})
         si = np.concatenate([p[1] for p in parts])
