@@ -14,26 +14,39 @@ is limited to one thread so that "one core" means one core):
   not grow with the capture's length);
 - resampler: the streaming polyphase resampler, 20 Msps -> 7.56 Msps input;
 - receiver: the streaming receiver on an 8 s cf32 capture at 7.56 Msps (best
-  of 3 runs): end to end including acquisition, steady state (acquisition
-  left out) and per stage (acquisition, sync, channel estimate, body
-  recovery, SI DFT, estimators), against the per-frame numpy pipeline
-  (:mod:`receiver.reference`), which starts from a finished acquisition;
+  of 3 runs): end to end including acquisition (one thread and
+  ``jobs = 2``), steady state (acquisition left out) and per stage
+  (acquisition, sync, channel estimate, body recovery, SI DFT, estimators),
+  against the per-frame numpy pipeline (:mod:`receiver.reference`), which
+  starts from a finished acquisition;
+- receive command: ``dtmbnav receive`` as a user runs it, a child process
+  on a generated ci8 capture at 7.56 Msps, pinned to one core (two for
+  ``--jobs 2``): wall time including interpreter start-up, imports, reading
+  and writing, next to the in-memory figure; the child's peak RSS for a
+  short and a long capture (flat memory); and, when the ``dtmb-sdr``
+  package is installed, its front end on the same capture and core;
 - particle filter: particle-updates/s at Np = 1k, 10k, 100k.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import platform
+import shutil
+import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numba
 import numpy as np
 
 from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
+from receiver.capture import CaptureSource, open_capture
 
 
 @dataclass(frozen=True)
@@ -179,10 +192,11 @@ def bench_receiver(seconds: float, reference_frames: int, repeats: int) -> list[
 
     The receiver runs ``repeats`` times over the same capture (1 Mi-sample
     chunks); the fastest run is reported. "End to end" counts everything
-    from the first chunk to the last frame, acquisition included; "steady
-    state" leaves out the acquisition stage (a one-off cost per lock, about
-    30 ms) and is the rate the receiver sustains once locked, comparable
-    with the reference pipeline, which starts from a finished acquisition.
+    from the first chunk to the last frame, acquisition included, on one
+    thread and with ``jobs = 2``; "steady state" leaves out the acquisition
+    stage (a one-off cost per lock) and is the rate the receiver sustains
+    once locked, comparable with the reference pipeline, which starts from a
+    finished acquisition.
     """
     from receiver.pipeline import STAGES, Receiver, ReceiverConfig, receive_stream
     from receiver.reference import receive_reference
@@ -194,22 +208,28 @@ def bench_receiver(seconds: float, reference_frames: int, repeats: int) -> list[
     generator = CaptureGenerator(scenario, simulate_walk(scenario).track, seconds=seconds, start_s=20.0)
     x = np.concatenate(list(generator.chunks(1 << 20))).astype(np.complex64)
     config = ReceiverConfig(static_window_s=0.1)
-    # Warm-up on a separate receiver: numba cache loads and FFTW planning are not part of the rate.
+    # Warm-up on a separate receiver: numba cache loads are not part of the rate.
     for _ in receive_stream([x[: int(0.2 * SYMBOL_RATE_HZ)]], SYMBOL_RATE_HZ, generator.carrier_hz, config):
         pass
-    best: tuple[float, Receiver, int] | None = None
-    for _ in range(repeats):
-        rx = Receiver(SYMBOL_RATE_HZ, generator.carrier_hz, config)
-        t0 = time.perf_counter()
-        frames = sum(len(b) for b in receive_stream((x[i:i + (1 << 20)] for i in range(0, len(x), 1 << 20)),
-                                                     SYMBOL_RATE_HZ, generator.carrier_hz, receiver=rx))
-        elapsed = time.perf_counter() - t0
-        if best is None or elapsed < best[0]:
-            best = (elapsed, rx, frames)
-    assert best is not None
-    elapsed, rx, frames = best
-    if frames == 0:
-        raise RuntimeError("benchmark receiver produced no frames")
+
+    def fastest(jobs: int) -> tuple[float, Receiver, int]:
+        best: tuple[float, Receiver, int] | None = None
+        for _ in range(repeats):
+            rx = Receiver(SYMBOL_RATE_HZ, generator.carrier_hz,
+                          ReceiverConfig(static_window_s=config.static_window_s, jobs=jobs))
+            t0 = time.perf_counter()
+            frames = sum(len(b) for b in receive_stream((x[i:i + (1 << 20)] for i in range(0, len(x), 1 << 20)),
+                                                         SYMBOL_RATE_HZ, generator.carrier_hz, receiver=rx))
+            elapsed = time.perf_counter() - t0
+            if best is None or elapsed < best[0]:
+                best = (elapsed, rx, frames)
+        assert best is not None
+        if best[2] == 0:
+            raise RuntimeError("benchmark receiver produced no frames")
+        return best
+
+    elapsed, rx, frames = fastest(1)
+    elapsed_2, _, _ = fastest(2)
     ref_stages: dict[str, float] = {}
     t0 = time.perf_counter()
     receive_reference(x, rx.acquisitions[0], reference_frames, stage_seconds=ref_stages)
@@ -220,6 +240,8 @@ def bench_receiver(seconds: float, reference_frames: int, repeats: int) -> list[
     rows = [BenchRow("receiver end to end incl. acquisition", "samples/s", len(x) / elapsed, None,
                      len(x) / elapsed / SYMBOL_RATE_HZ,
                      f"cf32 7.56 Msps, {seconds:g} s capture, {best_of}{frames / elapsed:.0f} frames/s"),
+            BenchRow("receiver end to end, jobs 2", "samples/s", len(x) / elapsed_2, None,
+                     len(x) / elapsed_2 / SYMBOL_RATE_HZ, "the same, per-frame work on 2 threads"),
             BenchRow("receiver steady state (after acquisition)", "samples/s", len(x) / locked,
                      samples_per_frame / ref_per_frame, len(x) / locked / SYMBOL_RATE_HZ,
                      f"{frames / locked:.0f} frames/s; reference {1 / ref_per_frame:.0f} frames/s")]
@@ -232,6 +254,168 @@ def bench_receiver(seconds: float, reference_frames: int, repeats: int) -> list[
                                  frames / spent * samples_per_frame / SYMBOL_RATE_HZ,
                                  f"{spent / frames * 1e6:.1f} us/frame"))
     return rows
+
+
+#: Front-end stages of dtmb-sdr's ``dtmb-decode`` pipeline (rate conversion and frame extraction; the
+#: demapping and LDPC stages after them have no counterpart in this receiver).
+DTMB_SDR_FRONT_END = ("dtmb_core_ci8_resample", "dtmb_core_c3780_extract")
+
+
+#: Runs argv[2:] as a child of this small process and writes the child's peak RSS (kB) to argv[1]. A
+#: child started straight from the benchmark (vfork) would count the benchmark's own memory as its peak.
+_RSS_LAUNCHER = """import os, sys
+pid = os.fork()
+if pid == 0:
+    os.execv(sys.argv[2], sys.argv[2:])
+_, status, usage = os.wait4(pid, 0)
+with open(sys.argv[1], "w") as out:
+    out.write(f"{usage.ru_maxrss} {os.waitstatus_to_exitcode(status)}")
+"""
+
+
+def _run_child(commands: list[list[str]], cpus: list[int], env: dict[str, str] | None = None) -> tuple[float, int]:
+    """Run ``commands`` as a pipeline (each one's stdout into the next) pinned to ``cpus``: wall time, exit code."""
+    t0 = time.perf_counter()
+    procs: list[subprocess.Popen] = []
+    previous = None
+    for i, command in enumerate(commands):
+        last = i == len(commands) - 1
+        procs.append(subprocess.Popen(command, stdin=previous, stdout=subprocess.DEVNULL if last else subprocess.PIPE,
+                                      stderr=subprocess.DEVNULL, env=env))
+        if cpus and hasattr(os, "sched_setaffinity"):   # pinned from here (not preexec_fn: this process has threads)
+            os.sched_setaffinity(procs[-1].pid, cpus)
+        if previous is not None:
+            previous.close()
+        previous = procs[-1].stdout
+    codes = [proc.wait() for proc in procs]
+    return time.perf_counter() - t0, next((c for c in codes if c), 0)
+
+
+def _peak_rss_mb(command: list[str], env: dict[str, str], folder: Path) -> float:
+    """Peak resident memory of ``command`` (Linux ``ru_maxrss``), MB."""
+    report = folder / "rss.txt"
+    subprocess.run([sys.executable, "-c", _RSS_LAUNCHER, str(report), *command], env=env, check=True,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    kilobytes, code = (int(v) for v in report.read_text().split())
+    if code:
+        raise RuntimeError(f"{' '.join(command)} exited {code}")
+    return kilobytes / 1024
+
+
+def _capture_prefix(capture: Path, seconds: float, folder: Path) -> Path:
+    """The first ``seconds`` of a raw capture with its sidecar, as a capture of its own."""
+    meta = json.loads(capture.with_name(capture.name + ".json").read_text())
+    samples = int(seconds * meta["sample_rate_hz"])
+    bytes_per_sample = capture.stat().st_size // meta["num_samples"]
+    out = folder / f"{capture.stem}-{seconds:g}s{capture.suffix}"
+    with open(capture, "rb") as src, open(out, "wb") as dst:
+        shutil.copyfileobj(src, dst)
+        dst.truncate(samples * bytes_per_sample)
+    out.with_name(out.name + ".json").write_text(json.dumps({**meta, "num_samples": samples}))
+    return out
+
+
+def bench_receive_command(seconds: float, rss_seconds: tuple[float, float], repeats: int) -> list[BenchRow]:
+    """``dtmbnav receive`` as a user runs it: whole process on a generated ci8 capture, against in-memory.
+
+    A park-loop ci8 capture at 7.56 Msps is generated once (raw + sidecar)
+    and cut to the lengths used. The peak RSS of the child for a short and a
+    long capture shows memory flat with length (these runs also load numba's
+    cache and put the file in the page cache). Then the command runs in a
+    child process pinned to one core (two for ``--jobs 2``); its wall time
+    counts interpreter start-up, imports, reading, conversion and writing.
+    Next to it, the same samples through :class:`receiver.pipeline.Receiver`
+    in this process (kernels only, reading left out). When dtmb-sdr is installed, its front end
+    (:data:`DTMB_SDR_FRONT_END`) runs on the short capture on one core too.
+    """
+    from sim.scenario import load_scenario
+    from sim.simulate import simulate
+
+    cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    # The child runs this package, wherever it was imported from.
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(Path(__file__).resolve().parents[1]),
+                                                                     os.environ.get("PYTHONPATH")]))}
+    rows: list[BenchRow] = []
+    with tempfile.TemporaryDirectory(prefix="dtmbnav-bench-") as tmp:
+        folder = Path(tmp)
+        longest = max(seconds, *rss_seconds)
+        result = simulate(load_scenario("park-loop"), folder / "sim", seconds=longest, sample_format="ci8",
+                          container="raw")
+        assert result.capture_path is not None
+        captures = {sec: _capture_prefix(Path(result.capture_path), sec, folder) if sec < longest
+                    else Path(result.capture_path) for sec in {seconds, *rss_seconds}}
+
+        def command(sec: float, jobs: int) -> list[str]:
+            return [sys.executable, "-m", "dtmbnav.cli", "-q", "receive", str(captures[sec]), "-o",
+                    str(folder / "rx.h5"), "--jobs", str(jobs)]
+
+        def receive(sec: float, jobs: int) -> float:
+            seconds_taken, code = _run_child([command(sec, jobs)], cpus[:jobs], env)
+            if code:
+                raise RuntimeError(f"dtmbnav receive --jobs {jobs} on {captures[sec]} exited {code}")
+            return seconds_taken
+
+        # Peak RSS first: the short run also warms numba's cache and the page cache for the timed runs.
+        rss_rows = [BenchRow(f"receive command peak RSS, {sec:g} s capture", "MB",
+                             _peak_rss_mb(command(sec, 1), env, folder), None, None, "the child's ru_maxrss")
+                    for sec in sorted(rss_seconds)]
+        capture = open_capture(captures[seconds])
+        for jobs in (1, 2):
+            best = min(receive(seconds, jobs) for _ in range(repeats))
+            in_memory = seconds / _receiver_seconds(capture, jobs)
+            rows.append(BenchRow(f"receive command, whole process, --jobs {jobs}", "samples/s",
+                                 capture.num_samples / best, None, seconds / best,
+                                 f"ci8 7.56 Msps {seconds:g} s capture on {min(jobs, len(cpus) or jobs)} core(s), "
+                                 f"incl. start-up; in memory {in_memory:.1f}x real time"))
+        rows.extend(rss_rows)
+        if importlib.util.find_spec("dtmb") is not None:
+            short = min(rss_seconds)
+            rows.extend(_bench_dtmb_sdr(captures[short], short, receive(short, 1), cpus[:1]))
+    return rows
+
+
+def _receiver_seconds(capture: CaptureSource, jobs: int) -> float:
+    """Seconds :meth:`Receiver.process` and :meth:`Receiver.finish` take over ``capture`` (reading left out).
+
+    A warm-up receiver first loads numba's cache (and starts its threads).
+    """
+    from receiver.pipeline import Receiver, ReceiverConfig
+
+    config = ReceiverConfig(jobs=jobs)
+    warm = Receiver(capture.sample_rate_hz, capture.center_hz, config)
+    warm.process(next(capture.chunks(1 << 20)))
+    warm.finish()
+    rx = Receiver(capture.sample_rate_hz, capture.center_hz, config)
+    spent = 0.0
+    for chunk in capture.chunks(1 << 20):
+        t0 = time.perf_counter()
+        rx.process(chunk)
+        spent += time.perf_counter() - t0
+    t0 = time.perf_counter()
+    rx.finish()
+    return spent + time.perf_counter() - t0
+
+
+def _bench_dtmb_sdr(capture: Path, seconds: float, ours_s: float, cpus: list[int]) -> list[BenchRow]:
+    """dtmb-sdr's front end on ``capture`` (PN420, one worker, one core), next to our ``ours_s`` on the same file."""
+    from importlib.metadata import version
+
+    from dtmb.decode import build_commands, build_parser
+
+    meta = json.loads(capture.with_name(capture.name + ".json").read_text())
+    args = build_parser().parse_args(["--input", str(capture), "--input-rate", str(int(meta["sample_rate_hz"])),
+                                      "--pn-mode", "pn420", "--output", os.devnull, "--workers", "1",
+                                      "--pipeline-buffer-mib", "0"])
+    front = [c for c in build_commands(args) if Path(c[0]).stem in DTMB_SDR_FRONT_END]
+    front[-1] = [*front[-1][:-1], os.devnull]     # its output (the extracted bodies) is not needed
+    theirs_s, code = _run_child(front, cpus)
+    if code:
+        print(f"dtmb-sdr front end exited {code}; left out", file=sys.stderr)
+        return []
+    return [BenchRow(f"dtmb-sdr {version('dtmb-sdr')} front end (for comparison)", "samples/s",
+                     seconds * meta["sample_rate_hz"] / theirs_s, None, seconds / theirs_s,
+                     f"same {seconds:g} s ci8 capture, 1 core; dtmbnav receive (whole process) is "
+                     f"{theirs_s / ours_s:.1f}x its rate")]
 
 
 def bench_particle_filter(sizes: tuple[int, ...], epochs: int) -> list[BenchRow]:
@@ -273,6 +457,9 @@ def run_benchmarks(json_path: str | None = None, quick: bool = False) -> int:
                      ("simulate", lambda: bench_simulate((0.5, 1.0) if quick else (5.0, 60.0))),
                      ("resampler", lambda: [bench_resampler(seconds / 2)]),
                      ("receiver", lambda: bench_receiver(receiver_seconds, 50 if quick else 400, 1 if quick else 3)),
+                     ("receive command", lambda: bench_receive_command(0.5 if quick else 20.0,
+                                                                       (0.25, 0.5) if quick else (5.0, 60.0),
+                                                                       1 if quick else 2)),
                      ("particle filter", lambda: bench_particle_filter((1000, 10_000) if quick else
                                                                         (1000, 10_000, 100_000), 5 if quick else 30))]:
         print(f"benchmarking {name} ...", file=sys.stderr)

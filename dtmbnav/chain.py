@@ -1,4 +1,4 @@
-"""The processing chain behind ``receive``, ``pdr``, ``fuse`` and ``run``.
+"""The processing chain behind ``pdr``, ``fuse`` and ``run`` (``receive`` is :mod:`dtmbnav.receive`).
 
 Files in, files out: the receiver's ``/receiver/frames``, the sensors file's
 ``/imu`` and ``/gnss`` (a simulation's ``truth.h5`` is one), and the results
@@ -26,51 +26,15 @@ from dtmbnav.core import schema
 from dtmbnav.core.h5io import atomic_h5, read_attrs, read_columns, write_columns
 from dtmbnav.core.records import FrameFlag, RangeSeries
 from dtmbnav.core.sensors import read_capture_start_s, read_gnss, read_imu, read_tower, read_weinberg_k_m
+from dtmbnav.receive import receive_capture
 from fusion.pdr import PdrConfig, PdrResult, run_pdr
 from fusion.run import FusionConfig, FusionResult, fuse
-from receiver.capture import CaptureSource, open_capture
-from receiver.pipeline import ReceiverConfig, receive_file
+from receiver.capture import open_capture
+from receiver.pipeline import ReceiverConfig
 from receiver.writer import write_csv
 
 #: Frame flags that make a frame's range unusable for fusion.
 UNUSABLE_FLAGS = FrameFlag.GAP | FrameFlag.LOW_QUALITY
-
-
-@dataclass(frozen=True)
-class ReceiveSummary:
-    """What one receiver run found (for the command line's diagnostics).
-
-    Attributes
-    ----------
-    frames : int
-        Frames written.
-    attrs : dict
-        The ``/receiver/frames`` attributes (mode, SI word, f_s, ...).
-    gaps : int
-        Frames flagged as the first after a loss of lock.
-    seconds : float
-        Span of the frames, s.
-    """
-
-    frames: int
-    attrs: dict
-    gaps: int
-    seconds: float
-
-    def describe(self) -> str:
-        if not self.frames:
-            return "no lock: no DTMB signal found in the capture; no frames written"
-        a = self.attrs
-        return (f"{self.frames} frames over {self.seconds:.1f} s, {a.get('pn_mode')}, SI word {a.get('si_index')}, "
-                f"f_s = {a.get('clock_offset_hz', float('nan')):.2f} Hz, {self.gaps} gap(s)")
-
-
-def receive_capture(source: CaptureSource, out_path: str | os.PathLike, config: ReceiverConfig,
-                    csv_path: str | None = None, progress: bool = True) -> ReceiveSummary:
-    """Receive a capture into ``out_path`` (``/receiver/frames``) and summarise it."""
-    sink, attrs = receive_file(source, out_path, config, csv_path=csv_path, progress=progress)
-    span = sink.last_t_s - sink.first_t_s if sink.frames else 0.0
-    return ReceiveSummary(frames=sink.frames, attrs=attrs, gaps=sink.gaps, seconds=span)
 
 
 def ranges_from_frames(columns: dict[str, np.ndarray], time_offset_s: float = 0.0) -> RangeSeries:

@@ -104,7 +104,7 @@ def _receiver_config(args: argparse.Namespace):
     from receiver.pipeline import ReceiverConfig
 
     return ReceiverConfig(pn_mode=args.pn_mode, static_window_s=args.static_window,
-                          clock_offset_hz=args.clock_offset, conjugate_iq=args.conjugate)
+                          clock_offset_hz=args.clock_offset, conjugate_iq=args.conjugate, jobs=args.jobs)
 
 
 def _pdr_config(args: argparse.Namespace):
@@ -114,7 +114,7 @@ def _pdr_config(args: argparse.Namespace):
 
 
 def cmd_receive(args: argparse.Namespace) -> int:
-    from dtmbnav.chain import receive_capture
+    from dtmbnav.receive import receive_capture
     from receiver.capture import open_capture
 
     source = open_capture(args.capture, sample_format=args.format, sample_rate_hz=args.rate,
@@ -254,6 +254,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=_rate, help="sample rate of a raw file/stdin, Hz")
     p.add_argument("--center", type=_rate, help="RF centre frequency, Hz (needed for velocity and range)")
     p.add_argument("--csv", metavar="FILE", help="also write the frame table as CSV ('-' for stdout)")
+    p.add_argument("--jobs", type=_positive_int, default=1, metavar="N",
+                   help="threads for the per-frame work (default 1); the output is the same for any N")
     _add_receiver_options(p)
     p.set_defaults(handler=cmd_receive)
 

@@ -33,7 +33,7 @@ def body_phases(frame_starts: np.ndarray, header_length: int, taps_before: int,
     return np.exp(-2j * np.pi * cycles).astype(np.complex64)
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, nogil=True)
 def recover_bodies(buf: np.ndarray, buf_start: int, frame_starts: np.ndarray, header_length: int,
                    rot: np.ndarray, phases: np.ndarray, taps: np.ndarray, taps_before: int,
                    headers_now: np.ndarray, headers_next: np.ndarray, out: np.ndarray) -> None:

@@ -91,34 +91,34 @@ class CaptureSource:
     def _read(self, stream: IO[bytes], chunk_samples: int) -> Iterator[np.ndarray]:
         fmt = self.format
         want = chunk_samples * fmt.bytes_per_sample
+        raw = np.empty(want, dtype=np.uint8)   # one read buffer for every block; each block is decoded out of it
         position = 0
         while True:
-            data = _read_exactly(stream, want)
-            if not data:
+            got = _read_into(stream, raw)
+            if not got:
                 break
-            if len(data) % fmt.bytes_per_sample:
-                raise ValueError(f"{self.path}: truncated data: the last {len(data) % fmt.bytes_per_sample} "
-                                 f"byte(s) after sample {position + len(data) // fmt.bytes_per_sample} are "
+            if got % fmt.bytes_per_sample:
+                raise ValueError(f"{self.path}: truncated data: the last {got % fmt.bytes_per_sample} "
+                                 f"byte(s) after sample {position + got // fmt.bytes_per_sample} are "
                                  f"half an IQ pair of {fmt.name}")
-            yield decode(data, fmt, where=f"{self.path} (block from sample {position})")
-            position += len(data) // fmt.bytes_per_sample
-            if len(data) < want:
+            yield decode(raw[:got], fmt, where=f"{self.path} (block from sample {position})")
+            position += got // fmt.bytes_per_sample
+            if got < want:
                 break
         if position == 0:
             raise ValueError(f"{self.path}: no samples (empty capture)")
 
 
-def _read_exactly(stream: IO[bytes], size: int) -> bytes:
-    """Read ``size`` bytes, fewer only at the end of the stream (pipes return short reads)."""
-    parts = []
-    remaining = size
-    while remaining:
-        part = stream.read(remaining)
-        if not part:
+def _read_into(stream: IO[bytes], buffer: np.ndarray) -> int:
+    """Fill ``buffer`` from ``stream``; fewer bytes only at the end of the stream (pipes return short reads)."""
+    view = memoryview(buffer).cast("B")
+    filled = 0
+    while filled < len(view):
+        got = stream.readinto(view[filled:])
+        if not got:
             break
-        parts.append(part)
-        remaining -= len(part)
-    return b"".join(parts)
+        filled += got
+    return filled
 
 
 def _agree(where: str, what: str, from_file: Any, given: Any) -> Any:

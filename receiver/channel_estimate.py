@@ -276,7 +276,7 @@ def hadamard_slots(chips: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return sample_slot, shift_slot
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, nogil=True)
 def walsh_hadamard_inplace(work: np.ndarray) -> None:
     """Unnormalised fast Walsh-Hadamard transform (Sylvester order) of ``work``, length a power of 2, in place.
 
@@ -302,7 +302,7 @@ def walsh_hadamard_inplace(work: np.ndarray) -> None:
             work[i + q] = a - b
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, nogil=True)
 def m_sequence_correlation_kernel(windows: np.ndarray, shifts: np.ndarray, sample_slot: np.ndarray,
                                   shift_slot: np.ndarray, scale: complex, work: np.ndarray, corr: np.ndarray,
                                   power_in: np.ndarray) -> None:
@@ -335,7 +335,7 @@ def m_sequence_correlation_kernel(windows: np.ndarray, shifts: np.ndarray, sampl
             out[s] = work[shift_slot[t if t >= 0 else t + period]] * scale
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, nogil=True)
 def deconvolve_kernel(corr: np.ndarray, tap_bins: np.ndarray, noise_bins: np.ndarray, raw: np.ndarray,
                       noise_tap: np.ndarray) -> None:
     """Taps and noise floor of a batch from m-sequence correlations (into ``raw``, ``noise_tap``).
@@ -360,7 +360,7 @@ def deconvolve_kernel(corr: np.ndarray, tap_bins: np.ndarray, noise_bins: np.nda
         noise_tap[b] = acc / noise_bins.shape[0]
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, nogil=True)
 def summarise_taps_kernel(raw: np.ndarray, noise_tap: np.ndarray, power_in: np.ndarray, threshold: float,
                           header_power: float, reference_length: int, taps_before: int, taps: np.ndarray,
                           snr_db: np.ndarray, noise_power: np.ndarray, peak: np.ndarray, centroid: np.ndarray) -> None:

@@ -14,7 +14,7 @@ from numba import njit
 from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, nogil=True)
 def derotate_segments(buf: np.ndarray, buf_start: int, seg_starts: np.ndarray, length: int,
                       cfo_cycles_per_sample: float, rot: np.ndarray, out: np.ndarray) -> None:
     """Copy ``length`` samples from each segment start, removing the coarse CFO.

@@ -3,10 +3,10 @@
 Data path (each stage its own module)::
 
     input chunks -> resample (resample.py) -> acquisition (acquisition.py)
-      -> per batch of frames: header windows + channel estimate (body.py)
+      -> per batch of frames, per frame on ``jobs`` threads (parallel.py):
+         header windows + channel estimate (channel_estimate.py),
+         header-tail removal + cyclic reconstruction (body.py), SI carriers (ofdm.py)
       -> timing loop / loss of lock (tracking.py)
-      -> header-tail removal + cyclic reconstruction (body.py)
-      -> 3780-point FFT, SI carriers (ofdm.py)
       -> SI and PN CFO estimates (cfo.py) -> f_s, Doppler, range (ranging.py)
 
 The receiver works on the 7.56 Msps stream in fixed batches of
@@ -34,22 +34,20 @@ from dtmbnav.core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
 from dtmbnav.core.records import FrameBatch, FrameFlag
 from receiver import DEFAULT_STATIC_WINDOW_S
 from receiver.acquisition import Acquisition, acquire, window_length
-from receiver.body import body_phases, recover_bodies
 from receiver.capture import CaptureSource
 from receiver.cfo import SiWordDetector, cfo_from_theta, pn_theta_kernel, si_theta_kernel
-from receiver.channel_estimate import TAP_THRESHOLD, TAPS_AFTER, TAPS_BEFORE, ChannelEstimates, ChannelEstimator
-from receiver.derotate import derotate_segments, rotation_table
-from receiver.ofdm import OfdmDemodulator, si_carrier_numbers, si_snr_db
+from receiver.channel_estimate import TAP_THRESHOLD, TAPS_AFTER, TAPS_BEFORE, ChannelEstimates
+from receiver.derotate import rotation_table
+from receiver.ofdm import si_carrier_numbers, si_snr_db
+from receiver.parallel import BatchWindows, FrameWorkers
 from receiver.ranging import RangeIntegrator
+from receiver.reader import read_ahead
 from receiver.resample import StreamResampler
 from receiver.tracking import FrameTracker, LockMonitor
 from receiver.writer import FrameSink
 
 #: Search position after the end of the stream (no acquisition window can fit).
 END_OF_STREAM = np.iinfo(np.int64).max // 4
-#: Frames per body-recovery + DFT block: the bodies (30 kB per frame; 3.9 MB for a 128-frame batch) are still
-#: in the cache when the DFT reads them, and the per-call overhead is amortised (``dtmbnav bench`` times it).
-DEMODULATION_BLOCK_FRAMES = 16
 #: Stage names of :attr:`Receiver.stage_seconds`: acquisition (searches and lock set-up, a one-off
 #: cost per lock) and, per batch, sync (timing loop), channel estimate, body recovery, SI DFT, estimators.
 STAGES = ("resample", "acquisition", "sync", "channel", "body", "fft", "estimators")
@@ -91,6 +89,9 @@ class ReceiverConfig:
         Frames after each lock used to identify the SI word.
     loop_alpha, loop_beta : float
         Timing-loop gains.
+    jobs : int
+        Threads for the per-frame work of each batch (:mod:`receiver.parallel`);
+        the output is the same for any number.
     inspect : callable or None
         ``inspect(stage, arrays)`` called per batch with intermediate outputs.
     """
@@ -112,12 +113,13 @@ class ReceiverConfig:
     si_frames: int = 256
     loop_alpha: float = 0.05
     loop_beta: float = 0.001
+    jobs: int = 1
     inspect: Callable[[str, Mapping[str, np.ndarray]], None] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if self.pn_mode is not None:
             self.pn_mode = PnMode.parse(self.pn_mode)
-        for name in ("acquisition_frames", "loss_frames", "batch_frames", "taps_after", "si_frames"):
+        for name in ("acquisition_frames", "loss_frames", "batch_frames", "taps_after", "si_frames", "jobs"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"ReceiverConfig.{name} must be >= 1, got {getattr(self, name)!r}")
         if self.taps_before < 0:
@@ -129,8 +131,11 @@ class SampleQueue:
 
     Chunks are held by reference (not copied): a contiguous view of a range
     is free when it lies inside one chunk, and only ranges that straddle
-    chunk boundaries are stitched (at most about one batch of samples per
-    boundary). The caller must not modify a chunk after handing it over.
+    chunk boundaries are stitched (the frame blocks of
+    :mod:`receiver.parallel` ask for their own span each, so at most one
+    block of samples per boundary). The caller must not modify a chunk after
+    handing it over. Reading (:meth:`view`) is safe from several threads
+    while nothing is appended or dropped.
     """
 
     def __init__(self) -> None:
@@ -220,8 +225,8 @@ class Receiver:
         self._queue = SampleQueue()
         self._search_from = 0
         self._lock: _Lock | None = None
-        self._estimators: dict[PnMode, ChannelEstimator] = {}
-        self._ofdm = OfdmDemodulator(min(self.config.batch_frames, DEMODULATION_BLOCK_FRAMES))
+        self._workers = FrameWorkers(self.config.jobs, self.config.taps_before, self.config.taps_after,
+                                     self.config.tap_threshold)
         self._k_si = si_carrier_numbers().astype(np.float64)
         self._si_detector: SiWordDetector | None = None
         self._frame_counter: int | None = None   # frame_index of the next frame, across locks
@@ -247,6 +252,7 @@ class Receiver:
         """End of stream: process the frames still complete, release the rest."""
         out = self._run(final=True)
         out.extend(self.ranging.flush())
+        self._workers.close()
         return out
 
     @property
@@ -319,9 +325,6 @@ class Receiver:
                 index += (acq.frame_in_superframe - index + f // 2) % f - f // 2
         self._lock = _Lock(acq, self.config, index, start)
         self._lock_starts_gap = self._frame_counter is not None
-        if acq.mode not in self._estimators:
-            self._estimators[acq.mode] = ChannelEstimator(acq.mode, self.config.batch_frames, self.config.taps_before,
-                                                          self.config.taps_after, self.config.tap_threshold)
         if self._si_detector is None:
             self._si_detector = SiWordDetector(self.config.taps_before, self.config.taps_before + self.config.taps_after,
                                                self.config.si_polarity)
@@ -350,28 +353,25 @@ class Receiver:
         if count < size and not (final and count > 0):
             return None
         starts = starts[:count]
-        buf_start = int(starts[0]) - cfg.taps_before
-        buf = self._queue.view(buf_start, int(stops[count - 1]))
         frame_index = lock.next_frame_index + np.arange(count)
         phases = lock.phases(np.concatenate([frame_index, frame_index[-1:] + 1]))
-        est = self._estimators[lock.mode]
-
-        t0 = time.perf_counter()
-        derotate_segments(buf, buf_start, starts + est.window_offset, est.window_length,
-                          lock.cfo_cycles_per_sample, lock.rot, est.windows)
-        ch = est.estimate(count, phases[:-1])
+        frames = self._workers.run(lock.mode, BatchWindows(self._queue.view, starts, phases, lock.header_symbols(phases),
+                                                           lock.cfo_cycles_per_sample, lock.rot),
+                                   keep_bodies=cfg.inspect is not None)
+        ch, si = frames.channel, frames.si
+        for name, dt in frames.seconds.items():
+            self.stage_seconds[name] += dt
         t1 = time.perf_counter()
         measured = starts + ch.centroid
         strong = ch.peak_metric >= cfg.track_threshold
         smoothed, periods = lock.tracker.update(measured, strong)
         lost_at = lock.monitor.check(ch.peak_metric)
         t2 = time.perf_counter()
-        for name, dt in zip(("channel", "sync"), (t1 - t0, t2 - t1)):
-            self.stage_seconds[name] += dt
+        self.stage_seconds["sync"] += t2 - t1
         if cfg.inspect is not None:
             cfg.inspect("channel", {"taps": ch.taps, "snr_db": ch.snr_db, "peak_metric": ch.peak_metric})
             cfg.inspect("tracking", {"window_start": starts, "measured": measured, "smoothed": smoothed})
-        si = self._demodulate(lock, buf, buf_start, starts, ch.taps, phases)   # inspects "body"
+            cfg.inspect("body", {"bodies": frames.bodies})
         t3 = time.perf_counter()
         rows = self._estimate(lock, starts, smoothed, periods, si, ch, frame_index, phases[:-1])
         self.stage_seconds["estimators"] += time.perf_counter() - t3
@@ -388,35 +388,6 @@ class Receiver:
             self._lock = None
             self._search_from = END_OF_STREAM
         return rows
-
-    def _demodulate(self, lock: _Lock, buf: np.ndarray, buf_start: int, starts: np.ndarray, taps: np.ndarray,
-                    phases: np.ndarray) -> np.ndarray:
-        """Body recovery and SI carriers of a batch, ``(count, 36)``; ``phases`` has one more entry (next header).
-
-        Runs in blocks of :data:`DEMODULATION_BLOCK_FRAMES` frames so that the
-        bodies the kernel writes are still in the cache when the DFT reads them.
-        """
-        cfg = self.config
-        ng = lock.mode.value.header_length
-        count = len(starts)
-        headers = lock.header_symbols(phases)
-        body_phase = body_phases(starts, ng, cfg.taps_before, lock.cfo_cycles_per_sample)
-        si = np.empty((count, len(self._k_si)), dtype=np.complex64)
-        bodies: list[np.ndarray] | None = [] if cfg.inspect is not None else None
-        for lo in range(0, count, self._ofdm.batch):
-            hi = min(lo + self._ofdm.batch, count)
-            t0 = time.perf_counter()
-            recover_bodies(buf, buf_start, starts[lo:hi], ng, lock.rot, body_phase[lo:hi], taps[lo:hi],
-                           cfg.taps_before, headers[lo:hi], headers[lo + 1: hi + 1], self._ofdm.bodies)
-            t1 = time.perf_counter()
-            si[lo:hi] = self._ofdm.si_carriers(hi - lo, body_phase[lo:hi])
-            self.stage_seconds["body"] += t1 - t0
-            self.stage_seconds["fft"] += time.perf_counter() - t1
-            if bodies is not None:
-                bodies.append(self._ofdm.bodies[: hi - lo].copy())
-        if cfg.inspect is not None and bodies is not None:
-            cfg.inspect("body", {"bodies": np.concatenate(bodies)})
-        return si
 
     def _estimate(self, lock: _Lock, starts: np.ndarray, smoothed: np.ndarray, periods: np.ndarray, si: np.ndarray,
                   ch: ChannelEstimates, frame_index: np.ndarray, phases: np.ndarray) -> FrameBatch:
@@ -511,7 +482,7 @@ def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, con
         raise ValueError(f"{capture.path}: the capture has no centre frequency; give carrier_hz")
     rx = Receiver(capture.sample_rate_hz, carrier, config)
     sink = FrameSink(out_path, csv_path)
-    attrs = receive_into_sink(rx, capture.chunks(chunk_samples), sink, source=str(capture.path),
+    attrs = receive_into_sink(rx, read_ahead(capture.chunks(chunk_samples)), sink, source=str(capture.path),
                               total_samples=capture.num_samples, progress=progress)
     return sink, attrs
 

@@ -1,8 +1,9 @@
 """Streaming rational polyphase resampling to the DTMB symbol rate.
 
 Any capture rate is brought to 7.56 Msps with an up/down rational ratio and a
-Kaiser-windowed low-pass FIR designed with :func:`scipy.signal.firwin`, applied
-as a polyphase filter. Output sample ``n`` is computed at upsampled position
+Kaiser-windowed low-pass FIR (a windowed sinc, the design of
+``scipy.signal.firwin``, written with numpy so that the receive path does
+not import scipy), applied as a polyphase filter. Output sample ``n`` is computed at upsampled position
 ``n * down + D`` with ``D`` the filter's group delay, so it sits exactly at
 input time ``n * down / up`` (input samples): the output index maps back to
 the capture without an offset. Each output sample depends only on the input
@@ -15,7 +16,6 @@ from fractions import Fraction
 
 import numpy as np
 from numba import njit
-from scipy.signal import fftconvolve, firwin
 
 from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
 
@@ -47,10 +47,16 @@ def design_filter(up: int, down: int, taps_per_phase: int = 12, beta: float = 8.
 
     The cutoff is the narrower of the input and output Nyquist frequencies.
     Length ``2 * taps_per_phase * max(up, down) + 1`` keeps the transition
-    band a fixed fraction of the output band whatever the ratio.
+    band a fixed fraction of the output band whatever the ratio. The taps are
+    a sinc of that cutoff times a Kaiser window, scaled to unit gain at DC
+    before the factor ``up`` (what ``scipy.signal.firwin(length, cutoff,
+    window=("kaiser", beta))`` returns).
     """
     length = 2 * taps_per_phase * max(up, down) + 1
-    return (up * firwin(length, 1.0 / max(up, down), window=("kaiser", beta))).astype(np.float32)
+    cutoff = 1.0 / max(up, down)           # fraction of the upsampled Nyquist frequency
+    lag = np.arange(length) - (length - 1) / 2
+    h = cutoff * np.sinc(cutoff * lag) * np.kaiser(length, beta)
+    return (up * h / np.sum(h)).astype(np.float32)
 
 
 def polyphase_bank(h: np.ndarray, up: int) -> np.ndarray:
@@ -99,6 +105,8 @@ def polyphase_reference(x: np.ndarray, h: np.ndarray, up: int, down: int, n_coun
     Upsample by zero insertion, filter (FFT convolution), shift by the group
     delay, decimate.
     """
+    from scipy.signal import fftconvolve   # tests and benchmark only: the receive path stays free of scipy
+
     delay = (len(h) - 1) // 2
     upsampled = np.zeros(len(x) * up, dtype=np.complex128)
     upsampled[::up] = x

@@ -1,4 +1,4 @@
-"""Receiver kernels: numba/pyfftw versions equal their plain-numpy references, and
+"""Receiver kernels: numba versions equal their plain-numpy references, and
 the body recovery and estimators are right on signals with known answers."""
 
 import numpy as np
@@ -13,11 +13,10 @@ from receiver.cfo import cfo_from_theta, pn_theta_kernel, pn_theta_reference, si
 from receiver.channel_estimate import (ChannelEstimator, hadamard_slots, m_sequence_correlation_kernel,
                                        walsh_hadamard_inplace)
 from receiver.derotate import derotate_segments, derotate_segments_reference, rotation_table
-from receiver.ofdm import (OfdmDemodulator, si_carrier_numbers, si_carriers_reference, si_twiddle_kernel,
-                           si_twiddle_reference)
+from receiver.ofdm import OfdmDemodulator, dft6, si_carrier_numbers, si_carriers_reference
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
 from receiver.reference import receive_reference
-from receiver.resample import StreamResampler, polyphase_reference
+from receiver.resample import StreamResampler, design_filter, polyphase_reference
 from receiver.tracking import LockMonitor, timing_loop_kernel, timing_loop_reference
 from sim.frames import FrameConfig, FrameSource
 
@@ -41,6 +40,15 @@ def test_resampler_matches_reference_and_keeps_time(rate):
     y = StreamResampler(rate).process(np.exp(2j * np.pi * f * n / rate).astype(np.complex64))
     m = np.arange(len(y))[3000:-3000]
     assert np.max(np.abs(y[m] - np.exp(2j * np.pi * f * m / SYMBOL_RATE_HZ))) < 1e-3
+
+
+@pytest.mark.parametrize("up, down", [(189, 500), (189, 250), (378, 625), (27, 25)])
+def test_resampler_filter_is_scipys_kaiser_firwin(up, down):
+    from scipy.signal import firwin
+
+    taps = 2 * 12 * max(up, down) + 1
+    ref = up * firwin(taps, 1.0 / max(up, down), window=("kaiser", 8.0))
+    assert np.max(np.abs(design_filter(up, down) - ref)) < 1e-6 * np.max(ref)
 
 
 def test_resampler_rejects_bad_rates():
@@ -208,14 +216,10 @@ def test_pruned_si_dft_recovers_a_transmitted_frames_si_symbols():
     assert np.max(np.abs(got / scale - gb20600.si_symbols(15))) < 1e-5
 
 
-def test_si_twiddle_kernel_matches_reference():
-    ofdm = OfdmDemodulator(1)
-    columns = crandn(3, *ofdm.twiddles.shape)
-    phases = np.exp(2j * np.pi * RNG.uniform(size=3)).astype(np.complex64)
-    out = np.empty((3, 36), np.complex64)
-    si_twiddle_kernel(columns, ofdm.twiddles, ofdm.slot_of_si, phases, 3, out)
-    ref = si_twiddle_reference(columns, ofdm.twiddles, ofdm.slot_of_si, phases)
-    assert np.max(np.abs(out - ref)) < 1e-5 * np.sqrt(columns.shape[1])
+def test_dft6_matches_numpy_fft():
+    x = crandn(6)
+    got = np.array(dft6(*np.column_stack([x.real, x.imag]).ravel()))
+    assert np.max(np.abs(got[0::2] + 1j * got[1::2] - np.fft.fft(x))) < 1e-5
 
 
 def test_si_theta_kernel_and_cfo_sign():

@@ -89,7 +89,7 @@ def from_sigmf_datatype(datatype: str) -> IqFormat:
 
 
 def decode(data: bytes | bytearray | memoryview | np.ndarray, fmt: str | IqFormat, *,
-           where: str = "IQ data") -> np.ndarray:
+           where: str = "IQ data", out: np.ndarray | None = None) -> np.ndarray:
     """Decode interleaved IQ bytes (or a rail array of the format's dtype) to complex64.
 
     Parameters
@@ -100,11 +100,14 @@ def decode(data: bytes | bytearray | memoryview | np.ndarray, fmt: str | IqForma
         Sample format.
     where : str
         Name used in error messages (a file name).
+    out : ndarray of complex64, optional
+        Where to write the samples (one per IQ pair): a reader that reuses
+        one buffer converts in a single pass, without temporaries.
 
     Returns
     -------
     numpy.ndarray of complex64
-        Samples normalised to full scale +-1.
+        Samples normalised to full scale +-1 (``out`` when given).
 
     Raises
     ------
@@ -123,15 +126,25 @@ def decode(data: bytes | bytearray | memoryview | np.ndarray, fmt: str | IqForma
         rails = np.frombuffer(raw, dtype=fmt.dtype)
     if len(rails) % 2:
         raise ValueError(f"{where}: odd number of rails ({len(rails)}): half an IQ pair")
+    if out is None:
+        out = np.empty(len(rails) // 2, dtype=np.complex64)
+    elif out.dtype != np.complex64 or out.shape != (len(rails) // 2,):
+        raise ValueError(f"{where}: out must be complex64 of shape ({len(rails) // 2},), got {out.dtype} {out.shape}")
+    values = out.view(np.float32)
     if fmt.is_integer:
-        values = (rails.astype(np.float32) - np.float32(fmt.offset)) / np.float32(fmt.scale)
+        # The full scales are powers of two, so multiplying by the reciprocal is exact (= dividing).
+        if fmt.offset:
+            np.subtract(rails, np.float32(fmt.offset), out=values)
+            np.multiply(values, np.float32(1.0 / fmt.scale), out=values)
+        else:
+            np.multiply(rails, np.float32(1.0 / fmt.scale), out=values)
     else:
-        values = rails.astype(np.float32)
+        values[:] = rails
         finite = np.isfinite(values)
         if not finite.all():
             first = int(np.argmin(finite)) // 2
             raise ValueError(f"{where}: NaN or inf in cf32 data (sample {first} of this block)")
-    return values.view(np.complex64)
+    return out
 
 
 def encode(samples: np.ndarray, fmt: str | IqFormat) -> np.ndarray:

@@ -1,0 +1,180 @@
+"""The per-frame work of a batch (channel estimate, body recovery, SI DFT) on one or more threads.
+
+Once the frame windows of a batch are placed (:meth:`receiver.tracking.FrameTracker.predict`),
+each frame's header-window derotation, channel estimate (:mod:`receiver.channel_estimate`),
+body recovery (:mod:`receiver.body`) and SI carriers (:mod:`receiver.ofdm`) depend on
+that frame's samples only; the timing loop and the estimators that link consecutive
+frames run afterwards, in order, on the main thread.
+
+A batch is cut into blocks of :data:`FRAME_BLOCK` frames. The blocks are the same
+whatever the number of threads, each is computed by one thread with its own buffers
+(the numba kernels release the GIL), and the results are put back in frame order, so
+the output is bit-identical for any ``jobs``. Blocks also keep the bodies a kernel
+writes in the cache when the DFT reads them.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, fields
+from functools import partial
+from itertools import pairwise
+
+import numpy as np
+
+from dtmbnav.core.gb20600 import PnMode
+from receiver.body import body_phases, recover_bodies
+from receiver.channel_estimate import ChannelEstimates, ChannelEstimator
+from receiver.derotate import derotate_segments
+from receiver.ofdm import OfdmDemodulator
+
+#: Frames per block of work: the unit one thread processes (fixed, so results do not depend on the
+#: thread count), small enough that a block's bodies stay in the cache between body recovery and DFT.
+FRAME_BLOCK = 32
+#: Stage names of :class:`BlockSeconds`, as in :data:`receiver.pipeline.STAGES`.
+BLOCK_STAGES = ("channel", "body", "fft")
+
+
+@dataclass
+class BatchWindows:
+    """What the per-frame work of a batch reads.
+
+    Attributes
+    ----------
+    samples : callable
+        ``samples(start, stop)``: stream samples ``[start, stop)`` as one
+        contiguous complex64 array (e.g. :meth:`receiver.pipeline.SampleQueue.view`).
+        Each block asks only for its own span, so only a block that straddles
+        two input chunks is copied.
+    starts : ndarray, int64, (B,)
+        Window start (first header sample) of each frame, stream index.
+    phases : ndarray, int64, (B + 1,)
+        Header phase of each frame and of the header after the last one.
+    headers : ndarray, complex64, (B + 1, Ng)
+        Transmitted header symbols of those phases.
+    cfo_cycles_per_sample : float
+        Coarse CFO, cycles per sample.
+    rot : ndarray, complex64
+        :func:`receiver.derotate.rotation_table` of the coarse CFO.
+    """
+
+    samples: Callable[[int, int], np.ndarray]
+    starts: np.ndarray
+    phases: np.ndarray
+    headers: np.ndarray
+    cfo_cycles_per_sample: float
+    rot: np.ndarray
+
+
+@dataclass
+class BatchFrames:
+    """Per-frame results of a batch, in frame order.
+
+    Attributes
+    ----------
+    channel : ChannelEstimates
+    si : ndarray, complex64, (B, 36)
+        SI carriers (coarse-CFO phase of each body applied).
+    bodies : ndarray, complex64, (B, 3780) or None
+        Recovered bodies without their coarse-CFO phase (see :func:`receiver.body.body_phases`), only when
+        asked for (``ReceiverConfig.inspect``).
+    seconds : dict
+        Time spent per stage of :data:`BLOCK_STAGES`, summed over the blocks (over
+        the threads' time when several run at once).
+    """
+
+    channel: ChannelEstimates
+    si: np.ndarray
+    bodies: np.ndarray | None
+    seconds: dict[str, float]
+
+
+class FrameWorkers:
+    """Runs the per-frame work of batches in blocks, on ``jobs`` threads.
+
+    Parameters
+    ----------
+    jobs : int
+        Threads, the calling one included (1: everything on the calling thread).
+    taps_before, taps_after : int
+        Channel-estimate delay span, samples.
+    tap_threshold : float
+        Tap power over noise floor needed to keep a tap.
+    """
+
+    def __init__(self, jobs: int, taps_before: int, taps_after: int, tap_threshold: float) -> None:
+        if jobs < 1:
+            raise ValueError(f"jobs must be >= 1, got {jobs}")
+        self.jobs = jobs
+        self._taps = (taps_before, taps_after, tap_threshold)
+        self._pool = ThreadPoolExecutor(jobs - 1, thread_name_prefix="frames") if jobs > 1 else None
+        self._local = threading.local()     # per thread: its estimators (one per mode) and demodulator
+
+    def _estimator(self, mode: PnMode) -> ChannelEstimator:
+        """This thread's channel estimator for ``mode`` (window placement is the same in every thread's)."""
+        estimators = self._buffers()[0]
+        if mode not in estimators:
+            estimators[mode] = ChannelEstimator(mode, FRAME_BLOCK, *self._taps)
+        return estimators[mode]
+
+    def run(self, mode: PnMode, windows: BatchWindows, keep_bodies: bool = False) -> BatchFrames:
+        """Channel estimates, SI carriers (and bodies when ``keep_bodies``) of every frame of a batch."""
+        count = len(windows.starts)
+        blocks = [(lo, min(lo + FRAME_BLOCK, count)) for lo in range(0, count, FRAME_BLOCK)]
+        work = partial(self._block, mode, windows, keep_bodies=keep_bodies)
+
+        def run_share(share: list[tuple[int, int]]) -> list[tuple]:
+            return [work(*block) for block in share]
+
+        # Thread i takes the i-th of `jobs` consecutive shares of the blocks; this thread takes the first
+        # and works while the others run theirs (one hand-off per thread and batch).
+        threads = min(self.jobs if self._pool is not None else 1, len(blocks))
+        edges = np.linspace(0, len(blocks), max(threads, 1) + 1).round().astype(int)
+        shares = [blocks[a:b] for a, b in pairwise(edges)]
+        others = [self._pool.submit(run_share, share) for share in shares[1:]] if self._pool is not None else []
+        parts = run_share(shares[0]) + [part for future in others for part in future.result()]
+        channel = ChannelEstimates(**{f.name: np.concatenate([getattr(p[0], f.name) for p in parts])
+                                      for f in fields(ChannelEstimates)})
+        si = np.concatenate([p[1] for p in parts])
+        bodies = np.concatenate([p[2] for p in parts]) if keep_bodies else None
+        seconds = {stage: sum(p[3][i] for p in parts) for i, stage in enumerate(BLOCK_STAGES)}
+        return BatchFrames(channel, si, bodies, seconds)
+
+    def close(self) -> None:
+        """Stop the threads (the object cannot run batches afterwards)."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def _buffers(self) -> tuple[dict[PnMode, ChannelEstimator], OfdmDemodulator]:
+        local = self._local
+        if not hasattr(local, "ofdm"):
+            local.estimators, local.ofdm = {}, OfdmDemodulator(FRAME_BLOCK)
+        return local.estimators, local.ofdm
+
+    def _block(self, mode: PnMode, w: BatchWindows, lo: int, hi: int,
+               keep_bodies: bool) -> tuple[ChannelEstimates, np.ndarray, np.ndarray | None, tuple[float, ...]]:
+        """Frames ``lo:hi`` of a batch, on this thread's buffers."""
+        est, ofdm = self._estimator(mode), self._buffers()[1]
+        taps_before, taps_after = self._taps[:2]
+        ng = mode.value.header_length
+        starts = w.starts[lo:hi]
+        t0 = time.perf_counter()
+        # A frame reads from taps_before before its header to the next header's first taps_after samples.
+        buf_start = int(starts[0]) - taps_before
+        buf = w.samples(buf_start, int(starts[-1]) + mode.value.frame_length + taps_after + 1)
+        derotate_segments(buf, buf_start, starts + est.window_offset, est.window_length, w.cfo_cycles_per_sample,
+                          w.rot, est.windows)
+        ch = est.estimate(hi - lo, w.phases[lo:hi])
+        t1 = time.perf_counter()
+        phase = body_phases(starts, ng, taps_before, w.cfo_cycles_per_sample)
+        recover_bodies(buf, buf_start, starts, ng, w.rot, phase, ch.taps, taps_before, w.headers[lo:hi],
+                       w.headers[lo + 1: hi + 1], ofdm.bodies)
+        t2 = time.perf_counter()
+        si = ofdm.si_carriers(hi - lo, phase)
+        t3 = time.perf_counter()
+        bodies = ofdm.bodies[: hi - lo].copy() if keep_bodies else None
+        return ch, si, bodies, (t1 - t0, t2 - t1, t3 - t2)

@@ -1,0 +1,173 @@
+"""The receive path's speed-ups keep its output: ``--jobs N`` is bit-identical to one thread,
+read-ahead yields the stream as it was (errors where they happened), decoding into a
+buffer equals decoding, the block writer writes every row, and ``dtmbnav receive``
+imports only the receiver."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from receiver_signals import make_signal
+
+from dtmbnav.cli import EXIT_OK, main
+from dtmbnav.core import iqformat, schema
+from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
+from dtmbnav.core.records import FRAME_COLUMN_DTYPES, FrameBatch
+from receiver import writer
+from receiver.parallel import FRAME_BLOCK
+from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
+from receiver.reader import read_ahead
+
+CARRIER = 666e6
+REPO = Path(__file__).resolve().parents[1]
+
+
+def receive(x, config):
+    """Rows and the inspected bodies of ``x`` received with ``config`` (in 200k-sample chunks)."""
+    bodies = []
+    config.inspect = lambda stage, arrays: bodies.append(arrays["bodies"]) if stage == "body" else None
+    rx = Receiver(SYMBOL_RATE_HZ, CARRIER, config)
+    rows = FrameBatch.concatenate(list(receive_stream((x[i:i + 200_000] for i in range(0, len(x), 200_000)),
+                                                      SYMBOL_RATE_HZ, CARRIER, receiver=rx)))
+    return rows, np.concatenate(bodies), rx
+
+
+@pytest.mark.parametrize("mode,rotating", [(PnMode.PN420, True), (PnMode.PN595, False), (PnMode.PN945, True)])
+def test_threads_give_bit_identical_frames(mode, rotating):
+    """Multipath, a drifting clock, a noise gap (loss of lock, re-acquisition) and a partial last block."""
+    first = make_signal(int(0.06 * SYMBOL_RATE_HZ), pn_mode=mode, rotating=rotating, cfo_hz=3000.0, snr_db=12,
+                        start_symbol=123_457, echo=(5.3, 0.3j), sampling_offset_ppm=3)
+    gap = int(0.02 * SYMBOL_RATE_HZ)
+    noise = (0.3 * np.random.default_rng(2).standard_normal(gap)).astype(np.complex64)
+    second = make_signal(int(0.04 * SYMBOL_RATE_HZ), pn_mode=mode, rotating=rotating, cfo_hz=3000.0, snr_db=12,
+                         start_symbol=123_457, first_sample=len(first) + gap)
+    x = np.concatenate([first, noise, second])
+    batch = FRAME_BLOCK + FRAME_BLOCK // 2          # a whole block and a partial one per batch
+    one, bodies_one, rx_one = receive(x, ReceiverConfig(clock_offset_hz=3000.0, batch_frames=batch, jobs=1))
+    many, bodies_many, rx_many = receive(x, ReceiverConfig(clock_offset_hz=3000.0, batch_frames=batch, jobs=3))
+    assert len(one) > 2 * batch and len(rx_one.acquisitions) == 2
+    for name, column in one.columns().items():
+        assert np.array_equal(column, getattr(many, name), equal_nan=True), name
+    assert np.array_equal(bodies_one, bodies_many)
+    assert rx_one.attributes() == rx_many.attributes()
+
+
+def test_cli_jobs_give_the_same_file(tmp_path):
+    capture = REPO / "captures" / "park-loop-cw.sigmf-meta"
+    outputs = []
+    for jobs in (1, 2):
+        out = tmp_path / f"rx{jobs}.h5"
+        assert main(["-q", "receive", str(capture), "-o", str(out), "--jobs", str(jobs)]) == EXIT_OK
+        outputs.append(out)
+    with h5py.File(outputs[0]) as a, h5py.File(outputs[1]) as b:
+        ga, gb = a[schema.RECEIVER_FRAMES], b[schema.RECEIVER_FRAMES]
+        assert len(ga["t_s"]) > 2000
+        for name in FRAME_COLUMN_DTYPES:
+            assert np.array_equal(ga[name][:], gb[name][:], equal_nan=True), name
+
+
+def test_jobs_must_be_positive(capsys):
+    with pytest.raises(ValueError, match="jobs"):
+        ReceiverConfig(jobs=0)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["receive", "x.ci8", "-o", "y.h5", "--jobs", "0"])
+    assert exit_info.value.code == 2 and "--jobs" in capsys.readouterr().err
+
+
+@settings(max_examples=30, deadline=None)
+@given(sizes=st.lists(st.integers(0, 5), max_size=12), depth=st.integers(1, 4), fail_at=st.integers(-1, 12))
+def test_read_ahead_yields_the_stream_and_its_error_in_place(sizes, depth, fail_at):
+    blocks = [np.full(n, i, dtype=np.complex64) for i, n in enumerate(sizes)]
+
+    def source():
+        for i, block in enumerate(blocks):
+            if i == fail_at:
+                raise ValueError(f"bad block {i}")
+            yield block
+
+    got = []
+    if 0 <= fail_at < len(blocks):
+        with pytest.raises(ValueError, match=f"bad block {fail_at}"):
+            got.extend(read_ahead(source(), depth))
+        assert len(got) == fail_at
+    else:
+        got.extend(read_ahead(source(), depth))
+        assert len(got) == len(blocks)
+    for a, b in zip(got, blocks):
+        assert np.array_equal(a, b)
+
+
+def test_read_ahead_stops_reading_when_the_consumer_stops():
+    read = []
+
+    def source():
+        for i in range(1000):
+            read.append(i)
+            yield np.zeros(1, np.complex64)
+
+    stream = read_ahead(source(), depth=2)
+    next(stream)
+    stream.close()
+    # The producer may have been one hand-off ahead when it was told to stop; never much further.
+    assert len(read) <= 5
+
+
+@pytest.mark.parametrize("fmt", ["cu8", "ci8", "ci16", "cf32"])
+def test_decode_into_a_buffer_equals_decode(fmt):
+    f = iqformat.get_format(fmt)
+    rng = np.random.default_rng(3)
+    if f.is_integer:
+        info = np.iinfo(f.dtype)
+        rails = rng.integers(info.min, info.max + 1, 2000).astype(f.dtype)
+    else:
+        rails = rng.standard_normal(2000).astype(f.dtype)
+    out = np.full(1000, np.nan, dtype=np.complex64)
+    assert iqformat.decode(rails.tobytes(), f, out=out) is out
+    assert np.array_equal(out.view(np.uint32), iqformat.decode(rails.tobytes(), f).view(np.uint32))
+    # The reference formula of the format (docs/conventions.md), in float64.
+    expected = (rails.astype(np.float64) - f.offset) / f.scale
+    assert np.allclose(out.view(np.float32), expected, rtol=1e-7, atol=0)
+    with pytest.raises(ValueError, match="out must be complex64"):
+        iqformat.decode(rails.tobytes(), f, out=np.empty(999, np.complex64))
+
+
+@settings(max_examples=20, deadline=None)
+@given(sizes=st.lists(st.integers(0, 30), min_size=1, max_size=10), block=st.integers(1, 40))
+def test_frame_sink_writes_every_row_in_blocks(sizes, block, tmp_path_factory):
+    path = tmp_path_factory.mktemp("sink") / "rx.h5"
+    rng = np.random.default_rng(len(sizes))
+    batches = [FrameBatch(**{name: rng.integers(0, 100, n).astype(dtype) for name, dtype in FRAME_COLUMN_DTYPES.items()})
+               for n in sizes]
+    saved = writer.WRITE_ROWS
+    writer.WRITE_ROWS = block
+    try:
+        sink = writer.FrameSink(path)
+        for batch in batches:
+            sink.append(batch)
+        sink.close({"pn_mode": "PN420"})
+    finally:
+        writer.WRITE_ROWS = saved
+    whole = FrameBatch.concatenate(batches)
+    assert sink.frames == len(whole)
+    with h5py.File(path) as h5:
+        group = h5[schema.RECEIVER_FRAMES]
+        for name in FRAME_COLUMN_DTYPES:
+            assert np.array_equal(group[name][:], getattr(whole, name)), name
+
+
+def test_receive_path_imports_only_the_receiver():
+    """``dtmbnav receive``: no simulator, fusion stage, plotting, pyfftw or scipy subpackage at import.
+
+    (``import numba`` loads the top-level ``scipy`` package itself; its subpackages are what cost.)
+    """
+    code = ("import sys, dtmbnav.cli, dtmbnav.receive, receiver.pipeline; "
+            "print(' '.join(m for m in sys.modules if m.split('.')[0] in ('sim', 'matplotlib', 'pyfftw', 'dask') "
+            "or m.startswith('fusion.') or m.startswith('scipy.') and m.split('.')[1] in "
+            "('signal', 'fft', 'fftpack', 'linalg', 'stats', 'interpolate', 'ndimage', 'spatial', 'optimize')))")
+    loaded = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
+    assert loaded.stdout.split() == []
