@@ -3,9 +3,11 @@
 Plans are made with ``FFTW_ESTIMATE``: the planner picks the algorithm from
 the problem alone, without timing runs, so every run and every thread
 computes a transform with the same arithmetic and the simulator's output is
-the same to the bit. FFTW's planner is not thread-safe; plans are made under
-one lock (executing them is thread-safe, and pyfftw releases the GIL while a
-plan runs).
+the same to the bit. FFTW would also use wisdom that other code in the
+process (the receiver's measured plans) left for the same problem or one of
+its sub-problems, so the simulator plans with the wisdom set aside and puts
+it back afterwards. Plans are made under one lock (executing them is
+thread-safe, and pyfftw releases the GIL while a plan runs).
 """
 
 from __future__ import annotations
@@ -40,4 +42,10 @@ def fftw_plan(rows: int, length: int, direction: str, dtype: type = np.complex12
         source = pyfftw.empty_aligned((rows, length), dtype=dtype)
         target = pyfftw.empty_aligned((rows, length), dtype=dtype)
         source[:] = 0
-        return pyfftw.FFTW(source, target, axes=(1,), direction=direction, flags=("FFTW_ESTIMATE",), threads=1)
+        wisdom = pyfftw.export_wisdom()
+        pyfftw.forget_wisdom()
+        try:
+            return pyfftw.FFTW(source, target, axes=(1,), direction=direction, flags=("FFTW_ESTIMATE",), threads=1)
+        finally:
+            pyfftw.forget_wisdom()
+            pyfftw.import_wisdom(wisdom)

@@ -183,7 +183,8 @@ class FrameSource:
         for row in range(FRAMES_PER_GROUP):
             frames[row, :header_length] = self._frame_header(group * FRAMES_PER_GROUP + row)
         # Unitary IDFT: x[t] = (1/sqrt(N)) sum_k X[k] exp(+j 2 pi k t / N)  (docs/dtmb.md §3.3)
-        np.multiply(self._ifft.output_array, np.float32(1.0 / np.sqrt(gb20600.BODY_LENGTH)), out=frames[:, header_length:])
+        scale = np.float32(1.0 / np.sqrt(gb20600.BODY_LENGTH))
+        np.multiply(self._ifft.output_array, scale, out=frames[:, header_length:])
         frames = frames.reshape(-1)
         frames.flags.writeable = False
         return frames

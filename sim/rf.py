@@ -159,7 +159,7 @@ class CaptureGenerator:
         Pulse half-length, symbols.
     grid_step_s : float, optional
         Longest channel/clock grid step, s; default: 1 ms or finer (module
-        docstring). Block synthesis steps by whole blocks of samples no longer.
+        docstring). Block synthesis makes its blocks of samples no longer.
     synthesis : str
         ``"block"`` or ``"exact"`` (module docstring).
     """

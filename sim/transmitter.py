@@ -132,8 +132,9 @@ def pulse_table(span: int = PULSE_SPAN, oversampling: int = 512, rolloff: float 
     return PulseTable(polyphase, oversampling, span, rolloff, taper, float(scale))
 
 
-def pulse_spectrum(table: PulseTable, bins: np.ndarray, period_symbols: int, points_per_symbol: int = 16) -> np.ndarray:
-    """Fourier transform ``P(f) = integral p(x) exp(-j 2 pi f x) dx`` of the table's pulse at ``f = bins / period_symbols``.
+def pulse_spectrum(table: PulseTable, bins: np.ndarray, period_symbols: int,
+                   points_per_symbol: int = 16) -> np.ndarray:
+    """Fourier transform ``P(f) = integral p(x) exp(-j 2 pi f x) dx`` of the pulse at ``f = bins / period_symbols``.
 
     The frequencies are the harmonics of a ``period_symbols``-symbol period (cycles per symbol), which is what a
     DFT of that many symbols gives; ``P`` is real because the pulse is even.
