@@ -1,7 +1,7 @@
 """The receive path's speed-ups keep its output: ``--jobs N`` is bit-identical to one thread,
 read-ahead yields the stream as it was (errors where they happened), decoding into a
-buffer equals decoding, the block writer writes every row, and ``dtmbnav receive``
-imports only the receiver."""
+buffer equals decoding, the block writer writes every row, the folded PN595 acquisition
+metric equals the direct one, and ``dtmbnav receive`` imports only the receiver."""
 
 import subprocess
 import sys
@@ -15,10 +15,11 @@ from hypothesis import strategies as st
 from receiver_signals import make_signal
 
 from dtmbnav.cli import EXIT_OK, main
-from dtmbnav.core import iqformat, schema
+from dtmbnav.core import gb20600, iqformat, schema
 from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
 from dtmbnav.core.records import FRAME_COLUMN_DTYPES, FrameBatch
 from receiver import writer
+from receiver.acquisition import differential_grid_metric, window_length
 from receiver.parallel import FRAME_BLOCK
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
 from receiver.reader import read_ahead
@@ -171,3 +172,22 @@ def test_receive_path_imports_only_the_receiver():
             "('signal', 'fft', 'fftpack', 'linalg', 'stats', 'interpolate', 'ndimage', 'spatial', 'optimize')))")
     loaded = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
     assert loaded.stdout.split() == []
+
+
+@pytest.mark.parametrize("extra", [0, 1234])
+def test_folded_pn595_metric_equals_correlating_then_folding(extra):
+    """Folding the lag-1 products before correlating (linearity) gives the direct correlation's fold."""
+    mode = PnMode.PN595
+    x = make_signal(window_length(16) + extra, pn_mode=mode, rotating=False, cfo_hz=2000.0, snr_db=5,
+                    start_symbol=123_457)
+    header = gb20600.header_symbols(mode, 0)
+    pattern = np.real(np.conj(header[:-1]) * header[1:]) / np.abs(header[0]) ** 2
+    diff = np.conj(x[:-1].astype(np.complex128)) * x[1:]
+    corr = np.correlate(diff, pattern, mode="valid")               # corr[n] = sum_j diff[n + j] pattern[j]
+    frame = mode.value.frame_length
+    frames = (len(corr) - frame) // frame + 1
+    direct = corr[: frames * frame].reshape(frames, frame).sum(axis=0)
+    rho, lag_sum = differential_grid_metric(x, mode)
+    assert np.max(np.abs(lag_sum - direct)) < 1e-9 * np.max(np.abs(direct))
+    offset = (int(np.argmax(rho)) + 123_457) % frame     # the peak sits on the frame starts
+    assert min(offset, frame - offset) <= 2
