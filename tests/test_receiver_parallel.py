@@ -20,6 +20,7 @@ from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
 from dtmbnav.core.records import FRAME_COLUMN_DTYPES, FrameBatch
 from receiver import writer
 from receiver.acquisition import differential_grid_metric, window_length
+from receiver.capture import open_capture, rails_to_samples
 from receiver.parallel import FRAME_BLOCK
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
 from receiver.reader import read_ahead
@@ -135,6 +136,29 @@ def test_decode_into_a_buffer_equals_decode(fmt):
     assert np.allclose(out.view(np.float32), expected, rtol=1e-7, atol=0)
     with pytest.raises(ValueError, match="out must be complex64"):
         iqformat.decode(rails.tobytes(), f, out=np.empty(999, np.complex64))
+
+
+@pytest.mark.parametrize("fmt", ["cu8", "ci8", "ci16"])
+def test_rails_to_samples_equals_decode(fmt):
+    f = iqformat.get_format(fmt)
+    info = np.iinfo(f.dtype)
+    rails = np.random.default_rng(4).integers(info.min, info.max + 1, 5000).astype(f.dtype)
+    out = np.empty(2500, dtype=np.complex64)
+    rails_to_samples(rails, np.float32(f.offset), np.float32(1.0 / f.scale), out.view(np.float32))
+    assert np.array_equal(out.view(np.uint32), iqformat.decode(rails, f).view(np.uint32))
+
+
+def test_reused_read_blocks_never_overwrite_samples_still_held(tmp_path):
+    """A block is decoded into again only once nothing refers to it (a view of it counts)."""
+    rails = np.random.default_rng(5).integers(-128, 128, 2 * 50 * 1000).astype(np.int8)
+    path = tmp_path / "cap.ci8"
+    path.write_bytes(rails.tobytes())
+    expected = iqformat.decode(rails, "ci8")
+    chunks = open_capture(path, sample_format="ci8", sample_rate_hz=1e6).chunks(1000)
+    held = next(chunks)[100:200]                 # a view into the first block, kept while 49 more are read
+    for i, chunk in enumerate(chunks, start=1):
+        assert np.array_equal(chunk, expected[1000 * i: 1000 * (i + 1)])
+    assert np.array_equal(held, expected[100:200])
 
 
 @settings(max_examples=20, deadline=None)
