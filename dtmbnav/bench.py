@@ -326,8 +326,9 @@ def bench_receive_command(seconds: float, rss_seconds: tuple[float, float], repe
     child process pinned to one core (two for ``--jobs 2``); its wall time
     counts interpreter start-up, imports, reading, conversion and writing.
     Next to it, the same samples through :class:`receiver.pipeline.Receiver`
-    in this process (kernels only, reading left out). When dtmb-sdr is installed, its front end
-    (:data:`DTMB_SDR_FRONT_END`) runs on the short capture on one core too.
+    in this process (kernels only, reading left out). When dtmb-sdr is
+    installed, its front end (:data:`DTMB_SDR_FRONT_END`) runs on the same
+    capture on one core too.
     """
     from sim.scenario import load_scenario
     from sim.simulate import simulate
@@ -361,8 +362,9 @@ def bench_receive_command(seconds: float, rss_seconds: tuple[float, float], repe
                              _peak_rss_mb(command(sec, 1), env, folder), None, None, "the child's ru_maxrss")
                     for sec in sorted(rss_seconds)]
         capture = open_capture(captures[seconds])
+        whole_process: dict[int, float] = {}
         for jobs in (1, 2):
-            best = min(receive(seconds, jobs) for _ in range(repeats))
+            best = whole_process[jobs] = min(receive(seconds, jobs) for _ in range(repeats))
             in_memory = seconds / _receiver_seconds(capture, jobs)
             rows.append(BenchRow(f"receive command, whole process, --jobs {jobs}", "samples/s",
                                  capture.num_samples / best, None, seconds / best,
@@ -370,8 +372,7 @@ def bench_receive_command(seconds: float, rss_seconds: tuple[float, float], repe
                                  f"incl. start-up; in memory {in_memory:.1f}x real time"))
         rows.extend(rss_rows)
         if importlib.util.find_spec("dtmb") is not None:
-            short = min(rss_seconds)
-            rows.extend(_bench_dtmb_sdr(captures[short], short, receive(short, 1), cpus[:1]))
+            rows.extend(_bench_dtmb_sdr(captures[seconds], seconds, whole_process[1], cpus[:1]))
     return rows
 
 

@@ -131,10 +131,15 @@ def differential_grid_metric(r: np.ndarray, mode: PnMode) -> tuple[np.ndarray, n
     rr = r.astype(np.complex128)
     diff = np.conj(rr[:-1]) * rr[1:]
     n_out = len(diff) - len(pattern) + 1
-    nfft = 1 << int(np.ceil(np.log2(len(diff) + len(pattern))))
-    corr = np.fft.ifft(np.fft.fft(diff, nfft) * np.conj(np.fft.fft(pattern, nfft)))[:n_out]
-    usable = (n_out - m.frame_length) // m.frame_length * m.frame_length + m.frame_length
-    lag_sum = _fold(corr[:usable], m.frame_length)
+    frames = (n_out - m.frame_length) // m.frame_length + 1
+    usable = frames * m.frame_length
+    # The correlation is linear, so fold first: sum_f corr[n + f L] = sum_j pattern[j] D[n + j] with
+    # D[k] = sum_f diff[k + f L], k < L + len(pattern) - 1. One frame-long correlation instead of a
+    # window-long one.
+    span = m.frame_length + len(pattern) - 1
+    folded = np.sum(diff[np.arange(frames)[:, None] * m.frame_length + np.arange(span)[None, :]], axis=0)
+    nfft = 1 << int(np.ceil(np.log2(span + len(pattern))))
+    lag_sum = np.fft.ifft(np.fft.fft(folded, nfft) * np.conj(np.fft.fft(pattern, nfft)))[:m.frame_length]
     energy_sum = _fold(_moving_sum(np.abs(diff), len(pattern))[:usable], m.frame_length)
     return np.abs(lag_sum) / np.maximum(energy_sum, 1e-30), lag_sum
 

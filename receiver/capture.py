@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
+from numba import njit
 
 from dtmbnav.core.iqformat import IqFormat, decode, from_sigmf_datatype, get_format
 
@@ -92,6 +93,7 @@ class CaptureSource:
         fmt = self.format
         want = chunk_samples * fmt.bytes_per_sample
         raw = np.empty(want, dtype=np.uint8)   # one read buffer for every block; each block is decoded out of it
+        blocks = _BlockPool(chunk_samples)
         position = 0
         while True:
             got = _read_into(stream, raw)
@@ -101,12 +103,64 @@ class CaptureSource:
                 raise ValueError(f"{self.path}: truncated data: the last {got % fmt.bytes_per_sample} "
                                  f"byte(s) after sample {position + got // fmt.bytes_per_sample} are "
                                  f"half an IQ pair of {fmt.name}")
-            yield decode(raw[:got], fmt, where=f"{self.path} (block from sample {position})")
+            yield _decode_block(raw[:got], fmt, blocks, where=f"{self.path} (block from sample {position})")
             position += got // fmt.bytes_per_sample
             if got < want:
                 break
         if position == 0:
             raise ValueError(f"{self.path}: no samples (empty capture)")
+
+
+#: Decoded blocks a reader keeps for reuse (when all are still in use downstream, more are allocated).
+POOLED_BLOCKS = 8
+
+
+class _BlockPool:
+    """complex64 blocks handed out again once nothing downstream refers to them.
+
+    The receiver holds the blocks it is given by reference until it has
+    processed them (:class:`receiver.pipeline.SampleQueue`), so a block is
+    reused only when the pool holds the last reference to it, as CPython's
+    reference count tells (a numpy view of a block refers to the block).
+    Reuse keeps the memory mapped: a fresh block of this size costs page
+    faults every time.
+    """
+
+    def __init__(self, block_samples: int) -> None:
+        self._block_samples = block_samples
+        self._blocks: list[np.ndarray] = []
+
+    def take(self, samples: int) -> np.ndarray:
+        """A complex64 array of ``samples`` (<= the block size) that nothing else uses."""
+        for block in self._blocks:
+            if sys.getrefcount(block) == 3:   # the list, this loop's name and getrefcount's argument
+                return block[:samples]
+        block = np.empty(self._block_samples, dtype=np.complex64)
+        if len(self._blocks) < POOLED_BLOCKS:
+            self._blocks.append(block)
+        return block[:samples]
+
+
+def _decode_block(raw: np.ndarray, fmt: IqFormat, blocks: _BlockPool, where: str) -> np.ndarray:
+    """One block of raw bytes (whole IQ pairs) as complex64: :func:`rails_to_samples` into a pooled block for
+    the integer formats, :func:`dtmbnav.core.iqformat.decode` (which also rejects NaN and inf) for cf32."""
+    if not fmt.is_integer:
+        return decode(raw, fmt, where=where, out=blocks.take(len(raw) // fmt.bytes_per_sample))
+    out = blocks.take(len(raw) // fmt.bytes_per_sample)
+    rails_to_samples(raw.view(fmt.dtype), np.float32(fmt.offset), np.float32(1.0 / fmt.scale), out.view(np.float32))
+    return out
+
+
+@njit(cache=True, nogil=True)
+def rails_to_samples(rails: np.ndarray, offset: float, inv_scale: float, out: np.ndarray) -> None:
+    """``out[i] = (rails[i] - offset) * inv_scale`` in float32: integer IQ rails to the interleaved floats of complex64.
+
+    The arithmetic of :func:`dtmbnav.core.iqformat.decode` (its reference
+    twin; full scales are powers of two, so the reciprocal is exact) in one
+    vectorised pass, without numpy's buffered mixed-type loop.
+    """
+    for i in range(rails.shape[0]):
+        out[i] = (np.float32(rails[i]) - offset) * inv_scale
 
 
 def _read_into(stream: IO[bytes], buffer: np.ndarray) -> int:

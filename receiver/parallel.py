@@ -34,7 +34,7 @@ from receiver.ofdm import OfdmDemodulator
 #: Frames per block of work: the unit one thread processes (fixed, so results do not depend on the
 #: thread count), small enough that a block's bodies stay in the cache between body recovery and DFT.
 FRAME_BLOCK = 32
-#: Stage names of :class:`BlockSeconds`, as in :data:`receiver.pipeline.STAGES`.
+#: Stages timed per block (:attr:`BatchFrames.seconds`), named as in :data:`receiver.pipeline.STAGES`.
 BLOCK_STAGES = ("channel", "body", "fft")
 
 

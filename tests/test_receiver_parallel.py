@@ -1,7 +1,7 @@
 """The receive path's speed-ups keep its output: ``--jobs N`` is bit-identical to one thread,
 read-ahead yields the stream as it was (errors where they happened), decoding into a
-buffer equals decoding, the block writer writes every row, and ``dtmbnav receive``
-imports only the receiver."""
+buffer equals decoding, the block writer writes every row, the folded PN595 acquisition
+metric equals the direct one, and ``dtmbnav receive`` imports only the receiver."""
 
 import subprocess
 import sys
@@ -15,10 +15,12 @@ from hypothesis import strategies as st
 from receiver_signals import make_signal
 
 from dtmbnav.cli import EXIT_OK, main
-from dtmbnav.core import iqformat, schema
+from dtmbnav.core import gb20600, iqformat, schema
 from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
 from dtmbnav.core.records import FRAME_COLUMN_DTYPES, FrameBatch
 from receiver import writer
+from receiver.acquisition import differential_grid_metric, window_length
+from receiver.capture import open_capture, rails_to_samples
 from receiver.parallel import FRAME_BLOCK
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
 from receiver.reader import read_ahead
@@ -136,6 +138,29 @@ def test_decode_into_a_buffer_equals_decode(fmt):
         iqformat.decode(rails.tobytes(), f, out=np.empty(999, np.complex64))
 
 
+@pytest.mark.parametrize("fmt", ["cu8", "ci8", "ci16"])
+def test_rails_to_samples_equals_decode(fmt):
+    f = iqformat.get_format(fmt)
+    info = np.iinfo(f.dtype)
+    rails = np.random.default_rng(4).integers(info.min, info.max + 1, 5000).astype(f.dtype)
+    out = np.empty(2500, dtype=np.complex64)
+    rails_to_samples(rails, np.float32(f.offset), np.float32(1.0 / f.scale), out.view(np.float32))
+    assert np.array_equal(out.view(np.uint32), iqformat.decode(rails, f).view(np.uint32))
+
+
+def test_reused_read_blocks_never_overwrite_samples_still_held(tmp_path):
+    """A block is decoded into again only once nothing refers to it (a view of it counts)."""
+    rails = np.random.default_rng(5).integers(-128, 128, 2 * 50 * 1000).astype(np.int8)
+    path = tmp_path / "cap.ci8"
+    path.write_bytes(rails.tobytes())
+    expected = iqformat.decode(rails, "ci8")
+    chunks = open_capture(path, sample_format="ci8", sample_rate_hz=1e6).chunks(1000)
+    held = next(chunks)[100:200]                 # a view into the first block, kept while 49 more are read
+    for i, chunk in enumerate(chunks, start=1):
+        assert np.array_equal(chunk, expected[1000 * i: 1000 * (i + 1)])
+    assert np.array_equal(held, expected[100:200])
+
+
 @settings(max_examples=20, deadline=None)
 @given(sizes=st.lists(st.integers(0, 30), min_size=1, max_size=10), block=st.integers(1, 40))
 def test_frame_sink_writes_every_row_in_blocks(sizes, block, tmp_path_factory):
@@ -171,3 +196,22 @@ def test_receive_path_imports_only_the_receiver():
             "('signal', 'fft', 'fftpack', 'linalg', 'stats', 'interpolate', 'ndimage', 'spatial', 'optimize')))")
     loaded = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
     assert loaded.stdout.split() == []
+
+
+@pytest.mark.parametrize("extra", [0, 1234])
+def test_folded_pn595_metric_equals_correlating_then_folding(extra):
+    """Folding the lag-1 products before correlating (linearity) gives the direct correlation's fold."""
+    mode = PnMode.PN595
+    x = make_signal(window_length(16) + extra, pn_mode=mode, rotating=False, cfo_hz=2000.0, snr_db=5,
+                    start_symbol=123_457)
+    header = gb20600.header_symbols(mode, 0)
+    pattern = np.real(np.conj(header[:-1]) * header[1:]) / np.abs(header[0]) ** 2
+    diff = np.conj(x[:-1].astype(np.complex128)) * x[1:]
+    corr = np.correlate(diff, pattern, mode="valid")               # corr[n] = sum_j diff[n + j] pattern[j]
+    frame = mode.value.frame_length
+    frames = (len(corr) - frame) // frame + 1
+    direct = corr[: frames * frame].reshape(frames, frame).sum(axis=0)
+    rho, lag_sum = differential_grid_metric(x, mode)
+    assert np.max(np.abs(lag_sum - direct)) < 1e-9 * np.max(np.abs(direct))
+    offset = (int(np.argmax(rho)) + 123_457) % frame     # the peak sits on the frame starts
+    assert min(offset, frame - offset) <= 2
