@@ -19,9 +19,11 @@ an IQ pair, NaN/inf samples) raises ``ValueError`` naming the file;
 give the sample format or rate.
 
 A stream is read as its data arrives, so everything read before an
-interruption has been handed on; a stream that ends inside an IQ pair (a
-``head -c`` that cut a sample) yields every whole sample and then raises
-:class:`TruncatedStream`, which a caller may treat as the end of the stream.
+interruption has been handed on, and a stop request
+(:class:`dtmbnav.core.interrupt.DeferredStop`) ends a wait for data; a
+stream that ends inside an IQ pair (a ``head -c`` that cut a sample) yields
+every whole sample and then raises :class:`TruncatedStream`, which a caller
+may treat as the end of the stream.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
+import select
 import sys
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -37,6 +40,7 @@ from typing import IO, Any
 
 import numpy as np
 
+from dtmbnav.core.interrupt import stop_requested
 from dtmbnav.core.iqformat import IqFormat, decode, from_sigmf_datatype, get_format
 
 #: Key of the project's metadata: ``dtmbnav:<key>`` in a SigMF global object, a ``dtmbnav`` object in a
@@ -136,13 +140,15 @@ class CaptureSource:
             yield from self._read(stream, chunk_samples, _read_exactly)
 
     def _read(self, stream: IO[bytes], chunk_samples: int,
-              read: Callable[[IO[bytes], int], bytes]) -> Iterator[np.ndarray]:
+              read: Callable[[IO[bytes], int], bytes | None]) -> Iterator[np.ndarray]:
         fmt = self.format
         want = chunk_samples * fmt.bytes_per_sample
         position = 0
         carry = b""  # the bytes of a sample split across two reads
         while True:
             data = read(stream, want - len(carry))
+            if data is None:  # a stop was requested while waiting: what was read has been yielded
+                return
             if not data:
                 break
             data = carry + data
@@ -174,10 +180,30 @@ def _read_exactly(stream: IO[bytes], size: int) -> bytes:
     return b"".join(parts)
 
 
-def _read_available(stream: IO[bytes], size: int) -> bytes:
-    """Read up to ``size`` bytes of what a stream has: blocks only while nothing has arrived."""
-    read1 = getattr(stream, "read1", None)
-    return read1(size) if read1 is not None else stream.read(size)
+#: Seconds a stream reader waits for data before it checks for a stop request (SIGINT, SIGTERM).
+STOP_POLL_S = 0.25
+
+
+def _read_available(stream: IO[bytes], size: int) -> bytes | None:
+    """Read up to ``size`` bytes of what a stream has, waiting only while nothing has arrived.
+
+    Returns None, having read nothing, when a stop is requested while it waits
+    (:func:`dtmbnav.core.interrupt.stop_requested`): an idle pipe must not hold
+    up Ctrl-C, and a signal must not interrupt a read whose data would be lost.
+    """
+    read1 = getattr(stream, "read1", stream.read)
+    try:
+        fd = stream.fileno()
+    except (AttributeError, OSError):  # an in-memory stream never blocks
+        return read1(size)
+    while not stop_requested():
+        try:
+            ready, _, _ = select.select([fd], [], [], STOP_POLL_S)
+        except (OSError, ValueError):  # a descriptor select cannot wait on: read, blocking
+            return read1(size)
+        if ready:
+            return read1(size)
+    return None
 
 
 def _number(where: str, key: str, value: Any, *, positive: bool = True) -> float | None:

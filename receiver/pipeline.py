@@ -551,9 +551,10 @@ def receive_into_sink(rx: Receiver, chunks: Iterable[np.ndarray], sink: FrameSin
     the ``ended_early`` attribute says why:
 
     - SIGINT or SIGTERM (:class:`dtmbnav.core.interrupt.DeferredStop`: a chunk
-      being processed is finished first; a second signal aborts): after the
-      files are closed, :class:`~dtmbnav.core.interrupt.Interrupted` is raised
-      with what was kept;
+      being processed is finished first, a stream reader waiting for data
+      gives up; a second signal aborts): after the files are closed,
+      :class:`~dtmbnav.core.interrupt.Interrupted` is raised with what was
+      kept;
     - a stream that ends inside an IQ pair
       (:class:`~receiver.capture.TruncatedStream`): the end of the input, the
       call returns normally;
@@ -597,19 +598,25 @@ def receive_into_sink(rx: Receiver, chunks: Iterable[np.ndarray], sink: FrameSin
         with stop, tqdm(total=total_samples, unit="S", unit_scale=True, disable=not progress, file=sys.stderr,
                         desc=f"receive {os.path.basename(source)}") as bar:
             received = 0
-            try:
-                for chunk in stop.until_stopped(chunks):
-                    for batch in rx.process(chunk):
-                        sink.append(batch)
-                    received += len(chunk)
-                    bar.update(len(chunk))
-            except TruncatedStream as exc:
-                ended_early = f"the stream ended inside an IQ pair after sample {exc.samples}"
-            except (OSError, ValueError) as exc:
-                if not keep_on_input_error:
-                    raise
-                input_error = exc
-                ended_early = f"input error after sample {received}: {exc}"
+            inputs = stop.until_stopped(chunks)
+            while True:
+                try:
+                    chunk = next(inputs)
+                except StopIteration:
+                    break
+                except TruncatedStream as exc:
+                    ended_early = f"the stream ended inside an IQ pair after sample {exc.samples}"
+                    break
+                except (OSError, ValueError) as exc:  # the input broke (the receiver's own errors are not caught)
+                    if not keep_on_input_error:
+                        raise
+                    input_error = exc
+                    ended_early = f"input error after sample {received}: {exc}"
+                    break
+                for batch in rx.process(chunk):
+                    sink.append(batch)
+                received += len(chunk)
+                bar.update(len(chunk))
             for batch in rx.finish():
                 sink.append(batch)
             if stop.signum is not None:

@@ -9,8 +9,9 @@ kill the process on the spot instead.
 A streaming receiver wants more than a clean abort: the frames it has
 already received are worth keeping. :class:`DeferredStop` turns a signal
 into a request that its loop honours between chunks, so a chunk is never
-abandoned half-processed; only a signal that arrives while the loop waits
-for input (a stalled pipe) ends the wait at once.
+abandoned half-processed and nothing already read is dropped. A reader that
+waits for input (a stalled pipe) polls :func:`stop_requested` and gives up
+its wait when it is set.
 """
 
 from __future__ import annotations
@@ -89,8 +90,9 @@ class DeferredStop:
     """SIGINT and SIGTERM as a stop request that a processing loop honours between items.
 
     Use as a context manager around the loop and iterate the input through
-    :meth:`until_stopped`. A second signal while a stop is pending raises
-    :class:`Interrupted` at once (the user insists).
+    :meth:`until_stopped`; while it is active, :func:`stop_requested` tells a
+    blocking reader to give up. A second signal while a stop is pending
+    raises :class:`Interrupted` at once (the user insists).
 
     Attributes
     ----------
@@ -100,42 +102,43 @@ class DeferredStop:
 
     def __init__(self) -> None:
         self.signum: int | None = None
-        self._waiting = False
         self._stack = contextlib.ExitStack()
 
     def __enter__(self) -> DeferredStop:
+        global _active
         self._stack.enter_context(_handlers(self._handle))
+        self._stack.callback(_set_active, _active)
+        _active = self
         return self
 
     def __exit__(self, *exc: object) -> None:
         self._stack.close()
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
-        first = self.signum is None
-        if first:
-            self.signum = signum
-        if self._waiting or not first:
+        if self.signum is not None:
             raise Interrupted(signum)
+        self.signum = signum
 
     def until_stopped(self, items: Iterable[Any]) -> Iterator[Any]:
-        """Yield ``items`` until a stop is requested.
-
-        A signal that arrives while the next item is awaited (e.g. a read
-        blocked on an idle pipe) ends the iteration without waiting for it;
-        one that arrives while the caller processes an item ends it after
-        that item.
-        """
+        """Yield ``items`` until a stop is requested (checked before each item is asked for)."""
         iterator = iter(items)
         while self.signum is None:
-            self._waiting = True
             try:
                 item = next(iterator)
             except StopIteration:
                 return
-            except Interrupted:
-                if self.signum is None:  # not ours: an Interrupted raised by the items themselves
-                    raise
-                return
-            finally:
-                self._waiting = False
             yield item
+
+
+#: The innermost active :class:`DeferredStop`, None outside one.
+_active: DeferredStop | None = None
+
+
+def _set_active(stop: DeferredStop | None) -> None:
+    global _active
+    _active = stop
+
+
+def stop_requested() -> bool:
+    """Whether a stop is pending in an active :class:`DeferredStop`: a blocking wait for input should end."""
+    return _active is not None and _active.signum is not None
