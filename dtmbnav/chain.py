@@ -101,7 +101,7 @@ def _check_columns(columns: dict[str, np.ndarray], needed: tuple[str, ...], wher
     if missing:
         raise ValueError(f"{where}: missing column(s) {missing}")
     for name, values in columns.items():
-        if values.ndim == 0 or not np.issubdtype(values.dtype, np.number) and values.dtype != np.bool_:
+        if values.ndim == 0 or not (np.issubdtype(values.dtype, np.number) or values.dtype == np.bool_):
             raise ValueError(f"{where}/{name}: expected a numeric column, got {values.dtype} of shape {values.shape}")
     lengths = {name: len(values) for name, values in columns.items()}
     if len(set(lengths.values())) > 1:
@@ -149,11 +149,15 @@ def _walk_of_sensors(path: str | os.PathLike) -> tuple[str | None, int | None]:
         attrs = f[schema.TRUTH_FRAMES].attrs
         seed = attrs.get("seed")
         text = attrs.get("scenario")
-    try:
+    try:  # a record that cannot be read proves nothing: the time check still applies
         name = tomllib.loads(str(text)).get("name") if text is not None else None
     except tomllib.TOMLDecodeError:
         name = None
-    return (str(name) if name is not None else None), (int(seed) if seed is not None else None)
+    try:
+        seed = int(seed) if seed is not None else None
+    except (TypeError, ValueError):
+        seed = None
+    return (str(name) if name is not None else None), seed
 
 
 def check_same_walk(receiver_path: str | os.PathLike, rx_attrs: dict[str, Any], rx_t_s: np.ndarray,

@@ -1,4 +1,4 @@
-"""Every ``dtmbnav`` subcommand end to end on small data."""
+"""Every ``dtmbnav`` subcommand end to end on small data; streams cut, broken and interrupted; numba's cache."""
 
 import array
 import errno
