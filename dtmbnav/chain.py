@@ -10,22 +10,30 @@ the IMU's from the start of its log. A capture made by ``dtmbnav simulate``
 records where it starts in the sensors file (``/truth/frames`` attribute
 ``capture_start_s``); other captures are assumed to start with the IMU log
 unless ``time_offset_s`` says otherwise.
+
+Every input is read and checked before any work, and every output is
+written atomically (``dtmbnav.core.h5io``), so bad input fails fast with a
+``ValueError`` naming the file and leaves nothing behind.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import os
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
 
 from dtmbnav.core import schema
-from dtmbnav.core.h5io import atomic_h5, read_attrs, read_columns, write_columns
-from dtmbnav.core.records import FrameFlag, RangeSeries
-from dtmbnav.core.sensors import read_capture_start_s, read_gnss, read_imu, read_tower, read_weinberg_k_m
+from dtmbnav.core.h5io import atomic_folder, atomic_h5, open_h5, read_attrs, read_columns, write_columns
+from dtmbnav.core.records import FrameFlag, ImuLog, RangeSeries
+from dtmbnav.core.sensors import (read_capture_start_s, read_gnss, read_imu, read_tower, read_walk_truth,
+                                  read_weinberg_k_m)
+from dtmbnav.errors import NoResult
 from dtmbnav.receive import receive_capture
 from fusion.pdr import PdrConfig, PdrResult, run_pdr
 from fusion.run import FusionConfig, FusionResult, fuse
@@ -35,6 +43,101 @@ from receiver.writer import write_csv
 
 #: Frame flags that make a frame's range unusable for fusion.
 UNUSABLE_FLAGS = FrameFlag.GAP | FrameFlag.LOW_QUALITY
+
+
+#: The ``/receiver/frames`` columns that ``fuse`` needs.
+FUSE_FRAME_COLUMNS = ("t_s", "range_change_m", "snr_db", "flags")
+
+
+def _check_columns(columns: dict[str, np.ndarray], needed: tuple[str, ...], where: str) -> None:
+    """Needed columns present, 1-D numeric (first axis for vectors) and of one length, else ValueError."""
+    missing = [name for name in needed if name not in columns]
+    if missing:
+        raise ValueError(f"{where}: missing column(s) {missing}")
+    for name, values in columns.items():
+        if values.ndim == 0 or not (np.issubdtype(values.dtype, np.number) or values.dtype == np.bool_):
+            raise ValueError(f"{where}/{name}: expected a numeric column, got {values.dtype} of shape {values.shape}")
+    lengths = {name: len(values) for name, values in columns.items()}
+    if len(set(lengths.values())) > 1:
+        raise ValueError(f"{where}: columns differ in length: {lengths}")
+
+
+def read_receiver_frames(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The checked ``/receiver/frames`` columns and attributes of a receiver (or results) file.
+
+    Raises
+    ------
+    ValueError
+        Missing, incomplete or foreign file, missing group or column, columns
+        of different lengths, or no frames at all.
+    """
+    where = f"{path}: /{schema.RECEIVER_FRAMES}"
+    frames = read_columns(path, schema.RECEIVER_FRAMES)
+    _check_columns(frames, FUSE_FRAME_COLUMNS, where)
+    if len(frames["t_s"]) == 0:
+        raise ValueError(f"{where}: no frames (the receiver found no DTMB signal in that capture)")
+    if not np.all(np.isfinite(frames["t_s"])) or np.any(np.diff(frames["t_s"]) <= 0):
+        raise ValueError(f"{where}/t_s: frame times must be finite and increasing")
+    return frames, read_attrs(path, schema.RECEIVER_FRAMES)
+
+
+def read_checked_imu(path: str | os.PathLike) -> ImuLog:
+    """``/imu`` of a sensors file with finite values and increasing times (ValueError naming the file)."""
+    imu = read_imu(path)
+    where = f"{path}: /{schema.IMU}"
+    if len(imu.t_s) < 2:
+        raise ValueError(f"{where}: {len(imu.t_s)} sample(s); an IMU log needs at least two")
+    for name, values in imu.columns().items():
+        if not np.issubdtype(values.dtype, np.number) or not np.all(np.isfinite(values)):
+            raise ValueError(f"{where}/{name}: NaN, inf or non-numeric values")
+    if np.any(np.diff(imu.t_s) <= 0):
+        raise ValueError(f"{where}/t_s: sample times must be increasing")
+    return imu
+
+
+def _walk_of_sensors(path: str | os.PathLike) -> tuple[str | None, int | None]:
+    """Scenario name and seed of a simulated sensors file (``/truth/frames``), None where not recorded."""
+    with open_h5(path) as f:
+        if schema.TRUTH_FRAMES not in f:
+            return None, None
+        attrs = f[schema.TRUTH_FRAMES].attrs
+        seed = attrs.get("seed")
+        text = attrs.get("scenario")
+    try:  # a record that cannot be read proves nothing: the time check still applies
+        name = tomllib.loads(str(text)).get("name") if text is not None else None
+    except tomllib.TOMLDecodeError:
+        name = None
+    try:
+        seed = int(seed) if seed is not None else None
+    except (TypeError, ValueError):
+        seed = None
+    return (str(name) if name is not None else None), seed
+
+
+def check_same_walk(receiver_path: str | os.PathLike, rx_attrs: dict[str, Any], rx_t_s: np.ndarray,
+                    sensors_path: str | os.PathLike, imu_t_s: np.ndarray, capture_start_s: float) -> None:
+    """Refuse a receiver file and a sensors file that cannot be of one walk.
+
+    Two checks: where both files record which simulated walk they are of
+    (scenario name and seed), those must agree; and the receiver's frames,
+    moved onto the sensors' clock, must overlap the IMU log in time.
+
+    Raises
+    ------
+    ValueError
+        Naming both files and what differs.
+    """
+    rx_walk = (rx_attrs.get(schema.CAPTURE_SCENARIO_ATTR), rx_attrs.get(schema.CAPTURE_SEED_ATTR))
+    sensors_walk = _walk_of_sensors(sensors_path)
+    for what, mine, theirs in zip(("scenario", "seed"), rx_walk, sensors_walk):
+        if mine is not None and theirs is not None and str(mine) != str(theirs):
+            raise ValueError(f"{receiver_path} and {sensors_path} are of different walks: the capture's {what} is "
+                             f"{mine}, the sensors file's is {theirs}")
+    t0, t1 = float(rx_t_s[0]) + capture_start_s, float(rx_t_s[-1]) + capture_start_s
+    if min(t1, float(imu_t_s[-1])) <= max(t0, float(imu_t_s[0])):
+        raise ValueError(f"{receiver_path} and {sensors_path} do not overlap in time: the frames span "
+                         f"{t0:.1f}-{t1:.1f} s, the IMU log {float(imu_t_s[0]):.1f}-{float(imu_t_s[-1]):.1f} s "
+                         "(on the sensors' clock); files of different walks?")
 
 
 def ranges_from_frames(columns: dict[str, np.ndarray], time_offset_s: float = 0.0) -> RangeSeries:
@@ -77,13 +180,14 @@ def write_pdr(h5: h5py.File, result: PdrResult, config: PdrConfig) -> None:
 
 def run_pdr_file(sensors_path: str | os.PathLike, out_path: str | os.PathLike, config: PdrConfig,
                  csv_path: str | None = None) -> PdrResult:
-    """``dtmbnav pdr``: PDR on the ``/imu`` of a file, written to ``out_path``."""
+    """``dtmbnav pdr``: PDR on the ``/imu`` of a file, written to ``out_path`` (and the steps to ``csv_path``)."""
+    imu = read_checked_imu(sensors_path)
     config = resolve_pdr_config(config, sensors_path)
-    result = run_pdr(read_imu(sensors_path), config)
+    result = run_pdr(imu, config)
     with atomic_h5(out_path) as h5:
         write_pdr(h5, result, config)
-    if csv_path is not None:
-        write_csv(csv_path, result.steps.columns())
+        if csv_path is not None:  # inside: a failing CSV leaves no HDF5 file either
+            write_csv(csv_path, result.steps.columns())
     return result
 
 
@@ -100,21 +204,33 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
                filters: tuple[str, ...], pdr_config: PdrConfig, tower_xy_m: tuple[float, float] | None = None,
                start_xy_m: tuple[float, float] | None = None, n_particles: int | None = None,
                seed: int = 0) -> FusionResult:
-    """``dtmbnav fuse``: receiver range + PDR of the sensors file -> ``/pdr`` and ``/fusion/*``."""
-    frames = read_columns(receiver_path, schema.RECEIVER_FRAMES)
-    ranges = ranges_from_frames(frames, read_capture_start_s(sensors_path))
+    """``dtmbnav fuse``: receiver range + PDR of the sensors file -> ``/pdr`` and ``/fusion/*``.
+
+    Every input is read and checked first, including that both files are of
+    one walk (:func:`check_same_walk`).
+    """
+    frames, rx_attrs = read_receiver_frames(receiver_path)
+    imu = read_checked_imu(sensors_path)
+    capture_start_s = read_capture_start_s(sensors_path)
+    check_same_walk(receiver_path, rx_attrs, frames["t_s"], sensors_path, imu.t_s, capture_start_s)
     pdr_config = resolve_pdr_config(pdr_config, sensors_path)
-    pdr = run_pdr(read_imu(sensors_path), pdr_config)
     if start_xy_m is None:
         fix = read_gnss(sensors_path)[1]
         start_xy_m = (fix.x_m, fix.y_m)
     height_m = 0.0
     if tower_xy_m is None:
+        with open_h5(sensors_path) as f:
+            if schema.TRUTH_TRAJECTORY not in f:
+                raise ValueError(f"{sensors_path}: no tower position (no /{schema.TRUTH_TRAJECTORY} group); give "
+                                 "--tower X,Y")
         *tower_xy, height_m = read_tower(sensors_path)
         tower_xy_m = (tower_xy[0], tower_xy[1])
+    ranges = ranges_from_frames(frames, capture_start_s)
+    pdr = run_pdr(imu, pdr_config)
+    if len(pdr.steps) == 0:
+        raise NoResult(f"{sensors_path}: /{schema.IMU}: the PDR found no steps; nothing to fuse")
     config = FusionConfig(seed=seed) if n_particles is None else FusionConfig(n_particles=n_particles, seed=seed)
     result = fuse(pdr.steps, ranges, start_xy_m, tower_xy_m, filters, tower_height_m=height_m, config=config)
-    rx_attrs = read_attrs(receiver_path, schema.RECEIVER_FRAMES)
     with atomic_h5(out_path) as h5:
         write_columns(h5, schema.RECEIVER_FRAMES, frames, rx_attrs)
         write_pdr(h5, pdr, pdr_config)
@@ -137,6 +253,45 @@ def range_coverage_s(receiver_path: str | os.PathLike, sensors_path: str | os.Pa
     return covered, float(imu_t[-1] - imu_t[0])
 
 
+def check_report_inputs(results_path: str | os.PathLike, truth_path: str | os.PathLike | None,
+                        receiver_only: bool = False) -> None:
+    """The groups a report reads are there (ValueError naming the file and what is missing)."""
+    if receiver_only:
+        read_receiver_frames(results_path)
+    else:
+        with open_h5(results_path) as f:
+            if schema.FUSION not in f or not len(f[schema.FUSION]):
+                raise ValueError(f"{results_path}: no /{schema.FUSION} group (run 'dtmbnav fuse' or 'dtmbnav run' "
+                                 "first)")
+            for name in (schema.PDR, schema.RECEIVER_FRAMES):
+                if name not in f:
+                    raise ValueError(f"{results_path}: no /{name} group (not a results file of 'dtmbnav fuse')")
+    if truth_path is not None:
+        read_walk_truth(truth_path)
+        read_columns(truth_path, schema.TRUTH_FRAMES)
+        if not receiver_only:
+            read_tower(truth_path)
+
+
+def write_report_folder(results_path: str | os.PathLike, out_dir: str | os.PathLike,
+                        truth_path: str | os.PathLike | None = None, receiver_only: bool = False) -> Path:
+    """``dtmbnav report``: the report of a results file (or of a receiver file alone) into ``out_dir``.
+
+    Written into a temporary folder and moved into ``out_dir`` only when
+    complete (:func:`dtmbnav.core.h5io.atomic_folder`): a bad input leaves no
+    half-written report.
+    """
+    from dtmbnav.report import write_receiver_report, write_report
+
+    check_report_inputs(results_path, truth_path, receiver_only)
+    with atomic_folder(out_dir) as tmp:
+        if receiver_only:
+            write_receiver_report(results_path, tmp, truth_path=truth_path)
+        else:
+            write_report(results_path, tmp, truth_path=truth_path)
+    return Path(out_dir)
+
+
 @dataclass(frozen=True)
 class RunOutcome:
     """Files written by :func:`run_directory` and a summary for the user."""
@@ -145,6 +300,7 @@ class RunOutcome:
     results_path: Path | None
     report_path: Path | None
     summary: str
+    found: bool = True
 
 
 def find_capture_set(directory: str | os.PathLike) -> tuple[Path, Path]:
@@ -172,29 +328,31 @@ def run_directory(directory: str | os.PathLike, output: str | os.PathLike, filte
                   progress: bool = True) -> RunOutcome:
     """``dtmbnav run``: receive the folder's capture, then PDR, fusion and the report.
 
-    Fusion needs the receiver's range over the walk: when the capture spans
-    less than :data:`MIN_FUSION_COVERAGE` of the IMU log (the bundled capture
-    is a few seconds), the run stops after the receiver, says so, and
-    reports the receiver against the truth.
+    Both inputs are opened and checked before any work. Fusion needs the
+    receiver's range over the walk: when the capture spans less than
+    :data:`MIN_FUSION_COVERAGE` of the IMU log (the bundled capture is a few
+    seconds), the run stops after the receiver, says so, and reports the
+    receiver against the truth.
     """
-    from dtmbnav.report import write_receiver_report, write_report
-
     capture_path, sensors_path = find_capture_set(directory)
+    source = open_capture(capture_path)
+    read_checked_imu(sensors_path)
+    with open_h5(sensors_path) as f:
+        has_truth = schema.TRUTH_TRAJECTORY in f
+    truth_path = sensors_path if has_truth else None
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
     rx_path = out / "receiver.h5"
-    summary = receive_capture(open_capture(capture_path), rx_path, ReceiverConfig(), progress=progress)
+    summary = receive_capture(source, rx_path, ReceiverConfig(), progress=progress)
     lines = [f"capture  {capture_path}", f"receiver {summary.describe()}"]
     if not summary.frames:
-        return RunOutcome(rx_path, None, None, "\n".join(lines))
-    with h5py.File(sensors_path, "r") as f:
-        has_truth = schema.TRUTH_TRAJECTORY in f
-    truth_path = sensors_path if has_truth else None
+        return RunOutcome(rx_path, None, None, "\n".join(lines), found=False)
     covered_s, walk_s = range_coverage_s(rx_path, sensors_path)
+    report = out / "report"
     if covered_s < MIN_FUSION_COVERAGE * walk_s:
         lines.append(f"fusion   skipped: the capture covers {covered_s:.1f} s of the {walk_s:.1f} s IMU log; the "
                      "filters need the DTMB range over the walk (try 'dtmbnav demo', which streams a whole walk)")
-        report = write_receiver_report(rx_path, out / "report", truth_path=truth_path)
+        write_report_folder(rx_path, report, truth_path=truth_path, receiver_only=True)
         lines.append((report / "summary.md").read_text())
         lines.append(f"report   {report}")
         return RunOutcome(rx_path, None, report, "\n".join(lines))
@@ -203,7 +361,7 @@ def run_directory(directory: str | os.PathLike, output: str | os.PathLike, filte
     ranged = int(np.count_nonzero(np.isfinite(result.epochs.range_change_m)))
     lines.append(f"fusion   {len(result.epochs)} PDR steps, {ranged} with a DTMB range; initial heading "
                  f"{result.heading.describe()}")
-    report = write_report(results_path, out / "report", truth_path=truth_path)
+    write_report_folder(results_path, report, truth_path=truth_path)
     if (report / "summary.md").is_file():
         lines.append((report / "summary.md").read_text())
     lines.append(f"report   {report}")

@@ -2,23 +2,40 @@
 
 Exit codes
 ----------
-0  success
-1  the job ran but found nothing usable (e.g. no DTMB lock in a capture)
-2  bad command-line usage (argparse)
-3  bad input: a file that is missing, truncated, malformed or inconsistent
+0    success
+1    the job ran but found nothing usable (e.g. no DTMB lock in a capture)
+2    bad command-line usage, found before any work: an invalid option value,
+     a missing option, an output path that names an input
+3    bad input: a file that is missing, truncated, malformed or inconsistent
+     (or of another walk), or an output location that cannot be written
+4    internal error: a bug; one line on stderr, the traceback with ``--debug``
+130  interrupted by SIGINT (Ctrl-C); 143: by SIGTERM
+
+On every failure nothing is left at the output path, with one exception:
+``receive`` keeps the frames received before an interruption or before a
+stream (stdin) broke, in a complete file whose ``/receiver/frames``
+attribute ``ended_early`` says why (exit 130/143, or 3 for a broken stream;
+a stream that ends inside an IQ pair is its end: a warning, exit 0).
 
 Diagnostics go to stderr; ``-`` means stdin/stdout where a stream makes sense.
-Heavy imports (numba kernels) happen inside the handlers so that ``--help``
-stays instant. This module is the only one that knows the command line's
-option names: it turns them into the libraries' typed configs.
+Global options (``-q``, ``--debug``) go before or after the subcommand. Heavy
+imports (numba kernels) happen inside the handlers so that ``--help`` stays
+instant, and after :func:`dtmbnav.numba_cache.configure_numba_cache` has
+given numba a writable cache. This module is the only one that knows the
+command line's option names: it turns them into the libraries' typed configs.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
+import traceback
+from collections.abc import Callable
 from pathlib import Path
 
+from dtmbnav.errors import NoResult, UsageError
 from fusion import DEFAULT_PARTICLES, FILTER_NAMES, FOOT_INS
 from receiver import DEFAULT_STATIC_WINDOW_S
 
@@ -26,6 +43,12 @@ EXIT_OK = 0
 EXIT_NO_RESULT = 1
 EXIT_USAGE = 2
 EXIT_BAD_INPUT = 3
+EXIT_INTERNAL = 4
+#: Ctrl-C without the handlers of ``dtmbnav.core.interrupt`` (outside the main thread): 128 + SIGINT.
+EXIT_INTERRUPTED = 130
+
+IQ_FORMATS = ["cu8", "ci8", "ci16", "cf32"]
+PN_MODES = ["PN420", "PN595", "PN945"]
 
 EXAMPLES = """\
 examples:
@@ -44,15 +67,63 @@ examples:
 """
 
 
-def _xy(text: str) -> tuple[float, float]:
+
+# --- option types: every value checked at parse time (exit 2 before any work) ------------------------
+
+def _number(text: str) -> float:
     try:
-        x, y = (float(v) for v in text.split(","))
+        value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected X,Y in metres, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return value
+
+
+def _positive(text: str) -> float:
+    value = _number(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text!r}")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    value = _number(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must not be negative, got {text!r}")
+    return value
+
+
+def _whole(text: str, minimum: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < minimum:
+        raise argparse.ArgumentTypeError(f"must be at least {minimum}, got {text!r}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    return _whole(text, 1)
+
+
+def _seed(text: str) -> int:
+    return _whole(text, 0)
+
+
+def _xy(text: str) -> tuple[float, float]:
+    parts = text.split(",")
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"expected X,Y in metres, got {text!r}")
+    try:
+        x, y = (_number(v) for v in parts)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected X,Y as two finite numbers in metres, got {text!r}") from None
     return x, y
 
 
-def _filter_list(known: tuple[str, ...]):
+def _filter_list(known: tuple[str, ...]) -> Callable[[str], tuple[str, ...]]:
     """An argparse type: comma-separated names, each one of ``known``."""
     def parse(text: str) -> tuple[str, ...]:
         names = tuple(name for name in text.split(",") if name)
@@ -63,27 +134,126 @@ def _filter_list(known: tuple[str, ...]):
     return parse
 
 
-def _positive_int(text: str) -> int:
+def _looks_like_path(text: str) -> bool:
+    return text.endswith(".toml") or os.sep in text or Path(text).exists()
+
+
+def _unknown_scenario(name: str) -> str | None:
+    """Why ``name`` is not a scenario name, None when it is one (or a path, which loading checks)."""
+    if _looks_like_path(name):
+        return None
+    from sim.scenario import ALIASES, packaged_scenarios
+
+    known = packaged_scenarios()
+    if name in known or name in ALIASES:
+        return None
+    return f"unknown scenario {name!r}; packaged: {', '.join(known)} (aliases: {', '.join(ALIASES)}), or a .toml path"
+
+
+def _scenario(text: str) -> str:
+    """An argparse type: a packaged scenario name or alias, or a path (the simulator only reads it later)."""
+    problem = _unknown_scenario(text)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
+    return text
+
+
+# --- paths: outputs never name an input (exit 2); inputs and output places exist (exit 3) ---------------
+
+def _same_path(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    pa, pb = Path(a), Path(b)
     try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
-    return value
+        if pa.exists() and pb.exists():
+            return os.path.samefile(pa, pb)
+    except OSError:
+        pass
+    return pa.resolve() == pb.resolve()
 
 
-def _rate(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text!r}")
-    return value
+def _io_paths(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[tuple[str, str]], list[tuple[str, str]]]:
+    """(inputs, file outputs, folder outputs) of a command line, each as (option, path); ``-`` left out.
+
+    Inputs include every file an input stands for (both SigMF files, a raw
+    file's sidecar), so that no output can overwrite one of them.
+    """
+    from receiver.capture import capture_files
+
+    command = args.command
+    inputs: list[tuple[str, str]] = []
+    files: list[tuple[str, str]] = []
+    folders: list[tuple[str, str]] = []
+    if command == "receive":
+        inputs = [("CAPTURE", str(f)) for f in capture_files(args.capture)]
+        files = [("-o", args.output), ("--csv", args.csv)]
+    elif command == "pdr":
+        inputs, files = [("SENSORS", args.sensors)], [("-o", args.output), ("--csv", args.csv)]
+    elif command == "fuse":
+        inputs, files = [("--receiver", args.receiver), ("--sensors", args.sensors)], [("-o", args.output)]
+    elif command == "report":
+        inputs, folders = [("RESULTS", args.results), ("--truth", args.truth)], [("-o", args.output)]
+    elif command == "evaluate":
+        inputs, files = [("SCENARIO", name) for name in args.scenarios], [("--json", args.json)]
+    elif command == "bench":
+        files = [("--json", args.json)]
+    elif command in ("simulate", "run", "demo"):
+        folders = [("-o", args.output)]
+    keep = [(o, str(v)) for o, v in inputs if v is not None and str(v) != "-"]
+    return keep, [(o, str(v)) for o, v in files if v is not None and str(v) != "-"], \
+        [(o, str(v)) for o, v in folders if v is not None]
 
 
-# --- handlers ---------------------------------------------------------------------------
+def check_usage(args: argparse.Namespace) -> str | None:
+    """Usage errors argparse cannot see (option combinations, outputs naming inputs); None when fine."""
+    if args.command == "receive":
+        if args.capture == "-" and (args.format is None or args.rate is None):
+            return "reading stdin (-) needs --format and --rate"
+        if args.static_window <= 0 and args.clock_offset is None:
+            return "--static-window must be positive unless --clock-offset gives f_s"
+    if getattr(args, "output", None) is not None and str(args.output) == "-" and args.command in ("receive", "pdr",
+                                                                                                  "fuse"):
+        return "-o -: an HDF5 file cannot be written to stdout (use --csv - for the rows)"
+    inputs, files, folders = _io_paths(args)
+    outputs = files + folders
+    for out_option, out in outputs:
+        for in_option, src in inputs:
+            if _same_path(out, src):
+                return f"{out_option} {out} names the input {src} ({in_option}); choose another output path"
+    for i, (option_a, a) in enumerate(outputs):
+        for option_b, b in outputs[i + 1:]:
+            if _same_path(a, b):
+                return f"{option_a} and {option_b} name the same path {a}"
+    return None
+
+
+def check_paths(args: argparse.Namespace) -> None:
+    """Outputs that cannot be written (a folder as a file, a missing or non-folder parent): ValueError (exit 3).
+
+    Inputs are checked by the readers, which name what is wrong with them.
+    """
+    _, files, folders = _io_paths(args)
+    for option, text in files:
+        path = Path(text)
+        if path.is_dir():
+            raise ValueError(f"{option} {path}: is a folder; give a file name")
+        if not path.parent.is_dir():
+            raise ValueError(f"{option} {path}: folder {path.parent} does not exist" if not path.parent.exists()
+                             else f"{option} {path}: {path.parent} is not a folder")
+    for option, text in folders:
+        path = Path(text)
+        if path.exists() and not path.is_dir():
+            raise ValueError(f"{option} {path}: exists and is not a folder")
+        ancestor = path.parent
+        while not ancestor.exists():
+            ancestor = ancestor.parent
+        if not ancestor.is_dir():
+            raise ValueError(f"{option} {path}: {ancestor} is not a folder")
+
+
+# --- handlers -----------------------------------------------------------------------------------------------
+
+def _warn(args: argparse.Namespace, message: str) -> None:
+    print(f"dtmbnav {args.command}: warning: {message}", file=sys.stderr)
+
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from dtmbnav.simulation import simulate_capture_set
@@ -115,13 +285,21 @@ def _pdr_config(args: argparse.Namespace):
 
 def cmd_receive(args: argparse.Namespace) -> int:
     from dtmbnav.receive import receive_capture
-    from receiver.capture import open_capture
+    from receiver.capture import MissingCaptureOptions, open_capture
 
-    source = open_capture(args.capture, sample_format=args.format, sample_rate_hz=args.rate,
-                          center_hz=args.center)
+    try:
+        source = open_capture(args.capture, sample_format=args.format, sample_rate_hz=args.rate,
+                              center_hz=args.center)
+    except MissingCaptureOptions as exc:
+        raise UsageError(f"{exc} (--format, --rate)") from None
+    if source.center_hz is None:
+        raise UsageError(f"{args.capture}: the capture does not say its RF centre frequency; give --center")
     summary = receive_capture(source, args.output, _receiver_config(args), csv_path=args.csv,
                               progress=not args.quiet)
     print(summary.describe(), file=sys.stderr)
+    if summary.ended_early:
+        _warn(args, f"the input ended early ({summary.ended_early}); {args.output} holds the {summary.frames} "
+                    "frame(s) received before it and says so (attribute ended_early)")
     return EXIT_OK if summary.frames else EXIT_NO_RESULT
 
 
@@ -151,22 +329,27 @@ def cmd_run(args: argparse.Namespace) -> int:
     outcome = run_directory(args.directory, args.output, filters=args.filters,
                             progress=not args.quiet)
     print(outcome.summary, file=sys.stderr if args.json else sys.stdout)
-    return EXIT_OK
+    return EXIT_OK if outcome.found else EXIT_NO_RESULT
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from dtmbnav.report import write_report
+    from dtmbnav.chain import write_report_folder
 
-    folder = write_report(args.results, args.output, truth_path=args.truth)
+    folder = write_report_folder(args.results, args.output, truth_path=args.truth)
     print(f"report written to {folder}", file=sys.stderr)
     return EXIT_OK
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from dtmbnav import evaluate
+    from dtmbnav.core.h5io import atomic_path
     from fusion.run import FusionConfig
 
     scenarios = evaluate.expand_scenarios(args.scenarios)
+    for name in scenarios:
+        problem = _unknown_scenario(name)
+        if problem:
+            raise UsageError(f"SCENARIO: {problem} (or a group: {', '.join(evaluate.GROUPS)})")
     if args.pdr:
         from dtmbnav.pdr_table import pdr_table
 
@@ -184,14 +367,19 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         return EXIT_OK
     print(table)
     if args.json:
-        Path(args.json).write_text(evaluate.rows_to_json(rows))
+        with atomic_path(args.json) as tmp:
+            tmp.write_text(evaluate.rows_to_json(rows))
     return EXIT_OK
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
     from dtmbnav.bench import run_benchmarks
+    from dtmbnav.core.h5io import atomic_path
 
-    return run_benchmarks(json_path=args.json, quick=args.quick)
+    if args.json in (None, "-"):
+        return run_benchmarks(json_path=args.json, quick=args.quick)
+    with atomic_path(args.json) as tmp:
+        return run_benchmarks(json_path=str(tmp), quick=args.quick)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -206,13 +394,34 @@ FILTERS_HELP = f"comma-separated filters (default: all, {','.join(FILTER_NAMES)}
 
 # --- parser -------------------------------------------------------------------------------
 
+class _Version(argparse.Action):
+    """``--version``: the installed package's version, read only when asked for."""
+
+    def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS, **kwargs) -> None:
+        super().__init__(option_strings, dest=dest, nargs=0, help="print the version and exit", **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        from dtmbnav import package_version
+
+        print(f"dtmbnav {package_version()}")
+        parser.exit()
+
+
+def _add_global_options(p: argparse.ArgumentParser, default) -> None:
+    """``-q`` and ``--debug``: on the main parser with real defaults, on each subcommand with SUPPRESS
+    (so that a subcommand that does not see them keeps the value given before it)."""
+    p.add_argument("-q", "--quiet", action="store_true", default=default, help="no progress bars")
+    p.add_argument("--debug", action="store_true", default=default,
+                   help="print the traceback of an error (internal errors are otherwise one line)")
+
+
 def _add_receiver_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("receiver")
-    g.add_argument("--pn-mode", choices=["PN420", "PN595", "PN945"], help="header mode (default: detect)")
-    g.add_argument("--static-window", type=float, default=DEFAULT_STATIC_WINDOW_S, metavar="S",
+    g.add_argument("--pn-mode", choices=PN_MODES, help="header mode (default: detect)")
+    g.add_argument("--static-window", type=_non_negative, default=DEFAULT_STATIC_WINDOW_S, metavar="S",
                    help="seconds at the start during which the receiver stands still; f_s is measured there "
                         f"(default {DEFAULT_STATIC_WINDOW_S:g})")
-    g.add_argument("--clock-offset", type=float, metavar="HZ",
+    g.add_argument("--clock-offset", type=_number, metavar="HZ",
                    help="oscillator offset f_s in Hz, if known (skips the static window)")
     g.add_argument("--conjugate", action="store_true", help="the front end swaps I and Q")
 
@@ -221,7 +430,7 @@ def _add_pdr_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("PDR")
     g.add_argument("--step-model", choices=["weinberg", "frequency"], default="weinberg",
                    help="step-length model (default weinberg)")
-    g.add_argument("--weinberg-k", type=float, metavar="K",
+    g.add_argument("--weinberg-k", type=_positive, metavar="K",
                    help="calibrated Weinberg gain; default: read from the sensors file's calibration "
                         "attribute, else the frequency model is used")
 
@@ -230,43 +439,52 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="dtmbnav", description="DTMB (GB 20600) Doppler-ranging receiver and PDR fusion for pedestrian "
                                     "navigation.", epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    parser.add_argument("--version", action=_Version)
+    _add_global_options(parser, False)
+    common = argparse.ArgumentParser(add_help=False)
+    _add_global_options(common, argparse.SUPPRESS)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    p = sub.add_parser("simulate", help="scenario -> IQ capture + IMU + GNSS + truth.h5")
-    p.add_argument("scenario", help="park-loop, park-loop-ccw, street, street-back, or a scenario .toml file")
+    def command(name: str, help_text: str) -> argparse.ArgumentParser:
+        p = sub.add_parser(name, help=help_text, parents=[common])
+        p.set_defaults(parser=p)  # for usage errors found after parsing (check_usage)
+        return p
+
+    p = command("simulate", "scenario -> IQ capture + IMU + GNSS + truth.h5")
+    p.add_argument("scenario", type=_scenario,
+                   help="park-loop, park-loop-ccw, street, street-back, or a scenario .toml file")
     p.add_argument("-o", "--output", required=True, type=Path, help="output folder")
-    p.add_argument("--seconds", type=float, help="segment length, s (default: the whole walk)")
-    p.add_argument("--start", type=float, default=0.0, help="segment start, s (default 0)")
-    p.add_argument("--rate", type=_rate, help="sample rate, Hz (default: the scenario's)")
-    p.add_argument("--format", choices=["cu8", "ci8", "ci16", "cf32"], help="sample format")
-    p.add_argument("--pn-mode", choices=["PN420", "PN595", "PN945"], help="header mode")
-    p.add_argument("--seed", type=int, help="seed (default: the scenario's)")
+    p.add_argument("--seconds", type=_positive, help="segment length, s (default: the whole walk)")
+    p.add_argument("--start", type=_non_negative, default=0.0, help="segment start, s (default 0)")
+    p.add_argument("--rate", type=_positive, help="sample rate, Hz (default: the scenario's)")
+    p.add_argument("--format", choices=IQ_FORMATS, help="sample format")
+    p.add_argument("--pn-mode", choices=PN_MODES, help="header mode")
+    p.add_argument("--seed", type=_seed, help="seed (default: the scenario's)")
     p.add_argument("--container", choices=["sigmf", "raw"], default="sigmf", help="raw = raw file + JSON sidecar")
     p.add_argument("--no-iq", action="store_true", help="write IMU, GNSS and truth only")
     p.add_argument("--jobs", type=_positive_int, default=1, help="threads generating the IQ (same bytes for any N)")
     p.set_defaults(handler=cmd_simulate)
 
-    p = sub.add_parser("receive", help="IQ capture -> per-frame CFO, Doppler, range (HDF5)")
+    p = command("receive", "IQ capture -> per-frame CFO, Doppler, range (HDF5)")
     p.add_argument("capture", help="SigMF .sigmf-meta/.sigmf-data, raw file (+ .json sidecar), or - for stdin")
     p.add_argument("-o", "--output", required=True, type=Path, help="output HDF5 file")
-    p.add_argument("--format", choices=["cu8", "ci8", "ci16", "cf32"], help="sample format of a raw file/stdin")
-    p.add_argument("--rate", type=_rate, help="sample rate of a raw file/stdin, Hz")
-    p.add_argument("--center", type=_rate, help="RF centre frequency, Hz (needed for velocity and range)")
+    p.add_argument("--format", choices=IQ_FORMATS, help="sample format of a raw file/stdin")
+    p.add_argument("--rate", type=_positive, help="sample rate of a raw file/stdin, Hz")
+    p.add_argument("--center", type=_positive, help="RF centre frequency, Hz (needed for velocity and range)")
     p.add_argument("--csv", metavar="FILE", help="also write the frame table as CSV ('-' for stdout)")
     p.add_argument("--jobs", type=_positive_int, default=1, metavar="N",
                    help="threads for the per-frame work (default 1); the output is the same for any N")
     _add_receiver_options(p)
     p.set_defaults(handler=cmd_receive)
 
-    p = sub.add_parser("pdr", help="IMU log (/imu of an HDF5 file) -> pedestrian dead reckoning")
+    p = command("pdr", "IMU log (/imu of an HDF5 file) -> pedestrian dead reckoning")
     p.add_argument("sensors", help="HDF5 file with /imu (e.g. truth.h5 from simulate)")
     p.add_argument("-o", "--output", required=True, type=Path, help="output HDF5 file (/pdr)")
     p.add_argument("--csv", metavar="FILE", help="also write the steps as CSV ('-' for stdout)")
     _add_pdr_options(p)
     p.set_defaults(handler=cmd_pdr)
 
-    p = sub.add_parser("fuse", help="receiver range + PDR -> corrected trajectory")
+    p = command("fuse", "receiver range + PDR -> corrected trajectory")
     p.add_argument("--receiver", required=True, help="HDF5 file with /receiver/frames")
     p.add_argument("--sensors", required=True, help="HDF5 file with /imu and /gnss (start fix)")
     p.add_argument("-o", "--output", required=True, type=Path, help="output HDF5 file (/pdr, /fusion/<filter>)")
@@ -274,11 +492,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tower", type=_xy, metavar="X,Y", help="tower position, ENU m (default: from the sensors file)")
     p.add_argument("--start", type=_xy, metavar="X,Y", help="start fix P0, ENU m (default: from /gnss)")
     p.add_argument("--particles", type=_positive_int, help=f"particle-filter Np (default {DEFAULT_PARTICLES})")
-    p.add_argument("--seed", type=int, default=0, help="particle-filter seed")
+    p.add_argument("--seed", type=_seed, default=0, help="particle-filter seed")
     _add_pdr_options(p)
     p.set_defaults(handler=cmd_fuse)
 
-    p = sub.add_parser("run", help="the whole chain (receive, PDR, fuse, report) on one capture set")
+    p = command("run", "the whole chain (receive, PDR, fuse, report) on one capture set")
     p.add_argument("directory", nargs="?", default="captures", type=Path,
                    help="folder with one capture and its sensors/truth file (default: captures/)")
     p.add_argument("-o", "--output", type=Path, default=Path("out/run"), help="output folder (default out/run)")
@@ -286,13 +504,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(handler=cmd_run)
 
-    p = sub.add_parser("report", help="plots and a summary table from a results file")
+    p = command("report", "plots and a summary table from a results file")
     p.add_argument("results", help="HDF5 file from run/fuse")
     p.add_argument("-o", "--output", required=True, type=Path, help="report folder")
     p.add_argument("--truth", help="truth.h5 (default: the truth group inside the results file)")
     p.set_defaults(handler=cmd_report)
 
-    p = sub.add_parser("evaluate", help="Monte Carlo accuracy table of every filter against truth")
+    p = command("evaluate", "Monte Carlo accuracy table of every filter against truth")
     p.add_argument("scenarios", nargs="+", help="scenario names/files; 'all', 'park-loop', 'street' = groups")
     p.add_argument("--seeds", type=_positive_int, default=20, help="walks per scenario (default 20)")
     p.add_argument("--filters", type=_filter_list((*FILTER_NAMES, FOOT_INS)), default=FILTER_NAMES,
@@ -302,31 +520,71 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pdr", action="store_true", help="only the PDR figures (steps, step length, drift, error)")
     p.set_defaults(handler=cmd_evaluate)
 
-    p = sub.add_parser("bench", help="throughput of every kernel next to its plain-numpy reference")
+    p = command("bench", "throughput of every kernel next to its plain-numpy reference")
     p.add_argument("--json", metavar="FILE", help="also write the results as JSON ('-' for stdout)")
     p.add_argument("--quick", action="store_true", help="short runs (smoke test)")
     p.set_defaults(handler=cmd_bench)
 
-    p = sub.add_parser("demo", help="simulate a walk at IQ level, receive, fuse and write a report")
+    p = command("demo", "simulate a walk at IQ level, receive, fuse and write a report")
     p.add_argument("-o", "--output", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
-    p.add_argument("--scenario", default="park-loop", help="scenario (default park-loop)")
-    p.add_argument("--seconds", type=float, help="simulate only this many seconds (default: the whole walk)")
+    p.add_argument("--scenario", type=_scenario, default="park-loop", help="scenario (default park-loop)")
+    p.add_argument("--seconds", type=_positive, help="simulate only this many seconds (default: the whole walk)")
     p.set_defaults(handler=cmd_demo)
     return parser
 
 
+def _fail(args: argparse.Namespace, label: str, exc: BaseException) -> None:
+    """One line per error on stderr (plus the notes it carries); the traceback first under ``--debug``."""
+    if args.debug:
+        traceback.print_exception(exc)
+    print(f"dtmbnav {args.command}: {label}{exc}", file=sys.stderr)
+    for note in getattr(exc, "__notes__", ()):
+        print(f"dtmbnav {args.command}: {note}", file=sys.stderr)
+
+
+def run_command(args: argparse.Namespace) -> int:
+    """Run a parsed command line's handler and map what it raises to an exit code (module docstring)."""
+    from dtmbnav.core.interrupt import Interrupted
+
+    try:
+        check_paths(args)
+        return args.handler(args)
+    except Interrupted as exc:
+        _fail(args, "", exc)
+        return exc.exit_code
+    except KeyboardInterrupt as exc:
+        _fail(args, "interrupted", exc)
+        return EXIT_INTERRUPTED
+    except UsageError as exc:
+        _fail(args, "error: ", exc)
+        return EXIT_USAGE
+    except NoResult as exc:
+        _fail(args, "", exc)
+        return EXIT_NO_RESULT
+    except (ValueError, OSError) as exc:
+        _fail(args, "error: ", exc)
+        return EXIT_BAD_INPUT
+    except Exception as exc:
+        _fail(args, f"internal error (a bug; please report it{'' if args.debug else ', with the --debug output'}): "
+                    f"{type(exc).__name__}: ", exc)
+        return EXIT_INTERNAL
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``dtmbnav`` console script."""
+    from dtmbnav.core.interrupt import interrupts_raise
+    from dtmbnav.numba_cache import configure_numba_cache
+
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        return args.handler(args)
-    except (ValueError, OSError) as exc:
-        print(f"dtmbnav {args.command}: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print(f"dtmbnav {args.command}: interrupted", file=sys.stderr)
-        return 130
+    problem = check_usage(args)
+    if problem:
+        args.parser.error(problem)
+    note = configure_numba_cache()
+    if note:
+        print(f"dtmbnav: warning: {note}", file=sys.stderr)
+    with interrupts_raise():
+        return run_command(args)
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from dtmbnav.chain import fuse_files
+from dtmbnav.core import schema
 from dtmbnav.core.iqformat import decode, get_format
 from dtmbnav.report import write_report
 from dtmbnav.simulation import simulate_capture_set
@@ -43,7 +44,8 @@ def stream_receive(scenario, seconds: float | None, rx_path: Path, progress: boo
     sink = FrameSink(rx_path)
     receive_into_sink(receiver, (decode(rails, fmt) for rails in generator.quantised_chunks(CHUNK_SAMPLES)), sink,
                       source=f"simulated {scenario.name} (streamed)", total_samples=generator.num_samples,
-                      progress=progress)
+                      progress=progress, attrs={schema.CAPTURE_SCENARIO_ATTR: scenario.name,
+                                                schema.CAPTURE_SEED_ATTR: generator.seed})
     return sink.frames
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+from dtmbnav.core.schema import ENDED_EARLY_ATTR
 from receiver.capture import CaptureSource
 from receiver.pipeline import ReceiverConfig, receive_file
 
@@ -28,16 +29,19 @@ class ReceiveSummary:
         Frames flagged as the first after a loss of lock.
     seconds : float
         Span of the frames, s.
+    ended_early : str or None
+        Why the input ended before its end (an interrupt, a stream cut inside an IQ pair), None when it did not.
     """
 
     frames: int
     attrs: dict
     gaps: int
     seconds: float
+    ended_early: str | None = None
 
     def describe(self) -> str:
         if not self.frames:
-            return "no lock: no DTMB signal found in the capture; no frames written"
+            return "no lock: no DTMB signal found in the capture (no frames)"
         a = self.attrs
         return (f"{self.frames} frames over {self.seconds:.1f} s, {a.get('pn_mode')}, SI word {a.get('si_index')}, "
                 f"f_s = {a.get('clock_offset_hz', float('nan')):.2f} Hz, {self.gaps} gap(s)")
@@ -48,4 +52,5 @@ def receive_capture(source: CaptureSource, out_path: str | os.PathLike, config: 
     """Receive a capture into ``out_path`` (``/receiver/frames``) and summarise it."""
     sink, attrs = receive_file(source, out_path, config, csv_path=csv_path, progress=progress)
     span = sink.last_t_s - sink.first_t_s if sink.frames else 0.0
-    return ReceiveSummary(frames=sink.frames, attrs=attrs, gaps=sink.gaps, seconds=span)
+    return ReceiveSummary(frames=sink.frames, attrs=attrs, gaps=sink.gaps, seconds=span,
+                          ended_early=attrs.get(ENDED_EARLY_ATTR))

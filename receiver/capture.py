@@ -13,8 +13,17 @@ Accepted inputs (``docs/conventions.md``):
 
 Values given on the command line must agree with the file's metadata (a
 mismatch is an error, never a silent choice). Every problem (unknown
-datatype, missing metadata, a file that is empty or ends in half an IQ pair,
-NaN/inf samples) raises ``ValueError`` naming the file.
+datatype, missing or malformed metadata, a file that is empty or ends in half
+an IQ pair, NaN/inf samples) raises ``ValueError`` naming the file;
+:class:`MissingCaptureOptions` (a ``ValueError``) says that the caller must
+give the sample format or rate.
+
+A stream is read as its data arrives, so everything read before an
+interruption has been handed on, and a stop request
+(:class:`dtmbnav.core.interrupt.DeferredStop`) ends a wait for data; a
+stream that ends inside an IQ pair (a ``head -c`` that cut a sample) yields
+every whole sample and then raises :class:`TruncatedStream`, which a caller
+may treat as the end of the stream.
 """
 
 from __future__ import annotations
@@ -22,8 +31,9 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
+import select
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -31,7 +41,30 @@ from typing import IO, Any
 import numpy as np
 from numba import njit
 
+from dtmbnav.core.interrupt import stop_requested
 from dtmbnav.core.iqformat import IqFormat, decode, from_sigmf_datatype, get_format
+
+#: Key of the project's metadata: ``dtmbnav:<key>`` in a SigMF global object, a ``dtmbnav`` object in a
+#: raw capture's sidecar (``sim.capture_writer`` writes them).
+PROJECT_NAMESPACE = "dtmbnav"
+
+
+class MissingCaptureOptions(ValueError):
+    """The capture does not say its sample format or rate, and the caller did not give them."""
+
+
+class TruncatedStream(ValueError):
+    """A stream ended inside an IQ pair; every whole sample before it was yielded.
+
+    Attributes
+    ----------
+    samples : int
+        Whole samples read before the cut.
+    """
+
+    def __init__(self, message: str, samples: int) -> None:
+        super().__init__(message)
+        self.samples = samples
 
 
 @dataclass
@@ -72,41 +105,67 @@ class CaptureSource:
         """The :class:`dtmbnav.core.iqformat.IqFormat` of the samples."""
         return get_format(self.sample_format)
 
+    @property
+    def is_stream(self) -> bool:
+        """True for stdin: it cannot be read twice, and its length is unknown."""
+        return self.path == "-"
+
+    def project_value(self, key: str) -> Any:
+        """A project key of the metadata (``scenario``, ``seed``, ...), None when absent."""
+        if f"{PROJECT_NAMESPACE}:{key}" in self.metadata:
+            return self.metadata[f"{PROJECT_NAMESPACE}:{key}"]
+        project = self.metadata.get(PROJECT_NAMESPACE)
+        return project.get(key) if isinstance(project, dict) else None
+
     def chunks(self, chunk_samples: int) -> Iterator[np.ndarray]:
-        """Yield the samples as complex64 arrays of ``chunk_samples`` (the last may be shorter).
+        """Yield the samples as complex64 arrays of at most ``chunk_samples``.
+
+        A file gives full chunks (the last may be shorter); a stream gives
+        what has arrived, up to ``chunk_samples`` at a time.
 
         Raises
         ------
         ValueError
-            Truncated data (half an IQ pair at the end), NaN/inf in cf32, an empty stream.
+            Truncated data (half an IQ pair at the end of a file), NaN/inf in
+            cf32, an empty input.
+        TruncatedStream
+            A stream ended inside an IQ pair (after yielding every whole sample).
         """
         if chunk_samples <= 0:
             raise ValueError(f"chunk_samples must be positive, got {chunk_samples}")
-        if self.path == "-":
-            yield from self._read(sys.stdin.buffer, chunk_samples)
+        if self.is_stream:
+            yield from self._read(sys.stdin.buffer, chunk_samples, _read_available)
             return
         with open(self.path, "rb") as stream:
             stream.seek(self.header_bytes)
-            yield from self._read(stream, chunk_samples)
+            yield from self._read(stream, chunk_samples, _read_exactly)
 
-    def _read(self, stream: IO[bytes], chunk_samples: int) -> Iterator[np.ndarray]:
+    def _read(self, stream: IO[bytes], chunk_samples: int,
+              read: Callable[[IO[bytes], int], bytes | None]) -> Iterator[np.ndarray]:
         fmt = self.format
         want = chunk_samples * fmt.bytes_per_sample
-        raw = np.empty(want, dtype=np.uint8)   # one read buffer for every block; each block is decoded out of it
-        blocks = _BlockPool(chunk_samples)
         position = 0
+        carry = b""  # the bytes of a sample split across two reads
+        blocks = _BlockPool(chunk_samples)
         while True:
-            got = _read_into(stream, raw)
-            if not got:
+            data = read(stream, want - len(carry))
+            if data is None:  # a stop was requested while waiting: what was read has been yielded
+                return
+            if not data:
                 break
-            if got % fmt.bytes_per_sample:
-                raise ValueError(f"{self.path}: truncated data: the last {got % fmt.bytes_per_sample} "
-                                 f"byte(s) after sample {position + got // fmt.bytes_per_sample} are "
-                                 f"half an IQ pair of {fmt.name}")
-            yield _decode_block(raw[:got], fmt, blocks, where=f"{self.path} (block from sample {position})")
-            position += got // fmt.bytes_per_sample
-            if got < want:
-                break
+            data = carry + data
+            whole = len(data) - len(data) % fmt.bytes_per_sample
+            carry = data[whole:]
+            if whole:
+                yield _decode_block(np.frombuffer(data, np.uint8, whole), fmt, blocks,
+                                    where=f"{self.path} (block from sample {position})")
+                position += whole // fmt.bytes_per_sample
+        if carry:
+            message = (f"{self.path}: truncated data: the last {len(carry)} byte(s) after sample {position} are "
+                       f"half an IQ pair of {fmt.name}")
+            if self.is_stream:
+                raise TruncatedStream(message, position)
+            raise ValueError(message)
         if position == 0:
             raise ValueError(f"{self.path}: no samples (empty capture)")
 
@@ -163,16 +222,54 @@ def rails_to_samples(rails: np.ndarray, offset: float, inv_scale: float, out: np
         out[i] = (np.float32(rails[i]) - offset) * inv_scale
 
 
-def _read_into(stream: IO[bytes], buffer: np.ndarray) -> int:
-    """Fill ``buffer`` from ``stream``; fewer bytes only at the end of the stream (pipes return short reads)."""
-    view = memoryview(buffer).cast("B")
-    filled = 0
-    while filled < len(view):
-        got = stream.readinto(view[filled:])
-        if not got:
+def _read_exactly(stream: IO[bytes], size: int) -> bytes:
+    """Read ``size`` bytes, fewer only at the end of the file."""
+    parts = []
+    remaining = size
+    while remaining:
+        part = stream.read(remaining)
+        if not part:
             break
-        filled += got
-    return filled
+        parts.append(part)
+        remaining -= len(part)
+    return b"".join(parts)
+
+
+#: Seconds a stream reader waits for data before it checks for a stop request (SIGINT, SIGTERM).
+STOP_POLL_S = 0.25
+
+
+def _read_available(stream: IO[bytes], size: int) -> bytes | None:
+    """Read up to ``size`` bytes of what a stream has, waiting only while nothing has arrived.
+
+    Returns None, having read nothing, when a stop is requested while it waits
+    (:func:`dtmbnav.core.interrupt.stop_requested`): an idle pipe must not hold
+    up Ctrl-C, and a signal must not interrupt a read whose data would be lost.
+    """
+    read1 = getattr(stream, "read1", stream.read)
+    try:
+        fd = stream.fileno()
+    except (AttributeError, OSError):  # an in-memory stream never blocks
+        return read1(size)
+    while not stop_requested():
+        try:
+            ready, _, _ = select.select([fd], [], [], STOP_POLL_S)
+        except (OSError, ValueError):  # a descriptor select cannot wait on: read, blocking
+            return read1(size)
+        if ready:
+            return read1(size)
+    return None
+
+
+def _number(where: str, key: str, value: Any, *, positive: bool = True) -> float | None:
+    """A metadata value that must be a finite (positive) number; None stays None."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{where}: {key} must be a number, got {value!r}")
+    if not math.isfinite(value) or (positive and value <= 0):
+        raise ValueError(f"{where}: {key} must be a finite{' positive' if positive else ''} number, got {value!r}")
+    return float(value)
 
 
 def _agree(where: str, what: str, from_file: Any, given: Any) -> Any:
@@ -187,9 +284,9 @@ def _agree(where: str, what: str, from_file: Any, given: Any) -> Any:
     return from_file
 
 
-def _parse_utc(where: str, text: str) -> int:
+def _parse_utc(where: str, text: Any) -> int:
     try:
-        stamp = dt.datetime.fromisoformat(text.replace("Z", "+00:00"))
+        stamp = dt.datetime.fromisoformat(str(text).replace("Z", "+00:00"))
     except ValueError:
         raise ValueError(f"{where}: bad core:datetime {text!r}") from None
     if stamp.tzinfo is None:
@@ -216,10 +313,11 @@ def _open_sigmf(path: Path, sample_format: str | None, sample_rate_hz: float | N
 
     base = path.with_suffix("")
     meta_path, data_path = base.with_suffix(".sigmf-meta"), base.with_suffix(".sigmf-data")
-    if not meta_path.is_file():
-        raise ValueError(f"{meta_path}: SigMF metadata file not found")
-    if not data_path.is_file():
-        raise ValueError(f"{data_path}: SigMF data file not found")
+    for file, what in ((meta_path, "metadata"), (data_path, "data")):
+        if not file.exists():
+            raise ValueError(f"{file}: SigMF {what} file not found")
+        if not file.is_file():
+            raise ValueError(f"{file}: SigMF {what} path is not a file")
     try:
         meta = json.loads(meta_path.read_text())
         # Schema check only: SigMFFile.fromfile would also map the data, which must
@@ -227,6 +325,8 @@ def _open_sigmf(path: Path, sample_format: str | None, sample_rate_hz: float | N
         SigMFFile(metadata=meta, skip_checksum=True).validate()
     except Exception as exc:  # json and the sigmf package raise their own error types
         raise ValueError(f"{meta_path}: invalid SigMF metadata: {str(exc).splitlines()[0]}") from exc
+    if not isinstance(meta, dict) or not isinstance(meta.get("global", {}), dict):
+        raise ValueError(f"{meta_path}: invalid SigMF metadata: expected a JSON object with a 'global' object")
     info = meta.get("global", {})
     where = str(meta_path)
     if "core:datatype" not in info or "core:sample_rate" not in info:
@@ -238,12 +338,13 @@ def _open_sigmf(path: Path, sample_format: str | None, sample_rate_hz: float | N
     if info.get("core:num_channels", 1) != 1:
         raise ValueError(f"{where}: {info['core:num_channels']} channels; only single-channel captures are read")
     _agree(where, "sample format", fmt.name, get_format(sample_format).name if sample_format else None)
-    rate = _agree(where, "sample rate", float(info["core:sample_rate"]), sample_rate_hz)
+    rate = _agree(where, "sample rate", _number(where, "core:sample_rate", info["core:sample_rate"]), sample_rate_hz)
     captures = meta.get("captures") or [{}]
     first = captures[0]
-    centre = _agree(where, "centre frequency", first.get("core:frequency"), center_hz)
+    centre = _agree(where, "centre frequency", _number(where, "core:frequency", first.get("core:frequency")),
+                    center_hz)
     start = _parse_utc(where, first["core:datetime"]) if "core:datetime" in first else None
-    header = int(first.get("core:header_bytes", 0))
+    header = int(_number(where, "core:header_bytes", first.get("core:header_bytes", 0), positive=False) or 0)
     return CaptureSource(str(data_path), rate, None if centre is None else float(centre), fmt.name,
                          _file_samples(data_path, fmt, header), start, info, header)
 
@@ -257,23 +358,27 @@ def _open_raw(path: Path, sample_format: str | None, sample_rate_hz: float | Non
         where = str(sidecar_path)
         try:
             meta = json.loads(sidecar_path.read_text())
-        except json.JSONDecodeError as exc:
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"{where}: invalid JSON sidecar: {exc}") from None
+        if not isinstance(meta, dict):
+            raise ValueError(f"{where}: invalid JSON sidecar: expected an object, got {type(meta).__name__}")
         for key in ("sample_rate_hz", "sample_format"):
             if key not in meta:
                 raise ValueError(f"{where}: sidecar lacks {key!r}")
+        start = meta.get("start_utc_unix_ns")
+        if start is not None and (isinstance(start, bool) or not isinstance(start, int)):
+            raise ValueError(f"{where}: start_utc_unix_ns must be a whole number of ns, got {start!r}")
     fmt_name = _agree(where, "sample format", meta.get("sample_format"), sample_format)
-    rate = _agree(where, "sample rate", meta.get("sample_rate_hz"), sample_rate_hz)
-    centre = _agree(where, "centre frequency", meta.get("center_hz"), center_hz)
+    rate = _agree(where, "sample rate", _number(where, "sample_rate_hz", meta.get("sample_rate_hz")), sample_rate_hz)
+    centre = _agree(where, "centre frequency", _number(where, "center_hz", meta.get("center_hz")), center_hz)
     if fmt_name is None or rate is None:
-        raise ValueError(f"{path}: raw capture without a sidecar ({sidecar_path.name}): give the sample format "
-                         "and the sample rate")
+        raise MissingCaptureOptions(f"{path}: raw capture without a sidecar ({sidecar_path.name}): give the sample "
+                                    "format and the sample rate")
     try:
         fmt = get_format(fmt_name)
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None
-    if float(rate) <= 0:
-        raise ValueError(f"{where}: sample rate must be positive, got {rate}")
+    _number(where, "sample rate", rate)
     return CaptureSource(str(path), float(rate), None if centre is None else float(centre), fmt.name,
                          _file_samples(path, fmt), meta.get("start_utc_unix_ns"), meta)
 
@@ -295,19 +400,36 @@ def open_capture(path: str | Path, *, sample_format: str | None = None, sample_r
 
     Raises
     ------
+    MissingCaptureOptions
+        Plain raw file or stdin without ``sample_format`` and ``sample_rate_hz``.
     ValueError
-        Missing, unknown or inconsistent metadata, missing or empty file,
-        truncated data (the message names the file).
+        Missing, unknown, malformed or inconsistent metadata, missing or empty
+        file, a folder, truncated data (the message names the file).
     """
     if str(path) == "-":
         if sample_format is None or sample_rate_hz is None:
-            raise ValueError("stdin capture: give the sample format and the sample rate")
-        if sample_rate_hz <= 0:
-            raise ValueError(f"stdin capture: sample rate must be positive, got {sample_rate_hz}")
+            raise MissingCaptureOptions("stdin capture: give the sample format and the sample rate")
+        _number("stdin capture", "sample rate", sample_rate_hz)
         return CaptureSource("-", float(sample_rate_hz), center_hz, get_format(sample_format).name, None)
     path = Path(path)
     if path.suffix in (".sigmf-meta", ".sigmf-data"):
         return _open_sigmf(path, sample_format, sample_rate_hz, center_hz)
-    if not path.is_file():
+    if not path.exists():
         raise ValueError(f"{path}: no such capture file")
+    if not path.is_file():
+        raise ValueError(f"{path}: not a file (a folder?); give the capture file")
     return _open_raw(path, sample_format, sample_rate_hz, center_hz)
+
+
+def capture_files(path: str | Path) -> tuple[Path, ...]:
+    """The files a capture path stands for: both SigMF files, or the raw file and its sidecar (none for stdin).
+
+    For checking that an output path does not name one of them.
+    """
+    if str(path) == "-":
+        return ()
+    path = Path(path)
+    if path.suffix in (".sigmf-meta", ".sigmf-data"):
+        base = path.with_suffix("")
+        return base.with_suffix(".sigmf-meta"), base.with_suffix(".sigmf-data")
+    return path, path.with_name(path.name + ".json")

@@ -452,7 +452,11 @@ def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, con
     """Receive a whole capture and write ``/receiver/frames`` (and optionally CSV).
 
     Rows are written batch by batch as the receiver produces them, so memory
-    stays flat however long the capture is.
+    stays flat however long the capture is. A stream (stdin) that breaks
+    keeps the frames received before the break (:func:`receive_into_sink`);
+    a file that does is bad input and leaves nothing. The capture's project
+    metadata (scenario name and seed of a simulated capture) is recorded, so
+    that a receiver file can be matched with its sensors file.
 
     Parameters
     ----------
@@ -477,35 +481,120 @@ def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, con
     attributes : dict
         The ``/receiver/frames`` attributes.
     """
+    from dtmbnav.core import schema
+
     carrier = carrier_hz if carrier_hz is not None else capture.center_hz
     if carrier is None:
         raise ValueError(f"{capture.path}: the capture has no centre frequency; give carrier_hz")
+    identity: dict[str, Any] = {}
+    scenario, seed = capture.project_value("scenario"), capture.project_value("seed")
+    if isinstance(scenario, str):
+        identity[schema.CAPTURE_SCENARIO_ATTR] = scenario
+    if isinstance(seed, int) and not isinstance(seed, bool):
+        identity[schema.CAPTURE_SEED_ATTR] = seed
     rx = Receiver(capture.sample_rate_hz, carrier, config)
     sink = FrameSink(out_path, csv_path)
     attrs = receive_into_sink(rx, read_ahead(capture.chunks(chunk_samples)), sink, source=str(capture.path),
-                              total_samples=capture.num_samples, progress=progress)
+                              total_samples=capture.num_samples, progress=progress, attrs=identity,
+                              keep_on_input_error=capture.is_stream)
     return sink, attrs
 
 
 def receive_into_sink(rx: Receiver, chunks: Iterable[np.ndarray], sink: FrameSink, *, source: str,
-                      total_samples: int | None = None, progress: bool = True) -> dict[str, Any]:
+                      total_samples: int | None = None, progress: bool = True, attrs: Mapping[str, Any] | None = None,
+                      keep_on_input_error: bool = False) -> dict[str, Any]:
     """Drive ``rx`` over ``chunks``, writing every batch to ``sink``, and close it.
 
-    On any error the sink's partial file is dropped and the error re-raised.
-    Returns the attributes written (the receiver's, plus ``source``).
+    The input can end early in three ways; in each, the frames of every
+    sample received so far are kept (the receiver is finished as at the end
+    of the input, the files are completed) when there is at least one, and
+    the ``ended_early`` attribute says why:
+
+    - SIGINT or SIGTERM (:class:`dtmbnav.core.interrupt.DeferredStop`: a chunk
+      being processed is finished first, a stream reader waiting for data
+      gives up; a second signal aborts): after the files are closed,
+      :class:`~dtmbnav.core.interrupt.Interrupted` is raised with what was
+      kept;
+    - a stream that ends inside an IQ pair
+      (:class:`~receiver.capture.TruncatedStream`): the end of the input, the
+      call returns normally;
+    - with ``keep_on_input_error`` (streams, which cannot be read again), an
+      OSError or ValueError raised while reading: the error is re-raised with
+      a note saying what was kept.
+
+    Any other error drops the sink's partial files and is re-raised.
+
+    Parameters
+    ----------
+    rx : Receiver
+    chunks : iterable of complex arrays
+        The input.
+    sink : FrameSink
+    source : str
+        Name of the input (``source`` attribute, progress bar).
+    total_samples : int, optional
+        Input length for the progress bar.
+    progress : bool
+        Show a tqdm progress bar on stderr.
+    attrs : mapping, optional
+        Further ``/receiver/frames`` attributes.
+    keep_on_input_error : bool
+        Keep the frames received before an error raised by ``chunks``.
+
+    Returns
+    -------
+    dict
+        The attributes written (the receiver's, ``source``, ``attrs`` and
+        ``ended_early`` when the input ended early).
     """
+    from dtmbnav.core import schema
+    from dtmbnav.core.interrupt import DeferredStop, Interrupted
+    from receiver.capture import TruncatedStream
+
+    ended_early: str | None = None
+    input_error: BaseException | None = None
+    stop = DeferredStop()
     try:
-        with tqdm(total=total_samples, unit="S", unit_scale=True, disable=not progress, file=sys.stderr,
-                  desc=f"receive {os.path.basename(source)}") as bar:
-            for chunk in chunks:
+        with stop, tqdm(total=total_samples, unit="S", unit_scale=True, disable=not progress, file=sys.stderr,
+                        desc=f"receive {os.path.basename(source)}") as bar:
+            received = 0
+            inputs = stop.until_stopped(chunks)
+            while True:
+                try:
+                    chunk = next(inputs)
+                except StopIteration:
+                    break
+                except TruncatedStream as exc:
+                    ended_early = f"the stream ended inside an IQ pair after sample {exc.samples}"
+                    break
+                except (OSError, ValueError) as exc:  # the input broke (the receiver's own errors are not caught)
+                    if not keep_on_input_error:
+                        raise
+                    input_error = exc
+                    ended_early = f"input error after sample {received}: {exc}"
+                    break
                 for batch in rx.process(chunk):
                     sink.append(batch)
+                received += len(chunk)
                 bar.update(len(chunk))
             for batch in rx.finish():
                 sink.append(batch)
+            if stop.signum is not None:
+                ended_early = f"{Interrupted(stop.signum)} after sample {received}"
+            if ended_early is not None and sink.frames == 0 and (input_error or stop.signum is not None):
+                raise input_error or Interrupted(stop.signum)  # nothing worth keeping
     except BaseException as exc:
         sink.abort(exc)
         raise
-    attrs = {**rx.attributes(), "source": source}
-    sink.close(attrs)
-    return attrs
+    out = {**rx.attributes(), "source": source, **(attrs or {})}
+    if ended_early is not None:
+        out[schema.ENDED_EARLY_ATTR] = ended_early
+    sink.close(out)
+    kept = (f"kept the {sink.frames} frames received before it"
+            + (f" in {sink.h5_path} (attribute {schema.ENDED_EARLY_ATTR})" if sink.h5_path is not None else ""))
+    if input_error is not None:
+        input_error.add_note(kept)
+        raise input_error
+    if stop.signum is not None:
+        raise Interrupted(stop.signum, kept)
+    return out

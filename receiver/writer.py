@@ -3,23 +3,28 @@
 The HDF5 group holds one dataset per :class:`~dtmbnav.core.records.FrameBatch`
 column and the receiver's parameters as attributes (``pn_mode``,
 ``si_index``, ``sample_rate_hz``, ``clock_offset_hz`` = the f_s used,
-``carrier_hz``, the resampling ratio, versions); the file is written
-atomically, so an interrupted run never leaves a file that looks complete.
+``carrier_hz``, the resampling ratio, versions). Both files are written
+atomically (a hidden temporary name renamed when complete), so a failed run
+never leaves a file that looks complete; a run that keeps what it received
+before an interruption finishes them normally and says so in the
+``ended_early`` attribute (``docs/schema.md``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import os
 import sys
-from collections.abc import Mapping
-from typing import Any
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import IO, Any
 
 import h5py
 import numpy as np
 
 from dtmbnav.core import schema
-from dtmbnav.core.h5io import atomic_h5, package_version
+from dtmbnav.core.h5io import atomic_h5, atomic_path, package_version
 from dtmbnav.core.records import FRAME_COLUMN_DTYPES, FrameBatch, FrameFlag
 
 #: Unit of each column (written as ``units`` attribute, "column:unit" pairs).
@@ -44,26 +49,34 @@ def frame_attributes(receiver_attrs: Mapping[str, Any]) -> dict[str, Any]:
     return attrs
 
 
+@contextlib.contextmanager
+def open_csv(path: str | os.PathLike) -> Iterator[IO[str]]:
+    """A text stream for a CSV file that appears at ``path`` only when complete (``"-"``: stdout)."""
+    if str(path) == "-":
+        yield sys.stdout
+        sys.stdout.flush()
+        return
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as stream:
+        yield stream
+
+
 def write_csv(path: str | os.PathLike, columns: Mapping[str, np.ndarray]) -> None:
-    """Write equal-length columns as CSV with a header row (``"-"`` writes to stdout)."""
-    stream = sys.stdout if str(path) == "-" else open(path, "w", newline="")
-    try:
+    """Write equal-length columns as CSV with a header row (``"-"`` writes to stdout), atomically."""
+    with open_csv(path) as stream:
         writer = csv.writer(stream)
         writer.writerow(columns)
         writer.writerows(zip(*(np.asarray(c).tolist() for c in columns.values())))
-    finally:
-        if stream is not sys.stdout:
-            stream.close()
 
 
 class FrameSink:
     """Writes frame batches as they come: HDF5 ``/receiver/frames`` and/or CSV, memory flat.
 
     The HDF5 columns are resizable datasets that grow batch by batch inside an
-    :func:`~dtmbnav.core.h5io.atomic_h5` file, so the file appears only when
-    complete; the attributes are set at :meth:`close`. Rows are appended in
-    blocks of :data:`WRITE_ROWS` (and the rest at :meth:`close`). Counts of
-    frames and gaps and the time span are kept for a summary.
+    :func:`~dtmbnav.core.h5io.atomic_h5` file and the CSV rows go to a hidden
+    temporary file, so both appear only at :meth:`close`, which also sets the
+    attributes; :meth:`abort` removes them. HDF5 rows are appended in blocks
+    of :data:`WRITE_ROWS` (and the rest at :meth:`close`). Counts of frames
+    and gaps and the time span are kept for a summary.
 
     Parameters
     ----------
@@ -72,24 +85,29 @@ class FrameSink:
     """
 
     def __init__(self, h5_path: str | os.PathLike | None, csv_path: str | os.PathLike | None = None) -> None:
+        self.h5_path = None if h5_path is None else Path(h5_path)
         self.frames = 0
         self.gaps = 0
         self.first_t_s = float("nan")
         self.last_t_s = float("nan")
-        self._h5_context = atomic_h5(h5_path) if h5_path is not None else None
-        self._h5 = self._h5_context.__enter__() if self._h5_context is not None else None
+        self._files = contextlib.ExitStack()
+        self._h5 = None
+        self._csv = None
         self._pending: list[FrameBatch] = []
         self._pending_rows = 0
         self._written = 0
-        if self._h5 is not None:
-            group = self._h5.create_group(schema.RECEIVER_FRAMES)
-            for name, dtype in FRAME_COLUMN_DTYPES.items():
-                group.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(4096,))
-        self._csv_stream = None
-        if csv_path is not None:
-            self._csv_stream = sys.stdout if str(csv_path) == "-" else open(csv_path, "w", newline="")
-            self._csv = csv.writer(self._csv_stream)
-            self._csv.writerow(FRAME_COLUMN_DTYPES)
+        try:
+            if h5_path is not None:
+                self._h5 = self._files.enter_context(atomic_h5(h5_path))
+                group = self._h5.create_group(schema.RECEIVER_FRAMES)
+                for name, dtype in FRAME_COLUMN_DTYPES.items():
+                    group.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(4096,))
+            if csv_path is not None:
+                self._csv = csv.writer(self._files.enter_context(open_csv(csv_path)))
+                self._csv.writerow(FRAME_COLUMN_DTYPES)
+        except BaseException as exc:
+            self.abort(exc)
+            raise
 
     def append(self, batch: FrameBatch) -> None:
         """Write the rows of one batch."""
@@ -101,7 +119,7 @@ class FrameSink:
             self._pending_rows += n
             if self._pending_rows >= WRITE_ROWS:
                 self._write_pending()
-        if self._csv_stream is not None:
+        if self._csv is not None:
             self._csv.writerows(zip(*(c.tolist() for c in batch.columns().values())))
         if self.frames == 0:
             self.first_t_s = float(batch.t_s[0])
@@ -122,27 +140,19 @@ class FrameSink:
         self._pending, self._pending_rows = [], 0
 
     def close(self, attrs: Mapping[str, Any]) -> None:
-        """Finish the files; ``attrs`` become the group's attributes."""
+        """Finish the files and move them into place; ``attrs`` become the group's attributes."""
         if self._h5 is not None:
             self._write_pending()
             for key, value in frame_attributes(attrs).items():
                 self._h5[schema.RECEIVER_FRAMES].attrs[key] = value
-            self._h5_context.__exit__(None, None, None)
-            self._h5 = None
-        self._close_csv()
+        self._h5 = self._csv = None
+        self._files.close()
 
     def abort(self, exc: BaseException) -> None:
-        """Drop the partial HDF5 file (the target path is left as it was)."""
+        """Drop the partial files (the target paths are left as they were)."""
         self._pending, self._pending_rows = [], 0
-        if self._h5 is not None:
-            try:
-                self._h5_context.__exit__(type(exc), exc, exc.__traceback__)
-            except BaseException:
-                pass
-            self._h5 = None
-        self._close_csv()
-
-    def _close_csv(self) -> None:
-        if self._csv_stream is not None and self._csv_stream is not sys.stdout:
-            self._csv_stream.close()
-        self._csv_stream = None
+        self._h5 = self._csv = None
+        try:
+            self._files.__exit__(type(exc), exc, exc.__traceback__)
+        except BaseException:  # a failure while cleaning up must not hide the error that caused it
+            pass

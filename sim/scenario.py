@@ -14,7 +14,10 @@ which is stored verbatim in every truth file.
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
+import types
+import typing
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -359,25 +362,77 @@ class Scenario:
         return dataclasses.replace(self, **updates)
 
 
-def _build(cls: type, data: dict[str, Any], where: str) -> Any:
-    """Instantiate dataclass ``cls`` from a TOML table, checking the keys."""
+def _describe(hint: Any) -> str:
+    """A type annotation in words, for error messages."""
+    names = {float: "a number", int: "a whole number", bool: "true or false", str: "a string"}
+    if hint in names:
+        return names[hint]
+    if typing.get_origin(hint) is list:
+        return f"a list of {_describe(typing.get_args(hint)[0]).removeprefix('a ').removeprefix('an ')}s"
+    if dataclasses.is_dataclass(hint):
+        return "a table"
+    return str(hint)
+
+
+def _check_type(value: Any, hint: Any, where: str) -> None:
+    """Raise ValueError naming ``where`` when a TOML value does not fit a field's annotation."""
+    origin = typing.get_origin(hint)
+    if origin in (types.UnionType, typing.Union):
+        options = [o for o in typing.get_args(hint) if o is not type(None)]
+        problems = []
+        for option in options:
+            try:
+                _check_type(value, option, where)
+                return
+            except ValueError as exc:
+                problems.append(str(exc))
+        raise ValueError(problems[0])
+    if origin is list:
+        if not isinstance(value, list):
+            raise ValueError(f"{where}: expected {_describe(hint)}, got {value!r}")
+        for i, item in enumerate(value):
+            _check_type(item, typing.get_args(hint)[0], f"{where}[{i}]")
+        return
+    if dataclasses.is_dataclass(hint):
+        if not isinstance(value, (dict, hint)):
+            raise ValueError(f"{where}: expected a table, got {value!r}")
+        return
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    ok = {bool: isinstance(value, bool), int: number and isinstance(value, int), float: number,
+          str: isinstance(value, str)}.get(hint, True)
+    if not ok:
+        raise ValueError(f"{where}: expected {_describe(hint)}, got {value!r}")
+    if hint is float and not math.isfinite(value):
+        raise ValueError(f"{where}: expected a finite number, got {value!r}")
+
+
+def _build(cls: type, data: dict[str, Any], where: str, check: bool = False) -> Any:
+    """Instantiate dataclass ``cls`` from a TOML table, checking the keys (and, with ``check``, the value types)."""
+    if not isinstance(data, dict):
+        raise ValueError(f"scenario [{where}]: expected a table, got {data!r}")
     known = {f.name: f for f in dataclasses.fields(cls)}
     unknown = set(data) - set(known)
     if unknown:
         raise ValueError(f"scenario [{where}]: unknown key(s) {sorted(unknown)}; known: {sorted(known)}")
+    hints = typing.get_type_hints(cls) if check else {}
     kwargs: dict[str, Any] = {}
     nested = {
         "clock": ClockConfig, "pauses": Pause, "pace_changes": PaceChange,
         "scatterers": Scatterer, "walls": Wall, "buildings": Building,
     }
     for key, value in data.items():
+        if check:
+            _check_type(value, hints[key], f"scenario [{where}] {key}")
         sub = nested.get(key)
         if sub is not None and isinstance(value, list):
-            kwargs[key] = [v if isinstance(v, sub) else _build(sub, v, f"{where}.{key}") for v in value]
+            kwargs[key] = [v if isinstance(v, sub) else _build(sub, v, f"{where}.{key}", check) for v in value]
         elif sub is not None and isinstance(value, dict):
-            kwargs[key] = _build(sub, value, f"{where}.{key}")
+            kwargs[key] = _build(sub, value, f"{where}.{key}", check)
         else:
             kwargs[key] = value
+    for name, f in known.items():
+        if name not in kwargs and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise ValueError(f"scenario [{where}]: missing key {name!r}")
     return cls(**kwargs)
 
 
@@ -392,12 +447,17 @@ _SECTIONS = {
 
 
 def scenario_from_dict(data: dict[str, Any]) -> Scenario:
-    """Build a :class:`Scenario` from a parsed TOML document."""
+    """Build a :class:`Scenario` from a parsed TOML document (ValueError naming a bad key or value)."""
     top = {k: v for k, v in data.items() if k not in _SECTIONS}
     unknown = set(top) - {"name", "description", "seed"}
     if unknown:
         raise ValueError(f"scenario: unknown top-level key(s) {sorted(unknown)}")
-    sections = {k: _build(cls, data.get(k, {}), k) for k, cls in _SECTIONS.items()}
+    for key in ("name", "description"):
+        _check_type(top.get(key, ""), str, f"scenario: {key}")
+    _check_type(top.get("seed", 0), int, "scenario: seed")
+    if top.get("seed", 0) < 0:
+        raise ValueError(f"scenario: seed must not be negative, got {top['seed']}")
+    sections = {k: _build(cls, data.get(k, {}), k, check=True) for k, cls in _SECTIONS.items()}
     return Scenario(**top, **sections)
 
 
@@ -423,8 +483,12 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     text_path = Path(name_or_path)
     if text_path.suffix == ".toml" or text_path.exists():
         if not text_path.is_file():
-            raise ValueError(f"scenario file {text_path} does not exist")
-        source = text_path.read_text()
+            raise ValueError(f"scenario file {text_path} " + ("is not a file" if text_path.exists() else
+                                                               "does not exist"))
+        try:
+            source = text_path.read_text()
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"scenario file {text_path}: not a text file ({exc.reason})") from None
         where = str(text_path)
     else:
         name = ALIASES.get(str(name_or_path), str(name_or_path))
@@ -439,7 +503,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     try:
         return scenario_from_dict(tomllib.loads(source))
     except (tomllib.TOMLDecodeError, TypeError, ValueError) as exc:
-        raise ValueError(f"scenario {where}: {exc}") from exc
+        raise ValueError(f"scenario {where}: {exc}") from None
 
 
 def _toml_value(value: Any) -> str:

@@ -40,8 +40,12 @@ def imported_packages(path: Path) -> set[str]:
         else:
             continue
         for name in names:
-            found.add("dtmbnav.core" if name == "dtmbnav.core" or name.startswith("dtmbnav.core.")
-                      else name.split(".")[0])
+            if name == "dtmbnav":  # the distribution's version (dtmbnav/__init__ imports nothing)
+                found.add("dtmbnav.__init__")
+            elif name == "dtmbnav.core" or name.startswith("dtmbnav.core."):
+                found.add("dtmbnav.core")
+            else:
+                found.add(name.split(".")[0])
     return found
 
 

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from dtmbnav.core import iqformat
 from dtmbnav.core.records import Track
-from receiver.capture import open_capture
+from receiver.capture import MissingCaptureOptions, TruncatedStream, capture_files, open_capture
 from sim.capture_writer import CaptureWriter
 from sim.rf import CaptureGenerator
 from sim.scenario import Scenario
@@ -139,20 +139,8 @@ def test_stdin_truncated_and_empty(monkeypatch):
             list(open_capture("-", sample_format="ci8", sample_rate_hz=2e6).chunks(10))
 
 
-def _sigmf(tmp_path, fmt="ci8", n=10):
-    with CaptureWriter(tmp_path / "cap", "sigmf", fmt, 7.56e6, 666e6) as writer:
-        writer.write(iqformat.encode(np.zeros(n, np.complex64), fmt))
-    return tmp_path / "cap.sigmf-meta", tmp_path / "cap.sigmf-data"
-
-
-def _raw(tmp_path, fmt="ci8", n=10):
-    with CaptureWriter(tmp_path / "cap", "raw", fmt, 7.56e6, 666e6) as writer:
-        writer.write(iqformat.encode(np.zeros(n, np.complex64), fmt))
-    return writer.capture_path, writer.meta_path
-
-
-def test_bad_sigmf_datatype(tmp_path):
-    meta, _ = _sigmf(tmp_path)
+def test_bad_sigmf_datatype(tmp_path, make_capture):
+    meta = make_capture(tmp_path).meta
     doc = json.loads(meta.read_text())
     doc["global"]["core:datatype"] = "ri8"
     meta.write_text(json.dumps(doc))
@@ -160,8 +148,8 @@ def test_bad_sigmf_datatype(tmp_path):
         open_capture(meta)
 
 
-def test_missing_sigmf_rate(tmp_path):
-    meta, _ = _sigmf(tmp_path)
+def test_missing_sigmf_rate(tmp_path, make_capture):
+    meta = make_capture(tmp_path).meta
     doc = json.loads(meta.read_text())
     del doc["global"]["core:sample_rate"]
     meta.write_text(json.dumps(doc))
@@ -169,32 +157,32 @@ def test_missing_sigmf_rate(tmp_path):
         open_capture(meta)
 
 
-def test_truncated_files(tmp_path):
-    _, data = _sigmf(tmp_path, "ci16")
+def test_truncated_files(tmp_path, make_capture):
+    data = make_capture(tmp_path, fmt="ci16").data
     data.write_bytes(data.read_bytes()[:-2])  # half an IQ pair
     with pytest.raises(ValueError, match=re.escape(str(data)) + ".*half an IQ pair"):
         open_capture(data)
-    raw, _ = _raw(tmp_path, "cu8")
+    raw = make_capture(tmp_path, "raw", "cu8").data
     raw.write_bytes(raw.read_bytes() + b"\x80")
     with pytest.raises(ValueError, match=re.escape(str(raw)) + ".*half an IQ pair"):
         open_capture(raw)
 
 
-def test_empty_and_missing_files(tmp_path):
-    raw, _ = _raw(tmp_path)
+def test_empty_and_missing_files(tmp_path, make_capture):
+    raw = make_capture(tmp_path, "raw").data
     raw.write_bytes(b"")
     with pytest.raises(ValueError, match=re.escape(str(raw)) + ".*empty"):
         open_capture(raw)
     with pytest.raises(ValueError, match="nope.ci8"):
         open_capture(tmp_path / "nope.ci8", sample_format="ci8", sample_rate_hz=1e6)
-    meta, data = _sigmf(tmp_path)
+    meta, _, data = make_capture(tmp_path)
     data.unlink()
     with pytest.raises(ValueError, match=re.escape(str(data))):
         open_capture(meta)
 
 
-def test_nan_in_cf32(tmp_path):
-    raw, _ = _raw(tmp_path, "cf32", n=1000)
+def test_nan_in_cf32(tmp_path, make_capture):
+    raw = make_capture(tmp_path, "raw", "cf32", n=1000).data
     values = np.zeros(2000, "<f4")
     values[1501] = np.inf
     raw.write_bytes(values.tobytes())
@@ -203,14 +191,14 @@ def test_nan_in_cf32(tmp_path):
         list(src.chunks(256))
 
 
-def test_inconsistent_and_missing_metadata(tmp_path):
-    raw, sidecar = _raw(tmp_path)
+def test_inconsistent_and_missing_metadata(tmp_path, make_capture):
+    raw, sidecar, _ = make_capture(tmp_path, "raw")
     with pytest.raises(ValueError, match=re.escape(str(sidecar)) + ".*sample rate.*7560000.0.*10000000.0"):
         open_capture(raw, sample_rate_hz=10e6)
     with pytest.raises(ValueError, match="sample format"):
         open_capture(raw, sample_format="ci16")
     (tmp_path / "sigmf").mkdir()
-    meta, _ = _sigmf(tmp_path / "sigmf")
+    meta = make_capture(tmp_path / "sigmf").meta
     with pytest.raises(ValueError, match="centre frequency"):
         open_capture(meta, center_hz=490e6)
     sidecar.unlink()
@@ -225,3 +213,80 @@ def test_inconsistent_and_missing_metadata(tmp_path):
         open_capture(raw)
     with pytest.raises(ValueError, match="stdin.*sample format"):
         open_capture("-")
+
+
+class _Trickle(io.RawIOBase):
+    """A stream that hands out at most the next of ``sizes`` bytes per read, like a pipe."""
+
+    def __init__(self, data: bytes, sizes: list[int]) -> None:
+        self._data, self._sizes, self._at = data, list(sizes), 0
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        size = min(len(buffer), self._sizes.pop(0) if self._sizes else len(buffer), len(self._data) - self._at)
+        buffer[:size] = self._data[self._at:self._at + size]
+        self._at += size
+        return size
+
+
+@settings(max_examples=40, deadline=None)
+@given(fmt=st.sampled_from(FORMATS), samples=st.integers(1, 300), extra=st.integers(0, 7),
+       sizes=st.lists(st.integers(1, 97), max_size=40), chunk=st.integers(1, 64))
+def test_stream_yields_what_arrives_and_every_whole_sample(fmt, samples, extra, sizes, chunk):
+    """Reads of any size give the same samples; a cut inside a pair yields every whole sample, then says so."""
+    info = iqformat.get_format(fmt)
+    extra %= info.bytes_per_sample
+    rng = np.random.default_rng(samples)
+    z = (rng.uniform(-0.9, 0.9, samples) + 1j * rng.uniform(-0.9, 0.9, samples)).astype(np.complex64)
+    data = iqformat.encode(z, fmt).tobytes() + bytes(range(1, extra + 1))
+    stream = io.BufferedReader(_Trickle(data, sizes), buffer_size=16)
+    got = []
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(sys, "stdin", type("Stdin", (), {"buffer": stream})())
+        src = open_capture("-", sample_format=fmt, sample_rate_hz=1e6)
+        if extra:
+            with pytest.raises(TruncatedStream, match="half an IQ pair") as cut:
+                for part in src.chunks(chunk):
+                    got.append(part)
+            assert cut.value.samples == samples
+        else:
+            got = list(src.chunks(chunk))
+    assert all(0 < len(part) <= chunk for part in got)
+    assert np.array_equal(np.concatenate(got), iqformat.decode(iqformat.encode(z, fmt).tobytes(), fmt))
+
+
+@pytest.mark.parametrize("doc, problem", [
+    ({"sample_rate_hz": "fast", "sample_format": "ci8"}, "sample_rate_hz must be a number"),
+    ({"sample_rate_hz": 0, "sample_format": "ci8"}, "sample_rate_hz must be a finite positive"),
+    ({"sample_rate_hz": float("inf"), "sample_format": "ci8"}, "sample_rate_hz must be a finite positive"),
+    ({"sample_rate_hz": 1e6, "sample_format": "ci8", "center_hz": "666e6"}, "center_hz must be a number"),
+    ({"sample_rate_hz": 1e6, "sample_format": "ci8", "start_utc_unix_ns": 1.5}, "start_utc_unix_ns"),
+])
+def test_malformed_sidecar_values(tmp_path, make_capture, doc, problem):
+    raw, sidecar, _ = make_capture(tmp_path, "raw")
+    sidecar.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=re.escape(str(sidecar)) + ".*" + problem):
+        open_capture(raw)
+
+
+def test_missing_options_are_their_own_error(tmp_path):
+    raw = tmp_path / "plain.ci8"
+    raw.write_bytes(bytes(8))
+    for path in (raw, "-"):
+        with pytest.raises(MissingCaptureOptions):
+            open_capture(path)
+
+
+def test_capture_files_and_project_keys(tmp_path, make_capture):
+    (tmp_path / "a").mkdir()
+    sigmf = make_capture(tmp_path / "a")
+    assert set(capture_files(sigmf.data)) == set(capture_files(sigmf.meta)) == {sigmf.meta, sigmf.data}
+    raw = make_capture(tmp_path, "raw")
+    assert capture_files(raw.capture) == (raw.data, raw.meta)
+    assert capture_files("-") == ()
+    with CaptureWriter(tmp_path / "sim", "raw", "ci8", 7.56e6, 666e6, project={"scenario": "walk", "seed": 3}) as w:
+        w.write(iqformat.encode(np.zeros(4, np.complex64), "ci8"))
+    src = open_capture(w.capture_path)
+    assert (src.project_value("scenario"), src.project_value("seed"), src.project_value("nope")) == ("walk", 3, None)

@@ -12,6 +12,8 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
+import shutil
+import tempfile
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -19,17 +21,56 @@ from typing import Any
 import h5py
 import numpy as np
 
+from dtmbnav import package_version
 from dtmbnav.core.schema import COMPLETE_ATTR, PACKAGE_VERSION_ATTR, SCHEMA_VERSION, SCHEMA_VERSION_ATTR
 
 
-def package_version() -> str:
-    """Installed dtmbnav version ("unknown" when running from a bare tree)."""
-    from importlib.metadata import PackageNotFoundError, version
+def partial_path(path: str | os.PathLike) -> Path:
+    """The hidden temporary name a file is written under before it is renamed to ``path``."""
+    path = Path(path)
+    return path.with_name(f".{path.name}.partial-{os.getpid()}")
 
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """A temporary path to write instead of ``path``, renamed to ``path`` only on success.
+
+    The temporary file sits next to ``path`` (same folder, so the rename is
+    atomic) under :func:`partial_path`'s hidden name. On any exception,
+    including KeyboardInterrupt, it is removed and ``path`` is left as it was.
+    """
+    path = Path(path)
+    tmp = partial_path(path)
     try:
-        return version("dtmbnav")
-    except PackageNotFoundError:
-        return "unknown"
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+@contextlib.contextmanager
+def atomic_folder(path: str | os.PathLike) -> Iterator[Path]:
+    """A temporary folder to write instead of folder ``path``; its files move into ``path`` only on success.
+
+    For outputs made of several files (a report): on an exception the
+    temporary folder is removed and ``path`` is neither created nor changed;
+    on success ``path`` is created if missing and each file is renamed into
+    it (files already there under other names are kept). Missing parent
+    folders are created first (the temporary folder sits next to ``path``).
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.partial-", dir=path.parent))
+    try:
+        yield tmp
+        path.mkdir(exist_ok=True)
+        for item in sorted(tmp.iterdir()):
+            os.replace(item, path / item.name)
+        tmp.rmdir()
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
 
 
 @contextlib.contextmanager
@@ -40,23 +81,44 @@ def atomic_h5(path: str | os.PathLike, mode: str = "w") -> Iterator[h5py.File]:
     existing one. On an exception the partial file is removed and ``path`` is
     left as it was.
     """
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    if mode == "a" and path.exists():
-        tmp.write_bytes(path.read_bytes())
-    elif mode not in ("w", "a"):
+    if mode not in ("w", "a"):
         raise ValueError("mode must be 'w' or 'a'")
-    try:
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        if mode == "a" and path.exists():
+            tmp.write_bytes(path.read_bytes())
         with h5py.File(tmp, "a") as f:
             f.attrs[COMPLETE_ATTR] = False
             yield f
             f.attrs[COMPLETE_ATTR] = True
             f.attrs[PACKAGE_VERSION_ATTR] = package_version()
             f.attrs[SCHEMA_VERSION_ATTR] = SCHEMA_VERSION
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+
+
+@contextlib.contextmanager
+def open_h5(path: str | os.PathLike) -> Iterator[h5py.File]:
+    """Open an HDF5 file for reading, with errors that name it.
+
+    Raises
+    ------
+    ValueError
+        The path is missing, a folder, not an HDF5 file, or a file an
+        interrupted run left incomplete.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"{path}: no such file")
+    if not path.is_file():
+        raise ValueError(f"{path}: not a file")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        reason = str(exc).split("(", 1)[-1].rstrip(")") if "(" in str(exc) else str(exc)
+        raise ValueError(f"{path}: not a readable HDF5 file ({reason})") from None
+    with f:
+        if not f.attrs.get(COMPLETE_ATTR, True):
+            raise ValueError(f"{path}: file is incomplete (an interrupted run wrote it)")
+        yield f
 
 
 def _columns_of(record: Any) -> Mapping[str, np.ndarray]:
@@ -96,16 +158,11 @@ def write_columns(parent: h5py.Group, name: str, record: Any, attrs: Mapping[str
 def read_columns(parent: h5py.Group | str | os.PathLike, name: str) -> dict[str, np.ndarray]:
     """Read every dataset of group ``name`` into a dict of arrays.
 
-    ``parent`` may be an open group or a file path; a missing group or an
-    incomplete file raises ``ValueError`` naming the file and the group.
+    ``parent`` may be an open group or a file path (opened with :func:`open_h5`);
+    a missing group raises ``ValueError`` naming the file and the group.
     """
     if not isinstance(parent, h5py.Group):
-        path = Path(parent)
-        if not path.is_file():
-            raise ValueError(f"{path}: no such file")
-        with h5py.File(path, "r") as f:
-            if not f.attrs.get(COMPLETE_ATTR, True):
-                raise ValueError(f"{path}: file is incomplete (an interrupted run wrote it)")
+        with open_h5(parent) as f:
             return read_columns(f, name)
     if name not in parent:
         raise ValueError(f"{parent.file.filename}: no group /{name.lstrip('/')}")
@@ -114,8 +171,8 @@ def read_columns(parent: h5py.Group | str | os.PathLike, name: str) -> dict[str,
 
 
 def read_attrs(path: str | os.PathLike, name: str) -> dict[str, Any]:
-    """Attributes of group ``name`` in file ``path``."""
-    with h5py.File(path, "r") as f:
+    """Attributes of group ``name`` in file ``path`` (ValueError naming a missing file or group)."""
+    with open_h5(path) as f:
         if name not in f:
             raise ValueError(f"{path}: no group /{name.lstrip('/')}")
         return dict(f[name].attrs)

@@ -57,3 +57,10 @@ CAPTURE_START_ATTR = "capture_start_s"
 WEINBERG_K_ATTR = "weinberg_k_m"
 #: On /fusion/<filter>: the initial heading used and how it was chosen.
 INITIAL_HEADING_ATTR = "initial_heading_rad"
+#: On /receiver/frames: why the input ended before its end (interrupted, a stream cut inside an IQ pair,
+#: a read error); absent when the whole input was received.
+ENDED_EARLY_ATTR = "ended_early"
+#: On /receiver/frames: the scenario name and seed of a simulated capture (from its metadata), so that
+#: ``fuse`` can tell a receiver file and a sensors file of different walks apart.
+CAPTURE_SCENARIO_ATTR = "capture_scenario"
+CAPTURE_SEED_ATTR = "capture_seed"

@@ -1,0 +1,1091 @@
+"""Bad and unusual command lines and files, one case per row: exit code, message, nothing left behind.
+
+Every case runs ``dtmbnav.cli.main`` in-process on small files in its own folder and checks
+
+- the exit code (0 ok, 1 nothing found, 2 usage, 3 bad input, 4 internal error; ``dtmbnav.cli``),
+- that stderr names the file or option at fault (and shows no traceback unless ``--debug`` asks),
+- that a failure changes nothing in the case's folder: no output at the final path, no hidden
+  partial file, and an input named as the output is left as it was (every file is hashed before
+  and after). A run that finds nothing (exit 1) may leave only its declared output, without rows.
+
+The inputs are the session's tiny files (``conftest.py``) or copies of them broken one way each.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import shutil
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from conftest import TINY_FORMAT, TINY_RATE_HZ, TINY_WALK
+
+from dtmbnav import package_version
+from dtmbnav.cli import EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_NO_RESULT, EXIT_OK, EXIT_USAGE, main
+from dtmbnav.core import schema
+
+RAW_OPTIONS = ["--format", TINY_FORMAT, "--rate", str(TINY_RATE_HZ), "--center", "666e6"]
+
+
+class Ctx:
+    """A case's folder, the session's fixture files (built on first use) and ways to break copies of them."""
+
+    def __init__(self, folder: Path, request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch,
+                 make_capture) -> None:
+        self.tmp = folder
+        self.out = folder / "out"
+        self.out.mkdir()
+        self._request = request
+        self.monkeypatch = monkeypatch
+        self._make_capture = make_capture
+        #: The output a case declares (checked to hold no frames when the exit code is 1).
+        self.output: Path | None = None
+
+    def fixture(self, name: str) -> Path:
+        return self._request.getfixturevalue(name)
+
+    @property
+    def sim(self) -> Path:
+        """Folder of the tiny SigMF capture and its ``truth.h5``."""
+        return self.fixture("tiny_sim")
+
+    @property
+    def rx(self) -> Path:
+        return self.fixture("tiny_rx")
+
+    @property
+    def truth(self) -> Path:
+        """``truth.h5`` of the whole tiny walk."""
+        return self.fixture("tiny_walk_truth")
+
+    @property
+    def results(self) -> Path:
+        return self.fixture("tiny_results")
+
+    def o(self, name: str = "result.h5") -> str:
+        """An output path in the case's output folder (declared: see :attr:`output`)."""
+        self.output = self.out / name
+        return str(self.output)
+
+    def write(self, name: str, data: bytes | str) -> str:
+        path = self.tmp / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(data if isinstance(data, bytes) else data.encode())
+        return str(path)
+
+    def copy(self, src: Path, name: str | None = None) -> str:
+        dst = self.tmp / (name or src.name)
+        shutil.copy(src, dst)
+        return str(dst)
+
+    def h5(self, src: Path, name: str, edit: Callable[[h5py.File], None]) -> str:
+        """A copy of an HDF5 file changed by ``edit``."""
+        path = self.copy(src, name)
+        with h5py.File(path, "a") as f:
+            edit(f)
+        return path
+
+    def capture(self, container: str = "sigmf", fmt: str = "ci8", n: int = 64, samples=None, folder: str = ""):
+        """A small capture ``cap`` in the case's folder or a subfolder of it (``conftest.make_capture``)."""
+        where = self.tmp / folder
+        where.mkdir(exist_ok=True)
+        return self._make_capture(where, container, fmt, n, samples)
+
+    def sigmf_meta(self, edit: Callable[[dict], None]) -> str:
+        files = self.capture()
+        doc = json.loads(files.meta.read_text())
+        edit(doc)
+        files.meta.write_text(json.dumps(doc))
+        return str(files.meta)
+
+    def sidecar(self, doc: dict | str) -> str:
+        files = self.capture("raw")
+        files.meta.write_text(doc if isinstance(doc, str) else json.dumps(doc))
+        return str(files.capture)
+
+    def stdin(self, data: bytes) -> None:
+        self.monkeypatch.setattr(sys, "stdin", type("Stdin", (), {"buffer": io.BytesIO(data)})())
+
+    def tiny_rx_copy(self, name: str = "rx.h5", edit: Callable[[h5py.File], None] | None = None) -> str:
+        return self.h5(self.rx, name, edit or (lambda f: None))
+
+
+@dataclass(frozen=True)
+class Case:
+    build: Callable[[Ctx], tuple[list[str], list[str]]]
+    code: int
+
+
+CASES: dict[str, Case] = {}
+
+
+def case(code: int):
+    """Register ``build(ctx) -> (argv, words stderr must contain)`` as a case expecting ``code``."""
+    def register(build):
+        CASES[build.__name__] = Case(build, code)
+        return build
+    return register
+
+
+def _drop(group: str, *names: str) -> Callable[[h5py.File], None]:
+    """Delete columns of ``group``, or the whole group when no name is given."""
+    def edit(f: h5py.File) -> None:
+        for path in [f"{group}/{name}" for name in names] or [group]:
+            del f[path]
+    return edit
+
+
+def _set_attr(group: str, key: str, value) -> Callable[[h5py.File], None]:
+    def edit(f: h5py.File) -> None:
+        f[group].attrs[key] = value
+    return edit
+
+
+def _replace(group: str, name: str, values: np.ndarray) -> Callable[[h5py.File], None]:
+    def edit(f: h5py.File) -> None:
+        del f[f"{group}/{name}"]
+        f[group].create_dataset(name, data=values)
+    return edit
+
+
+# ------------------------------------------------------------------------------------------- the CLI itself
+
+@case(EXIT_USAGE)
+def cli_no_subcommand(ctx):
+    return [], ["COMMAND"]
+
+
+@case(EXIT_USAGE)
+def cli_unknown_subcommand(ctx):
+    return ["frobnicate"], ["frobnicate"]
+
+
+@case(EXIT_USAGE)
+def cli_unknown_option(ctx):
+    return ["pdr", str(ctx.sim / "truth.h5"), "-o", ctx.o(), "--bogus"], ["--bogus"]
+
+
+@case(EXIT_OK)
+def cli_version(ctx):
+    return ["--version"], []  # printed on stdout: checked in test_version_prints_the_package_version
+
+
+@case(EXIT_OK)
+def cli_quiet_and_debug_after_the_subcommand(ctx):
+    return ["pdr", str(ctx.sim / "truth.h5"), "-o", ctx.o("pdr.h5"), "-q", "--debug"], ["steps"]
+
+
+def _boom(*args, **kwargs):
+    raise RuntimeError("boom: a bug")
+
+
+@case(EXIT_INTERNAL)
+def cli_internal_error_is_one_line(ctx):
+    ctx.monkeypatch.setattr("dtmbnav.chain.run_pdr", _boom)
+    return ["-q", "pdr", str(ctx.sim / "truth.h5"), "-o", ctx.o()], ["internal error", "RuntimeError", "boom",
+                                                                     "--debug"]
+
+
+@case(EXIT_INTERNAL)
+def cli_debug_shows_the_traceback(ctx):
+    ctx.monkeypatch.setattr("dtmbnav.chain.run_pdr", _boom)
+    return ["pdr", str(ctx.sim / "truth.h5"), "-o", ctx.o(), "--debug", "-q"], ["Traceback", "_boom",
+                                                                               "internal error"]
+
+
+# -------------------------------------------------------------------------------------------------- receive
+
+@case(EXIT_BAD_INPUT)
+def receive_empty_file(ctx):
+    cap = ctx.write("empty.ci8", b"")
+    return ["-q", "receive", cap, *RAW_OPTIONS, "-o", ctx.o()], [cap, "empty"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sigmf_data_half_iq_pair(ctx):
+    files = ctx.capture(fmt="ci16")
+    files.data.write_bytes(files.data.read_bytes()[:-2])  # odd count of int16 rails
+    return ["-q", "receive", str(files.meta), "-o", ctx.o()], [str(files.data), "half an IQ pair"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sigmf_data_odd_byte_count(ctx):
+    files = ctx.capture(fmt="ci16")
+    files.data.write_bytes(files.data.read_bytes() + b"\x01")
+    return ["-q", "receive", str(files.meta), "-o", ctx.o()], [str(files.data), "half an IQ pair"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_missing_sigmf_data(ctx):
+    files = ctx.capture()
+    files.data.unlink()
+    return ["-q", "receive", str(files.meta), "-o", ctx.o()], [str(files.data), "not found"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_missing_sigmf_meta(ctx):
+    files = ctx.capture()
+    files.meta.unlink()
+    return ["-q", "receive", str(files.data), "-o", ctx.o()], [str(files.meta), "not found"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sigmf_without_sample_rate(ctx):
+    meta = ctx.sigmf_meta(lambda d: d["global"].pop("core:sample_rate"))
+    return ["-q", "receive", meta, "-o", ctx.o()], [meta, "core:sample_rate"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sigmf_without_datatype(ctx):
+    meta = ctx.sigmf_meta(lambda d: d["global"].pop("core:datatype"))
+    return ["-q", "receive", meta, "-o", ctx.o()], [meta, "core:datatype"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sigmf_unknown_datatype(ctx):
+    meta = ctx.sigmf_meta(lambda d: d["global"].update({"core:datatype": "ri8"}))
+    return ["-q", "receive", meta, "-o", ctx.o()], [meta, "ri8"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sigmf_nan_sample_rate(ctx):
+    meta = ctx.sigmf_meta(lambda d: d["global"].update({"core:sample_rate": float("nan")}))
+    return ["-q", "receive", meta, "-o", ctx.o()], [meta, "core:sample_rate"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sigmf_string_frequency(ctx):
+    meta = ctx.sigmf_meta(lambda d: d["captures"][0].update({"core:frequency": "666 MHz"}))
+    return ["-q", "receive", meta, "-o", ctx.o()], [meta]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sigmf_malformed_json(ctx):
+    files = ctx.capture()
+    files.meta.write_text('{"global": {"core:datatype": "ci8",')
+    return ["-q", "receive", str(files.meta), "-o", ctx.o()], [str(files.meta), "invalid SigMF metadata"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sidecar_malformed_json(ctx):
+    cap = ctx.sidecar("{not json")
+    return ["-q", "receive", cap, "-o", ctx.o()], [cap + ".json", "invalid JSON sidecar"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sidecar_not_an_object(ctx):
+    cap = ctx.sidecar("[1, 2]")
+    return ["-q", "receive", cap, "-o", ctx.o()], [cap + ".json", "expected an object"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sidecar_string_rate(ctx):
+    cap = ctx.sidecar({"sample_rate_hz": "7.56 Msps", "sample_format": "ci8", "center_hz": 666e6})
+    return ["-q", "receive", cap, "-o", ctx.o()], [cap + ".json", "sample_rate_hz"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sidecar_negative_rate(ctx):
+    cap = ctx.sidecar({"sample_rate_hz": -7.56e6, "sample_format": "ci8", "center_hz": 666e6})
+    return ["-q", "receive", cap, "-o", ctx.o()], [cap + ".json", "sample_rate_hz"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sidecar_nan_rate(ctx):
+    cap = ctx.sidecar('{"sample_rate_hz": NaN, "sample_format": "ci8", "center_hz": 666e6}')
+    return ["-q", "receive", cap, "-o", ctx.o()], [cap + ".json", "sample_rate_hz"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sidecar_boolean_centre(ctx):
+    cap = ctx.sidecar({"sample_rate_hz": 7.56e6, "sample_format": "ci8", "center_hz": True})
+    return ["-q", "receive", cap, "-o", ctx.o()], [cap + ".json", "center_hz"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sidecar_bad_start_time(ctx):
+    cap = ctx.sidecar({"sample_rate_hz": 7.56e6, "sample_format": "ci8", "start_utc_unix_ns": "yesterday"})
+    return ["-q", "receive", cap, "-o", ctx.o()], [cap + ".json", "start_utc_unix_ns"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sidecar_unknown_format(ctx):
+    cap = ctx.sidecar({"sample_rate_hz": 7.56e6, "sample_format": "ci12", "center_hz": 666e6})
+    return ["-q", "receive", cap, "-o", ctx.o()], [cap + ".json", "ci12"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_rate_disagrees_with_metadata(ctx):
+    cap = str(ctx.capture("raw").capture)
+    return ["-q", "receive", cap, "--rate", "10e6", "-o", ctx.o()], [cap + ".json", "sample rate"]
+
+
+@case(EXIT_USAGE)
+def receive_raw_without_format_and_rate(ctx):
+    cap = ctx.write("plain.ci8", bytes(64))
+    return ["-q", "receive", cap, "-o", ctx.o()], [cap, "--format", "--rate"]
+
+
+@case(EXIT_USAGE)
+def receive_raw_without_centre(ctx):
+    cap = ctx.write("plain.ci8", bytes(64))
+    return ["-q", "receive", cap, "--format", "ci8", "--rate", "7.56e6", "-o", ctx.o()], [cap, "--center"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_nan_in_cf32(ctx):
+    values = np.zeros(2000, "<f4")
+    values[1501] = np.nan
+    cap = ctx.write("nan.cf32", values.tobytes())
+    return ["-q", "receive", cap, "--format", "cf32", "--rate", "7.56e6", "--center", "666e6", "-o", ctx.o()], \
+        [cap, "NaN or inf"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_inf_in_cf32(ctx):
+    samples = np.zeros(500, np.complex64)
+    files = ctx.capture("raw", "cf32", samples=samples)
+    values = np.fromfile(files.data, "<f4")
+    values[7] = -np.inf
+    values.tofile(files.data)
+    return ["-q", "receive", str(files.capture), "-o", ctx.o()], [str(files.data), "NaN or inf"]
+
+
+@case(EXIT_NO_RESULT)
+def receive_noise_only_finds_no_lock(ctx):
+    rng = np.random.default_rng(3)
+    cap = ctx.write("noise.ci8", np.clip(rng.normal(0, 20, 2 * 400_000), -127, 127).astype(np.int8).tobytes())
+    return ["-q", "receive", cap, *RAW_OPTIONS, "-o", ctx.o("rx.h5")], ["no lock"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_folder_as_capture(ctx):
+    folder = ctx.tmp / "capture.ci8"
+    folder.mkdir()
+    return ["-q", "receive", str(folder), *RAW_OPTIONS, "-o", ctx.o()], [str(folder), "not a file"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_folder_as_sigmf_data(ctx):
+    (ctx.tmp / "cap.sigmf-data").mkdir()
+    meta = ctx.write("cap.sigmf-meta", "{}")
+    return ["-q", "receive", meta, "-o", ctx.o()], [str(ctx.tmp / "cap.sigmf-data"), "not a file"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_nonexistent_capture(ctx):
+    cap = str(ctx.tmp / "nope.ci8")
+    return ["-q", "receive", cap, *RAW_OPTIONS, "-o", ctx.o()], [cap, "no such capture file"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_output_inside_a_regular_file(ctx):
+    blocker = ctx.write("blocker", "a file, not a folder")
+    return ["-q", "receive", str(ctx.capture().meta), "-o", blocker + "/rx.h5"], [blocker, "-o", "not a folder"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_output_folder_missing(ctx):
+    out = str(ctx.tmp / "missing" / "rx.h5")
+    return ["-q", "receive", str(ctx.capture().meta), "-o", out], [str(ctx.tmp / "missing"), "does not exist"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_output_is_a_folder(ctx):
+    return ["-q", "receive", str(ctx.capture().meta), "-o", str(ctx.out)], [str(ctx.out), "is a folder"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_csv_inside_a_regular_file(ctx):
+    blocker = ctx.write("blocker", "x")
+    return ["-q", "receive", str(ctx.capture().meta), "-o", ctx.o(), "--csv", blocker + "/rx.csv"], [blocker,
+                                                                                                      "--csv"]
+
+
+@case(EXIT_USAGE)
+def receive_output_is_the_raw_input(ctx):
+    cap = str(ctx.capture("raw").capture)
+    return ["-q", "receive", cap, "-o", cap], ["-o", cap, "input"]
+
+
+@case(EXIT_USAGE)
+def receive_output_is_the_sigmf_data_file(ctx):
+    files = ctx.capture()
+    return ["-q", "receive", str(files.meta), "-o", str(files.data)], ["-o", str(files.data), "input"]
+
+
+@case(EXIT_USAGE)
+def receive_output_is_the_sigmf_meta_file(ctx):
+    files = ctx.capture()
+    return ["-q", "receive", str(files.data), "-o", str(files.meta)], ["-o", str(files.meta), "input"]
+
+
+@case(EXIT_USAGE)
+def receive_csv_is_the_input(ctx):
+    cap = str(ctx.capture("raw").capture)
+    return ["-q", "receive", cap, "-o", ctx.o(), "--csv", cap], ["--csv", cap, "input"]
+
+
+@case(EXIT_USAGE)
+def receive_csv_is_the_sidecar(ctx):
+    files = ctx.capture("raw")
+    return ["-q", "receive", str(files.capture), "-o", ctx.o(), "--csv", str(files.meta)], ["--csv", str(files.meta)]
+
+
+@case(EXIT_USAGE)
+def receive_output_through_another_spelling_of_the_input(ctx):
+    files = ctx.capture("raw")
+    other = str(ctx.tmp / "." / "out" / ".." / files.capture.name)
+    return ["-q", "receive", str(files.capture), "-o", other], ["-o", "input"]
+
+
+@case(EXIT_USAGE)
+def receive_output_and_csv_the_same(ctx):
+    out = ctx.o("rx.out")
+    return ["-q", "receive", str(ctx.capture().meta), "-o", out, "--csv", out], ["-o", "--csv", out]
+
+
+@case(EXIT_USAGE)
+def receive_hdf5_to_stdout(ctx):
+    return ["-q", "receive", str(ctx.capture().meta), "-o", "-"], ["-o -"]
+
+
+@case(EXIT_USAGE)
+def receive_stdin_without_format(ctx):
+    ctx.stdin(bytes(64))
+    return ["-q", "receive", "-", "--rate", "7.56e6", "-o", ctx.o()], ["stdin", "--format"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_stdin_empty(ctx):
+    ctx.stdin(b"")
+    return ["-q", "receive", "-", *RAW_OPTIONS, "-o", ctx.o()], ["-: no samples", "empty"]
+
+
+@case(EXIT_NO_RESULT)
+def receive_stdin_of_three_bytes(ctx):
+    ctx.stdin(b"\x01\x02\x03")  # one ci8 sample and half of the next
+    return ["-q", "receive", "-", *RAW_OPTIONS, "-o", ctx.o("rx.h5")], ["no lock", "ended early",
+                                                                       "inside an IQ pair"]
+
+
+@case(EXIT_USAGE)
+def receive_rate_zero(ctx):
+    return ["-q", "receive", str(ctx.capture().meta), "--rate", "0", "-o", ctx.o()], ["--rate", "positive"]
+
+
+@case(EXIT_USAGE)
+def receive_rate_nan(ctx):
+    return ["-q", "receive", str(ctx.capture().meta), "--rate", "nan", "-o", ctx.o()], ["--rate", "finite"]
+
+
+@case(EXIT_USAGE)
+def receive_rate_text(ctx):
+    return ["-q", "receive", str(ctx.capture().meta), "--rate", "fast", "-o", ctx.o()], ["--rate", "'fast'"]
+
+
+@case(EXIT_USAGE)
+def receive_rate_negative(ctx):
+    return ["-q", "receive", str(ctx.capture().meta), "--rate=-7.56e6", "-o", ctx.o()], ["--rate", "positive"]
+
+
+@case(EXIT_USAGE)
+def receive_centre_inf(ctx):
+    return ["-q", "receive", str(ctx.capture().meta), "--center", "inf", "-o", ctx.o()], ["--center", "finite"]
+
+
+@case(EXIT_USAGE)
+def receive_clock_offset_nan(ctx):
+    return ["-q", "receive", str(ctx.capture().meta), "--clock-offset", "nan", "-o", ctx.o()], ["--clock-offset"]
+
+
+@case(EXIT_USAGE)
+def receive_clock_offset_inf(ctx):
+    return ["-q", "receive", str(ctx.capture().meta), "--clock-offset=-inf", "-o", ctx.o()], ["--clock-offset",
+                                                                                              "finite"]
+
+
+@case(EXIT_USAGE)
+def receive_static_window_zero_without_clock_offset(ctx):
+    return ["-q", "receive", str(ctx.capture().meta), "--static-window", "0", "-o", ctx.o()], ["--static-window",
+                                                                                              "--clock-offset"]
+
+
+@case(EXIT_USAGE)
+def receive_static_window_negative(ctx):
+    return ["-q", "receive", str(ctx.capture().meta), "--static-window=-1", "-o", ctx.o()], ["--static-window"]
+
+
+@case(EXIT_USAGE)
+def receive_unknown_format(ctx):
+    return ["-q", "receive", str(ctx.capture().meta), "--format", "ci12", "-o", ctx.o()], ["--format", "ci12"]
+
+
+@case(EXIT_USAGE)
+def receive_unknown_pn_mode(ctx):
+    return ["-q", "receive", str(ctx.capture().meta), "--pn-mode", "PN999", "-o", ctx.o()], ["--pn-mode"]
+
+
+# ------------------------------------------------------------------------------------------------------ pdr
+
+@case(EXIT_BAD_INPUT)
+def pdr_nonexistent_sensors(ctx):
+    path = str(ctx.tmp / "nope.h5")
+    return ["-q", "pdr", path, "-o", ctx.o()], [path, "no such file"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_folder_as_sensors(ctx):
+    return ["-q", "pdr", str(ctx.out), "-o", ctx.o()], [str(ctx.out), "not a file"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_sensors_not_hdf5(ctx):
+    path = ctx.write("sensors.h5", "t,acc\n0,9.81\n")
+    return ["-q", "pdr", path, "-o", ctx.o()], [path, "not a readable HDF5 file"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_sensors_empty_file(ctx):
+    path = ctx.write("sensors.h5", b"")
+    return ["-q", "pdr", path, "-o", ctx.o()], [path, "HDF5"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_sensors_without_imu(ctx):
+    path = ctx.h5(ctx.truth, "sensors.h5", _drop(schema.IMU))
+    return ["-q", "pdr", path, "-o", ctx.o()], [path, "/imu"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_imu_wrong_shape(ctx):
+    path = ctx.h5(ctx.truth, "sensors.h5", _replace(schema.IMU, "acc_mps2", np.zeros((10, 2))))
+    return ["-q", "pdr", path, "-o", ctx.o()], [path, "acc_mps2"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_imu_missing_column(ctx):
+    path = ctx.h5(ctx.truth, "sensors.h5", _drop(schema.IMU, "gyro_radps"))
+    return ["-q", "pdr", path, "-o", ctx.o()], [path, "gyro_radps"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_imu_with_nan(ctx):
+    def edit(f):
+        f["imu/acc_mps2"][5, 1] = np.nan
+    path = ctx.h5(ctx.truth, "sensors.h5", edit)
+    return ["-q", "pdr", path, "-o", ctx.o()], [path, "acc_mps2", "NaN"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_imu_time_going_back(ctx):
+    def edit(f):
+        f["imu/t_s"][10] = 0.0
+    path = ctx.h5(ctx.truth, "sensors.h5", edit)
+    return ["-q", "pdr", path, "-o", ctx.o()], [path, "t_s", "increasing"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_incomplete_file(ctx):
+    path = ctx.h5(ctx.truth, "sensors.h5", lambda f: f.attrs.__setitem__(schema.COMPLETE_ATTR, False))
+    return ["-q", "pdr", path, "-o", ctx.o()], [path, "incomplete"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_malformed_weinberg_attribute(ctx):
+    path = ctx.h5(ctx.truth, "sensors.h5", _set_attr(schema.IMU, schema.WEINBERG_K_ATTR, "tall"))
+    return ["-q", "pdr", path, "-o", ctx.o()], [path, schema.WEINBERG_K_ATTR]
+
+
+@case(EXIT_USAGE)
+def pdr_output_is_the_input(ctx):
+    path = ctx.copy(ctx.truth, "sensors.h5")
+    return ["-q", "pdr", path, "-o", path], ["-o", path, "input"]
+
+
+@case(EXIT_USAGE)
+def pdr_csv_is_the_input(ctx):
+    path = ctx.copy(ctx.truth, "sensors.h5")
+    return ["-q", "pdr", path, "-o", ctx.o(), "--csv", path], ["--csv", path, "input"]
+
+
+@case(EXIT_USAGE)
+def pdr_weinberg_k_zero(ctx):
+    return ["-q", "pdr", str(ctx.truth), "-o", ctx.o(), "--weinberg-k", "0"], ["--weinberg-k"]
+
+
+@case(EXIT_USAGE)
+def pdr_unknown_step_model(ctx):
+    return ["-q", "pdr", str(ctx.truth), "-o", ctx.o(), "--step-model", "giant"], ["--step-model"]
+
+
+# ----------------------------------------------------------------------------------------------------- fuse
+
+def _fuse(ctx, receiver: str | Path, sensors: str | Path, *extra: str) -> list[str]:
+    return ["-q", "fuse", "--receiver", str(receiver), "--sensors", str(sensors), "-o", ctx.o(), *extra]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_receiver_without_frames_group(ctx):
+    rx = ctx.tiny_rx_copy(edit=_drop("receiver"))
+    return _fuse(ctx, rx, ctx.sim / "truth.h5"), [rx, "/receiver/frames"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_receiver_missing_a_column(ctx):
+    rx = ctx.tiny_rx_copy(edit=_drop(schema.RECEIVER_FRAMES, "range_change_m"))
+    return _fuse(ctx, rx, ctx.sim / "truth.h5"), [rx, "range_change_m"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_receiver_columns_of_different_lengths(ctx):
+    rx = ctx.tiny_rx_copy(edit=_replace(schema.RECEIVER_FRAMES, "snr_db", np.zeros(3, np.float32)))
+    return _fuse(ctx, rx, ctx.sim / "truth.h5"), [rx, "differ in length"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_receiver_text_column(ctx):
+    rx = ctx.tiny_rx_copy(edit=_replace(schema.RECEIVER_FRAMES, "flags", np.array([b"x"] * 719)))
+    return _fuse(ctx, rx, ctx.sim / "truth.h5"), [rx, "flags", "numeric"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_receiver_with_no_frames(ctx):
+    def edit(f):
+        for name in list(f[schema.RECEIVER_FRAMES]):
+            f[schema.RECEIVER_FRAMES][name].resize((0,))
+    rx = ctx.tiny_rx_copy(edit=edit)
+    return _fuse(ctx, rx, ctx.sim / "truth.h5"), [rx, "no frames"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_receiver_incomplete(ctx):
+    rx = ctx.tiny_rx_copy(edit=lambda f: f.attrs.__setitem__(schema.COMPLETE_ATTR, False))
+    return _fuse(ctx, rx, ctx.sim / "truth.h5"), [rx, "incomplete"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_sensors_without_imu(ctx):
+    sensors = ctx.h5(ctx.sim / "truth.h5", "sensors.h5", _drop(schema.IMU))
+    return _fuse(ctx, ctx.rx, sensors), [sensors, "/imu"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_gnss_without_start_fix(ctx):
+    def edit(f):
+        for key in schema.START_FIX_ATTRS:
+            del f[schema.GNSS].attrs[key]
+    sensors = ctx.h5(ctx.sim / "truth.h5", "sensors.h5", edit)
+    return _fuse(ctx, ctx.rx, sensors), [sensors, "/gnss", "start-fix"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_gnss_malformed_start_fix(ctx):
+    sensors = ctx.h5(ctx.sim / "truth.h5", "sensors.h5", _set_attr(schema.GNSS, "start_fix_x_m", "north"))
+    return _fuse(ctx, ctx.rx, sensors), [sensors, "start-fix"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_sensors_without_tower(ctx):
+    sensors = ctx.h5(ctx.sim / "truth.h5", "sensors.h5", _drop(schema.TRUTH_TRAJECTORY))
+    return _fuse(ctx, ctx.rx, sensors), [sensors, "--tower"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_files_of_different_scenarios(ctx):
+    assert main(["-q", "simulate", "park-loop", "--no-iq", "-o", str(ctx.tmp / "park")]) == EXIT_OK
+    sensors = ctx.tmp / "park" / "truth.h5"
+    return _fuse(ctx, ctx.rx, sensors), [str(ctx.rx), str(sensors), "different walks", "park-loop-cw"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_files_of_different_seeds(ctx):
+    sensors = ctx.h5(ctx.sim / "truth.h5", "sensors.h5", _set_attr(schema.TRUTH_FRAMES, "seed", 8))
+    return _fuse(ctx, ctx.rx, sensors), [sensors, "different walks", "seed"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_files_that_do_not_overlap_in_time(ctx):
+    def edit(f):
+        f[schema.RECEIVER_FRAMES]["t_s"][...] += 1000.0
+        for key in (schema.CAPTURE_SCENARIO_ATTR, schema.CAPTURE_SEED_ATTR):
+            del f[schema.RECEIVER_FRAMES].attrs[key]
+    rx = ctx.tiny_rx_copy(edit=edit)
+    return _fuse(ctx, rx, ctx.sim / "truth.h5"), [rx, "do not overlap"]
+
+
+@case(EXIT_USAGE)
+def fuse_particles_zero(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--particles", "0"), ["--particles"]
+
+
+@case(EXIT_USAGE)
+def fuse_particles_negative(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--particles", "-1"), ["--particles"]
+
+
+@case(EXIT_USAGE)
+def fuse_particles_text(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--particles", "x"), ["--particles", "'x'"]
+
+
+@case(EXIT_USAGE)
+def fuse_filters_bogus(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--filters", "pf,kalman"), ["--filters", "kalman"]
+
+
+@case(EXIT_USAGE)
+def fuse_filters_empty(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--filters", ""), ["--filters"]
+
+
+@case(EXIT_USAGE)
+def fuse_filters_only_commas(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--filters", ",,"), ["--filters"]
+
+
+@case(EXIT_USAGE)
+def fuse_tower_one_number(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--tower", "2000"), ["--tower", "X,Y"]
+
+
+@case(EXIT_USAGE)
+def fuse_tower_three_numbers(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--tower", "1,2,3"), ["--tower"]
+
+
+@case(EXIT_USAGE)
+def fuse_tower_nan(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--tower", "nan,2200"), ["--tower", "finite"]
+
+
+@case(EXIT_USAGE)
+def fuse_start_text(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--start", "here"), ["--start"]
+
+
+@case(EXIT_USAGE)
+def fuse_seed_negative(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--seed=-4"), ["--seed"]
+
+
+@case(EXIT_USAGE)
+def fuse_output_is_the_receiver_file(ctx):
+    rx = ctx.tiny_rx_copy()
+    return ["-q", "fuse", "--receiver", rx, "--sensors", str(ctx.truth), "-o", rx], ["-o", rx, "--receiver"]
+
+
+@case(EXIT_USAGE)
+def fuse_output_is_the_sensors_file(ctx):
+    sensors = ctx.copy(ctx.truth, "sensors.h5")
+    return ["-q", "fuse", "--receiver", str(ctx.rx), "--sensors", sensors, "-o", sensors], ["-o", "--sensors"]
+
+
+@case(EXIT_USAGE)
+def fuse_missing_sensors_option(ctx):
+    return ["-q", "fuse", "--receiver", str(ctx.rx), "-o", ctx.o()], ["--sensors"]
+
+
+# --------------------------------------------------------------------------------------------------- report
+
+@case(EXIT_BAD_INPUT)
+def report_file_without_fusion(ctx):
+    return ["-q", "report", str(ctx.rx), "-o", str(ctx.out / "report")], [str(ctx.rx), "/fusion"]
+
+
+@case(EXIT_BAD_INPUT)
+def report_nonexistent_results(ctx):
+    path = str(ctx.tmp / "results.h5")
+    return ["-q", "report", path, "-o", str(ctx.out / "report")], [path, "no such file"]
+
+
+@case(EXIT_BAD_INPUT)
+def report_results_without_pdr(ctx):
+    path = ctx.h5(ctx.results, "results.h5", _drop(schema.PDR))
+    return ["-q", "report", path, "-o", str(ctx.out / "report")], [path, "/pdr"]
+
+
+@case(EXIT_BAD_INPUT)
+def report_truth_without_truth_groups(ctx):
+    truth = ctx.h5(ctx.truth, "truth.h5", _drop("truth"))
+    return ["-q", "report", str(ctx.results), "--truth", truth, "-o", str(ctx.out / "report")], [truth, "/truth"]
+
+
+@case(EXIT_BAD_INPUT)
+def report_output_is_a_regular_file(ctx):
+    blocker = ctx.write("report", "x")
+    return ["-q", "report", str(ctx.results), "-o", blocker], [blocker, "not a folder"]
+
+
+@case(EXIT_USAGE)
+def report_output_is_the_results_file(ctx):
+    path = ctx.copy(ctx.results)
+    return ["-q", "report", path, "-o", path], ["-o", path, "RESULTS"]
+
+
+# ------------------------------------------------------------------------------------------------- simulate
+
+@case(EXIT_BAD_INPUT)
+def simulate_toml_syntax_error(ctx):
+    path = ctx.write("walk.toml", "[walk\nspeed_mps = 1.3\n")
+    return ["-q", "simulate", path, "--no-iq", "-o", str(ctx.out / "sim")], [path]
+
+
+@case(EXIT_BAD_INPUT)
+def simulate_toml_unknown_key(ctx):
+    path = ctx.write("walk.toml", "[walk]\nspeed = 1.3\n")
+    return ["-q", "simulate", path, "--no-iq", "-o", str(ctx.out / "sim")], [path, "unknown key", "speed"]
+
+
+@case(EXIT_BAD_INPUT)
+def simulate_toml_wrong_typed_value(ctx):
+    path = ctx.write("walk.toml", '[walk]\nspeed_mps = "brisk"\n')
+    return ["-q", "simulate", path, "--no-iq", "-o", str(ctx.out / "sim")], [path, "speed_mps", "brisk"]
+
+
+@case(EXIT_BAD_INPUT)
+def simulate_toml_wrong_typed_list(ctx):
+    path = ctx.write("walk.toml", '[walk]\nwaypoints_m = [[0, 0], [0, "north"]]\n')
+    return ["-q", "simulate", path, "--no-iq", "-o", str(ctx.out / "sim")], [path, "waypoints_m"]
+
+
+@case(EXIT_BAD_INPUT)
+def simulate_toml_nan_value(ctx):
+    path = ctx.write("walk.toml", "[receiver]\ncn_db = nan\n")
+    return ["-q", "simulate", path, "--no-iq", "-o", str(ctx.out / "sim")], [path, "cn_db", "finite"]
+
+
+@case(EXIT_BAD_INPUT)
+def simulate_toml_section_not_a_table(ctx):
+    path = ctx.write("walk.toml", "walk = 3\n")
+    return ["-q", "simulate", path, "--no-iq", "-o", str(ctx.out / "sim")], [path, "walk", "table"]
+
+
+@case(EXIT_BAD_INPUT)
+def simulate_toml_binary_file(ctx):
+    path = ctx.write("walk.toml", b"\xff\xfe\x00binary")
+    return ["-q", "simulate", path, "--no-iq", "-o", str(ctx.out / "sim")], [path]
+
+
+@case(EXIT_BAD_INPUT)
+def simulate_toml_missing(ctx):
+    path = str(ctx.tmp / "walk.toml")
+    return ["-q", "simulate", path, "--no-iq", "-o", str(ctx.out / "sim")], [path, "does not exist"]
+
+
+@case(EXIT_USAGE)
+def simulate_unknown_scenario_name(ctx):
+    return ["-q", "simulate", "park-lop", "-o", str(ctx.out / "sim")], ["park-lop", "unknown scenario"]
+
+
+@case(EXIT_USAGE)
+def simulate_seconds_zero(ctx):
+    return ["-q", "simulate", str(TINY_WALK), "--seconds", "0", "-o", str(ctx.out / "sim")], ["--seconds"]
+
+
+@case(EXIT_USAGE)
+def simulate_seconds_negative(ctx):
+    return ["-q", "simulate", str(TINY_WALK), "--seconds=-2", "-o", str(ctx.out / "sim")], ["--seconds"]
+
+
+@case(EXIT_USAGE)
+def simulate_start_negative(ctx):
+    return ["-q", "simulate", str(TINY_WALK), "--start=-1", "-o", str(ctx.out / "sim")], ["--start"]
+
+
+@case(EXIT_USAGE)
+def simulate_rate_zero(ctx):
+    return ["-q", "simulate", str(TINY_WALK), "--rate", "0", "-o", str(ctx.out / "sim")], ["--rate"]
+
+
+@case(EXIT_USAGE)
+def simulate_rate_nan(ctx):
+    return ["-q", "simulate", str(TINY_WALK), "--rate", "nan", "-o", str(ctx.out / "sim")], ["--rate"]
+
+
+@case(EXIT_USAGE)
+def simulate_rate_text(ctx):
+    return ["-q", "simulate", str(TINY_WALK), "--rate", "2.4M", "-o", str(ctx.out / "sim")], ["--rate", "2.4M"]
+
+
+@case(EXIT_USAGE)
+def simulate_seed_negative(ctx):
+    return ["-q", "simulate", str(TINY_WALK), "--seed=-1", "-o", str(ctx.out / "sim")], ["--seed"]
+
+
+@case(EXIT_USAGE)
+def simulate_unknown_container(ctx):
+    return ["-q", "simulate", str(TINY_WALK), "--container", "wav", "-o", str(ctx.out / "sim")], ["--container"]
+
+
+@case(EXIT_BAD_INPUT)
+def simulate_output_inside_a_regular_file(ctx):
+    blocker = ctx.write("blocker", "x")
+    return ["-q", "simulate", str(TINY_WALK), "--no-iq", "-o", blocker + "/sim"], [blocker, "not a folder"]
+
+
+# ----------------------------------------------------------------------------------- run, evaluate, bench, demo
+
+@case(EXIT_BAD_INPUT)
+def run_missing_folder(ctx):
+    folder = str(ctx.tmp / "nowhere")
+    return ["-q", "run", folder, "-o", str(ctx.out / "run")], [folder, "not a folder"]
+
+
+@case(EXIT_BAD_INPUT)
+def run_folder_without_capture(ctx):
+    (ctx.tmp / "set").mkdir()
+    ctx.copy(ctx.truth, "set/truth.h5")
+    return ["-q", "run", str(ctx.tmp / "set"), "-o", str(ctx.out / "run")], [str(ctx.tmp / "set"), "capture"]
+
+
+@case(EXIT_BAD_INPUT)
+def run_folder_without_sensors(ctx):
+    ctx.capture(folder="set")
+    return ["-q", "run", str(ctx.tmp / "set"), "-o", str(ctx.out / "run")], [str(ctx.tmp / "set"), "sensors"]
+
+
+@case(EXIT_BAD_INPUT)
+def run_folder_with_a_broken_capture(ctx):
+    files = ctx.capture(fmt="ci16", folder="set")
+    files.data.write_bytes(files.data.read_bytes()[:-1])
+    ctx.copy(ctx.truth, "set/truth.h5")
+    return ["-q", "run", str(ctx.tmp / "set"), "-o", str(ctx.out / "run")], [str(files.data), "half an IQ pair"]
+
+
+@case(EXIT_USAGE)
+def run_unknown_filter(ctx):
+    return ["-q", "run", str(ctx.sim), "-o", str(ctx.out / "run"), "--filters", "pff"], ["--filters", "pff"]
+
+
+@case(EXIT_USAGE)
+def evaluate_zero_seeds(ctx):
+    return ["-q", "evaluate", "park-loop", "--seeds", "0"], ["--seeds"]
+
+
+@case(EXIT_USAGE)
+def evaluate_unknown_scenario(ctx):
+    return ["-q", "evaluate", "park-lop", "--seeds", "1"], ["park-lop", "unknown scenario"]
+
+
+@case(EXIT_USAGE)
+def evaluate_particles_zero(ctx):
+    return ["-q", "evaluate", "park-loop", "--particles", "0"], ["--particles"]
+
+
+@case(EXIT_USAGE)
+def evaluate_unknown_filter(ctx):
+    return ["-q", "evaluate", "park-loop", "--filters", "zupt"], ["--filters", "zupt"]
+
+
+@case(EXIT_BAD_INPUT)
+def evaluate_json_in_a_missing_folder(ctx):
+    path = str(ctx.tmp / "missing" / "table.json")
+    return ["-q", "evaluate", "park-loop", "--seeds", "1", "--json", path], ["--json", "does not exist"]
+
+
+@case(EXIT_USAGE)
+def evaluate_json_is_the_scenario_file(ctx):
+    path = ctx.copy(TINY_WALK)
+    return ["-q", "evaluate", path, "--seeds", "1", "--json", path], ["--json", path, "input"]
+
+
+@case(EXIT_BAD_INPUT)
+def bench_json_is_a_folder(ctx):
+    return ["-q", "bench", "--quick", "--json", str(ctx.out)], ["--json", str(ctx.out), "is a folder"]
+
+
+@case(EXIT_BAD_INPUT)
+def bench_json_inside_a_regular_file(ctx):
+    blocker = ctx.write("blocker", "x")
+    return ["-q", "bench", "--quick", "--json", blocker + "/bench.json"], ["--json", blocker]
+
+
+@case(EXIT_USAGE)
+def demo_seconds_zero(ctx):
+    return ["-q", "demo", "--seconds", "0", "-o", str(ctx.out / "demo")], ["--seconds"]
+
+
+@case(EXIT_USAGE)
+def demo_unknown_scenario(ctx):
+    return ["-q", "demo", "--scenario", "nowhere", "-o", str(ctx.out / "demo")], ["nowhere", "unknown scenario"]
+
+
+# --------------------------------------------------------------------------------------------------- runner
+
+def _snapshot(folder: Path) -> dict[str, str]:
+    """Every file under ``folder`` (hidden ones too) with a hash of its content; folders as ``<dir>``."""
+    out = {}
+    for path in sorted(folder.rglob("*")):
+        out[str(path.relative_to(folder))] = "<dir>" if path.is_dir() else hashlib.sha1(path.read_bytes()).hexdigest()
+    return out
+
+
+def run_cli(argv: list[str], capsys) -> tuple[int, str, str]:
+    """``main(argv)`` in-process: exit code (argparse's SystemExit included), stdout, stderr."""
+    try:
+        code = main(argv)
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else EXIT_USAGE
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_the_table_has_at_least_sixty_cases():
+    assert len(CASES) >= 60
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_bad_input(name, tmp_path, request, monkeypatch, make_capture, capsys):
+    entry = CASES[name]
+    ctx = Ctx(tmp_path, request, monkeypatch, make_capture)
+    argv, mentions = entry.build(ctx)
+    capsys.readouterr()  # what building the inputs printed
+    before = _snapshot(tmp_path)
+    code, _, err = run_cli(argv, capsys)
+
+    assert code == entry.code, err
+    for word in mentions:
+        assert word in err, f"stderr does not mention {word!r}:\n{err}"
+    if "--debug" not in argv:
+        assert "Traceback" not in err
+    if code in (EXIT_BAD_INPUT, EXIT_INTERNAL) and "--debug" not in argv:
+        command = next(arg for arg in argv if not arg.startswith("-"))
+        lines = [line for line in err.splitlines() if line.strip()]
+        assert len(lines) == 1 and lines[0].startswith(f"dtmbnav {command}: "), err
+    after = _snapshot(tmp_path)
+    if code == EXIT_OK:
+        return
+    new = {k: v for k, v in after.items() if before.get(k) != v}
+    if code == EXIT_NO_RESULT:
+        # The run's declared output may appear (complete, without rows); nothing else changes.
+        assert set(new) <= {str(ctx.output.relative_to(tmp_path))}, new
+        if ctx.output.exists():
+            with h5py.File(ctx.output, "r") as f:
+                assert f.attrs[schema.COMPLETE_ATTR]
+                assert len(f[schema.RECEIVER_FRAMES]["t_s"]) == 0
+        return
+    assert after == before, f"the failed run changed the case folder: {new} / {set(before) - set(after)}"
+
+
+def test_version_prints_the_package_version(capsys):
+    code, out, _ = run_cli(["--version"], capsys)
+    assert code == EXIT_OK
+    assert out.strip() == f"dtmbnav {package_version()}"
+
+
+def test_quiet_after_the_subcommand_silences_the_progress_bar(tiny_sim, tmp_path, capsys):
+    argv = ["receive", str(tiny_sim / "tiny-walk.sigmf-meta"), "-o", str(tmp_path / "rx.h5")]
+    code, _, err = run_cli([*argv, "-q"], capsys)
+    assert code == EXIT_OK
+    assert "S/s" not in err  # no tqdm rate
+    code, _, err = run_cli(argv, capsys)
+    assert code == EXIT_OK
+    assert "S/s" in err
