@@ -577,10 +577,11 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    # Before anything imports numba (the usage check reads capture metadata through the receiver).
+    note = configure_numba_cache()
     problem = check_usage(args)
     if problem:
         args.parser.error(problem)
-    note = configure_numba_cache()
     if note:
         print(f"dtmbnav: warning: {note}", file=sys.stderr)
     with interrupts_raise():

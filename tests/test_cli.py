@@ -45,10 +45,10 @@ def test_simulate_writes_sigmf_and_truth(tiny_sim):
         assert len(f["truth/frames/t_s"]) == pytest.approx(0.4 / 555.6e-6, abs=2)
 
 
-def test_simulate_jobs_same_bytes(short_capture, tmp_path):
+def test_simulate_jobs_same_bytes(tiny_sim, tmp_path):
     assert main(["-q", "simulate", TINY, "--seconds", "0.4", "--jobs", "2", "-o", str(tmp_path)]) == EXIT_OK
     data = "tiny-walk.sigmf-data"
-    assert (tmp_path / data).read_bytes() == (short_capture / data).read_bytes()
+    assert (tmp_path / data).read_bytes() == (tiny_sim / data).read_bytes()
 
 
 def test_simulate_no_iq(tmp_path):
