@@ -159,7 +159,7 @@ def exact_paths(walk: SyntheticWalk, rate_hz: float = 50.0, first_path: bool = T
                                    for k in range(1, walk.geometry.n_towers)})
 
 
-def clock_range_m(t_s: np.ndarray, allan_deviation: float, tau_s: float, seed: int, calibration_s: float = 8.0
+def clock_range_m(t_s: np.ndarray, allan_deviation: float, allan_tau_s: float, seed: int, calibration_s: float = 8.0
                   ) -> np.ndarray:
     """Range (m) a free-running clock adds to a single-tower carrier phase: random-walk FM of the given Allan deviation.
 
@@ -168,7 +168,7 @@ def clock_range_m(t_s: np.ndarray, allan_deviation: float, tau_s: float, seed: i
     """
     rng = np.random.default_rng(seed)
     dt = np.diff(t_s, prepend=t_s[0])
-    q = SPEED_OF_LIGHT_MPS**2 * 3.0 * allan_deviation**2 / tau_s
+    q = SPEED_OF_LIGHT_MPS**2 * 3.0 * allan_deviation**2 / allan_tau_s
     rate = np.cumsum(rng.standard_normal(len(t_s)) * np.sqrt(q * dt))
     rate -= rate[t_s - t_s[0] <= calibration_s].mean()
     return np.cumsum(rate * dt)
