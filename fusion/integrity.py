@@ -234,7 +234,7 @@ class IntegrityMonitor:
         self._kept_sigma = np.concatenate([self._kept_sigma[keep:], self._sigma[None]])
 
     def _agrees(self, start: int, channel: int, z: float, sigma: float, limit: float) -> bool:
-        """Consistency test of ``channel`` between kept epoch ``start`` and now (module docstring): ``d^2 <= limit Var(d)``."""
+        """Consistency test of ``channel`` from kept epoch ``start`` to now (module docstring): ``d^2 <= limit Var(d)``."""
         row = self._rows[channel]
         x_then, x_now = self._x[start], self._x_open[start]
         g = observe(np.stack([x_then, x_now]), self.geometry, 0.0)[:, row]

@@ -12,12 +12,12 @@ is moved so that this observation agrees with the predicted state, and the
 channel says only how it changes from there. So does a channel whose data
 restart from a new origin (:mod:`fusion.observations`) and one the integrity
 monitor (:mod:`fusion.integrity`) takes back after dropping it (its epochs
-without the channel count as a gap too); an
-observation used to re-anchor is not weighed (it says nothing about the
-state). Where the monitor drops a channel, the filter takes the monitor's
-open-loop state instead of its own (:meth:`RangeKalmanFilter.replace_state`). With a free-running clock (:class:`fusion.model.ClockModel`) the
-state carries the clock's integrated range and rate
-(:data:`fusion.model.CLOCK_STATE_SIZE` columns).
+without the channel count as a gap too); an observation used to re-anchor is
+not weighed (it says nothing about the state). Where the monitor drops a
+channel, the filter takes the monitor's open-loop state instead of its own
+(:meth:`RangeKalmanFilter.replace_state`). With a free-running clock
+(:class:`fusion.model.ClockModel`) the state carries the clock's integrated
+range and rate (:data:`fusion.model.CLOCK_STATE_SIZE` columns).
 """
 
 from __future__ import annotations

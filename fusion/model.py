@@ -505,7 +505,8 @@ def transition_jacobian(x: np.ndarray, control: StepControl) -> np.ndarray:
     d_distance_d_speed = control.speed_ratio * dt
     n = x.shape[-1]
     f = np.broadcast_to(np.eye(n), x.shape[:-1] + (n, n)).copy()
-    f[..., X, HEADING], f[..., X, HEADING_RATE], f[..., X, SPEED] = distance * c, distance * c * dt, d_distance_d_speed * s
+    f[..., X, HEADING], f[..., X, HEADING_RATE], f[..., X, SPEED] = (distance * c, distance * c * dt,
+                                                                     d_distance_d_speed * s)
     f[..., Y, HEADING], f[..., Y, HEADING_RATE], f[..., Y, SPEED] = (-distance * s, -distance * s * dt,
                                                                      d_distance_d_speed * c)
     f[..., HEADING, HEADING_RATE] = dt
@@ -627,7 +628,7 @@ class EpochObservation:
         return not np.isnan(self.range_change_m)
 
     def range_channels(self, n_towers: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Every range channel of :class:`ObservationLayout` (``n_towers``): values, sigmas (NaN: none), new-origin flags.
+        """Every range channel of :class:`ObservationLayout` (``n_towers``): values, sigmas (NaN: none), new origins.
 
         Raises
         ------

@@ -459,7 +459,8 @@ def aggregate_path(series: PathRangeSeries, epoch_t_s: np.ndarray,
         mean_age = age_sum / n_valid
         sigma = config.base_sigma_m * np.sqrt(snr_inflation(10.0 * np.log10(snr_lin_sum / n_valid), config.good_snr_db)
                                               / fraction * (1.0 + config.path_settle_s / mean_age))
-    keep = (fraction >= config.min_valid_fraction) & (n_valid > 0) & (n_breaks == 0) & (mean_age >= config.min_path_age_s)
+    keep = ((fraction >= config.min_valid_fraction) & (n_valid > 0) & (n_breaks == 0)
+            & (mean_age >= config.min_path_age_s))
     # Rule 7: a kept epoch after an origin break since the previous kept epoch (or since the start) is a new origin.
     breaks_before = np.cumsum(breaks)[np.clip(np.searchsorted(series.t_s, epoch_t_s, side="right") - 1, 0, None)]
     breaks_before = np.where(epoch_t_s < series.t_s[0], 0, breaks_before)

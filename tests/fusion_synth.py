@@ -147,7 +147,8 @@ def exact_ranges(walk: SyntheticWalk, rate_hz: float = 50.0) -> RangeSeries:
 def path_series(t_s: np.ndarray, range_change_m: np.ndarray, snr_db: float = 20.0) -> PathRangeSeries:
     """A path channel tracked from the start without a slip."""
     n = len(t_s)
-    return PathRangeSeries(t_s, range_change_m, np.full(n, snr_db), np.ones(n, bool), np.zeros(n, bool), t_s - t_s[0] + 10.0)
+    return PathRangeSeries(t_s, range_change_m, np.full(n, snr_db), np.ones(n, bool), np.zeros(n, bool),
+                           t_s - t_s[0] + 10.0)
 
 
 def exact_paths(walk: SyntheticWalk, rate_hz: float = 50.0, first_path: bool = True) -> PathRanges:

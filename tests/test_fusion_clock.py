@@ -13,7 +13,7 @@ from fusion.model import ClockModel
 from fusion.observations import aggregate_ranges, build_epochs, epoch_times
 from fusion.run import FILTERS, FusionConfig
 
-TCXO = dict(allan_deviation=1.6e-9, allan_tau_s=100.0)  # docs/paths.md: a TCXO at 100 s
+TCXO = {"allan_deviation": 1.6e-9, "allan_tau_s": 100.0}  # docs/paths.md: a TCXO at 100 s
 PAUSES = ((40.0, 8.0), (90.0, 8.0), (150.0, 8.0), (200.0, 8.0))  # a stop every 30-50 s of walking
 
 
@@ -55,8 +55,8 @@ def test_a_standstill_observes_the_clock_rate():
         errors[label] = abs(f.clock_rate_mps - np.interp(epochs.t_s[after_pause - 1], ranges.t_s, true_rate))
         rate = f.linear.shape[1] - 1
         sigmas[label] = np.sqrt(f.linear_cov[rate, rate] + np.cov(f.linear[:, rate], aweights=f.weights))
-    for label in errors:
-        assert errors[label] < 3 * sigmas[label], (errors, sigmas)
+    for label, error in errors.items():
+        assert error < 3 * sigmas[label], (errors, sigmas)
     assert sigmas["standstills"] < sigmas["steps only"], sigmas
     assert errors["standstills"] < errors["steps only"], errors
 

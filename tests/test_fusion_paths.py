@@ -14,7 +14,7 @@ from fusion.run import FILTERS, FusionConfig, fuse
 
 SFN = Geometry(3.0, -2.0, 2000.0, 2200.0, 150.0, other_towers=((-1800.0, 1500.0, 100.0), (500.0, -2500.0, 60.0)))
 SECOND_TOWER = ((-1800.0, 1500.0, 100.0),)
-FREE_TCXO = dict(clock_model="free-running", clock_allan_deviation=1.6e-9, clock_allan_tau_s=100.0)
+FREE_TCXO = {"clock_model": "free-running", "clock_allan_deviation": 1.6e-9, "clock_allan_tau_s": 100.0}
 
 
 # --- the model --------------------------------------------------------------------------------
