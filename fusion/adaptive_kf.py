@@ -9,7 +9,7 @@ same grading is applied to the DTMB link's SNR for the range observation
 fidelity), and to the C/N0 of GNSS fixes where the caller has any.
 
 The filter is an extended Kalman filter on the shared model
-(:mod:`fusion.model`) with analytic Jacobians. The range's R is the
+(:mod:`fusion.model`) with its analytic Jacobians. The range's R is the
 aggregation's sigma squared (:mod:`fusion.observations`, already inflated on
 a weak link) times the grade factor: the grading is a second, relative
 adaptation on top of the absolute one.
@@ -23,10 +23,11 @@ import numpy as np
 
 from dtmbnav.core.records import Track
 from fusion.driver import run_filter
+from fusion.integrity import IntegrityConfig
 from fusion.kalman import RangeKalmanFilter
-from fusion.model import (HEADING, HEADING_RATE, SPEED, STATE_SIZE, Geometry, KalmanObservation, ModelNoise,
-                          StepControl, X, Y, initial_covariance, initial_state, observe, process_covariance, propagate,
-                          wrap_angle)
+from fusion.model import (HEADING, RANGE_ROW, ClockModel, Geometry, KalmanObservation, ModelNoise, StepControl, X, Y,
+                          initial_covariance, initial_state, observation_jacobian, observe, process_covariance,
+                          propagate, transition_jacobian, wrap_angle)
 from fusion.observations import FilterEpochs
 
 #: [CN0-KF]'s grade thresholds on P / C and the R multipliers of the grades.
@@ -71,32 +72,6 @@ class GnssFixes:
     sigma_m: float = 3.0
 
 
-def transition_jacobian(x: np.ndarray, control: StepControl) -> np.ndarray:
-    """d propagate / d x at ``x`` (:func:`fusion.model.propagate`)."""
-    dt = control.dt_s
-    heading = x[HEADING] + control.heading_increment_rad + x[HEADING_RATE] * dt
-    s, c = np.sin(heading), np.cos(heading)
-    distance = x[SPEED] * control.speed_ratio * dt
-    d_distance_d_speed = control.speed_ratio * dt
-    f = np.eye(STATE_SIZE)
-    f[X, HEADING], f[X, HEADING_RATE], f[X, SPEED] = distance * c, distance * c * dt, d_distance_d_speed * s
-    f[Y, HEADING], f[Y, HEADING_RATE], f[Y, SPEED] = -distance * s, -distance * s * dt, d_distance_d_speed * c
-    f[HEADING, HEADING_RATE] = dt
-    f[SPEED, SPEED] = control.speed_ratio
-    return f
-
-
-def observation_jacobian(x: np.ndarray, geometry: Geometry) -> np.ndarray:
-    """d observe / d x at ``x``: rows range change, heading, speed."""
-    r = float(geometry.range_m(x[X], x[Y]))
-    h = np.zeros((3, STATE_SIZE))
-    h[0, X] = (x[X] - geometry.tower_x_m) / r
-    h[0, Y] = (x[Y] - geometry.tower_y_m) / r
-    h[1, HEADING] = 1.0
-    h[2, SPEED] = 1.0
-    return h
-
-
 class AdaptiveEkf(RangeKalmanFilter):
     """EKF on the shared model with [CN0-KF]'s graded R.
 
@@ -111,14 +86,16 @@ class AdaptiveEkf(RangeKalmanFilter):
         observations with their own C/N0 grade.
     gnss_max_age_s : float
         How close a fix must be to an epoch, s.
+    clock : ClockModel
+    integrity : IntegrityConfig
     """
 
     def __init__(self, geometry: Geometry, noise: ModelNoise, epochs: FilterEpochs,
-                 gnss: GnssFixes | None = None, gnss_max_age_s: float = 0.5) -> None:
-        super().__init__(geometry, noise)
-        self._x = initial_state(geometry, float(epochs.pdr_heading_rad[0]), float(epochs.pdr_speed_mps[0]))
-        self.P = initial_covariance(noise)
-        self.Q = process_covariance(noise)
+                 gnss: GnssFixes | None = None, gnss_max_age_s: float = 0.5, clock: ClockModel = ClockModel(),
+                 integrity: IntegrityConfig = IntegrityConfig()) -> None:
+        super().__init__(geometry, noise, clock, integrity)
+        self._x = initial_state(geometry, *epochs.initial_heading_speed(), clock)
+        self._P = initial_covariance(noise, clock)
         self.range_factors = quality_grade_factors(epochs.snr_db)
         self.gnss_index = np.full(len(epochs), -1)
         if gnss is not None and len(gnss.t_s) > 0:
@@ -128,30 +105,39 @@ class AdaptiveEkf(RangeKalmanFilter):
             self.gnss_factors = quality_grade_factors(gnss.cn0_dbhz)
         self.gnss = gnss
 
-    def predict(self, control: StepControl) -> None:
+    def time_update(self, control: StepControl) -> None:
         """EKF prediction through :func:`fusion.model.propagate`."""
         f = transition_jacobian(self.x, control)
         self._x = propagate(self.x, control)
-        self.P = f @ self.P @ f.T + self.Q
+        self._P = f @ self.P @ f.T + process_covariance(self.noise, control, self.clock)
+
+    def replace_state(self, x: np.ndarray, P: np.ndarray) -> None:
+        """Take ``x``, ``P`` as the state."""
+        self._x, self._P = x, P
 
     @property
     def x(self) -> np.ndarray:
         """Current state estimate."""
         return self._x
 
+    @property
+    def P(self) -> np.ndarray:
+        """Current state covariance."""
+        return self._P
+
     def correct(self, observation: KalmanObservation, epoch: int) -> None:
         """EKF update with the graded range R (and a graded GNSS fix if one is near)."""
         variance = observation.sigma**2
-        if observation.rows[0] == 0:
+        if observation.rows[0] == RANGE_ROW:
             variance[0] *= self.range_factors[epoch]
-        predicted = observe(self.x, self.geometry, self.start_range_m)[observation.rows]
+        predicted = observe(self.x, self.geometry, self.origins_m)[observation.rows]
         residual = observation.residual(observation.z, predicted)
         h = observation_jacobian(self.x, self.geometry)[observation.rows]
         self._correct(residual, h, np.diag(variance))
         k = self.gnss_index[epoch]
         if k >= 0:
             fix = np.array([self.gnss.x_m[k], self.gnss.y_m[k]])
-            h = np.zeros((2, STATE_SIZE))
+            h = np.zeros((2, len(self.x)))
             h[0, X] = h[1, Y] = 1.0
             r = np.eye(2) * self.gnss.sigma_m**2 * self.gnss_factors[k]
             self._correct(fix - self.x[[X, Y]], h, r)
@@ -162,11 +148,12 @@ class AdaptiveEkf(RangeKalmanFilter):
         self._x = self.x + gain @ residual
         self._x[HEADING] = wrap_angle(self.x[HEADING])
         # Joseph form keeps P symmetric positive definite.
-        i_kh = np.eye(STATE_SIZE) - gain @ h
-        self.P = i_kh @ self.P @ i_kh.T + gain @ r @ gain.T
+        i_kh = np.eye(len(self.x)) - gain @ h
+        self._P = i_kh @ self.P @ i_kh.T + gain @ r @ gain.T
 
 
 def run_adaptive_kf(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise(),
-                    gnss: GnssFixes | None = None) -> Track:
+                    gnss: GnssFixes | None = None, clock: ClockModel = ClockModel(),
+                    integrity: IntegrityConfig = IntegrityConfig()) -> Track:
     """Run the quality-adaptive EKF over all epochs."""
-    return run_filter(AdaptiveEkf(geometry, noise, epochs, gnss), epochs)
+    return run_filter(AdaptiveEkf(geometry, noise, epochs, gnss, clock=clock, integrity=integrity), epochs)

@@ -28,14 +28,18 @@ class FusionFilter(Protocol):
 
 
 def run_filter(fusion_filter: FusionFilter, epochs: FilterEpochs) -> Track:
-    """Predict, update and read the estimate at every epoch; one track row per epoch.
+    """Predict, update and read the estimate at every epoch; one track row per step epoch.
 
-    The filter has been initialised (state at P0) by the caller.
+    The filter has been initialised (state at P0) by the caller. Epochs
+    without a step (standstills, :mod:`fusion.observations`) are run but
+    give no row, so a track has one row per PDR step.
     """
     states = np.empty((len(epochs), STATE_SIZE))
     for n in range(len(epochs)):
         fusion_filter.predict(epochs.control(n))
         fusion_filter.update(epochs.observation(n))
-        states[n] = fusion_filter.estimate()
-    return Track(t_s=np.asarray(epochs.t_s, dtype=np.float64).copy(), x_m=states[:, X], y_m=states[:, Y],
+        states[n] = fusion_filter.estimate()[:STATE_SIZE]
+    step = epochs.is_step
+    states = states[step]
+    return Track(t_s=np.asarray(epochs.t_s, dtype=np.float64)[step], x_m=states[:, X], y_m=states[:, Y],
                  heading_rad=states[:, HEADING] % (2.0 * np.pi), speed_mps=states[:, SPEED])

@@ -1,13 +1,23 @@
-"""What the Kalman-type fusion filters share: range re-anchoring around their correction step.
+"""What the Kalman-type fusion filters share: range channels, re-anchoring and integrity around their correction step.
 
 The Kalman-type filters (UKF, WT-UKF, adaptive EKF, rank KF) have no
-range-offset state (the particle filter has, :mod:`fusion.particle_filter`).
-Their stand-in: when the range comes back after ``k`` epochs without it and
-the offset a random walk of ``noise.range_offset_m`` per epoch would have
-gathered, ``range_offset_m * sqrt(k)``, exceeds three times the returning
-observation's sigma, the filter re-anchors: its range origin is moved so that
-this observation agrees with the predicted position, and the range says only
-how the range changes from there.
+range-offset state (the particle filter has, :mod:`fusion.particle_filter`);
+each range channel (:class:`fusion.model.ObservationLayout`) has a fixed
+origin instead, its value at P0 to start with. Their stand-in for the
+offset's random walk: when a channel comes back after ``k`` epochs without
+it and the offset a random walk of ``noise.range_offset_m`` per epoch would
+have gathered, ``range_offset_m * sqrt(k)``, exceeds three times the
+returning observation's sigma, the filter re-anchors the channel: its origin
+is moved so that this observation agrees with the predicted state, and the
+channel says only how it changes from there. So does a channel whose data
+restart from a new origin (:mod:`fusion.observations`) and one the integrity
+monitor (:mod:`fusion.integrity`) takes back after dropping it (its epochs
+without the channel count as a gap too); an observation used to re-anchor is
+not weighed (it says nothing about the state). Where the monitor drops a
+channel, the filter takes the monitor's open-loop state instead of its own
+(:meth:`RangeKalmanFilter.replace_state`). With a free-running clock
+(:class:`fusion.model.ClockModel`) the state carries the clock's integrated
+range and rate (:data:`fusion.model.CLOCK_STATE_SIZE` columns).
 """
 
 from __future__ import annotations
@@ -16,53 +26,88 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from fusion.model import EpochObservation, Geometry, KalmanObservation, ModelNoise, StepControl, X, Y
+from fusion.integrity import IntegrityConfig, IntegrityMonitor
+from fusion.model import (ClockModel, EpochObservation, Geometry, KalmanObservation, ModelNoise, ObservationLayout,
+                          StepControl, observe)
 
 #: Re-anchor when the offset gathered without range exceeds this many observation sigmas.
 REANCHOR_SIGMAS = 3.0
 
 
 class RangeKalmanFilter(ABC):
-    """Base of the Kalman-type filters: ``update`` re-anchors the range, then ``correct`` updates.
+    """Base of the Kalman-type filters: ``update`` re-anchors and vets the ranges, then ``correct`` updates.
 
     Parameters
     ----------
     geometry : Geometry
-        P0 and the tower.
+        P0 and the towers.
     noise : ModelNoise
         Process and observation noise.
+    clock : ClockModel
+        The receiver clock (a free-running one adds the clock states).
+    integrity : IntegrityConfig
+        The range integrity monitor.
     """
 
-    def __init__(self, geometry: Geometry, noise: ModelNoise) -> None:
+    def __init__(self, geometry: Geometry, noise: ModelNoise, clock: ClockModel = ClockModel(),
+                 integrity: IntegrityConfig = IntegrityConfig()) -> None:
         self.geometry = geometry
         self.noise = noise
-        #: |P_0 - P_b| as the range observation's origin, m (moved by re-anchoring).
-        self.start_range_m = geometry.start_range_m()
-        self._epochs_without_range = 0
+        self.clock = clock
+        self.layout = ObservationLayout(geometry.n_towers)
+        #: Origin of each range channel (|P_0 - P_b| for the SI-carrier range), m; moved by re-anchoring.
+        self.origins_m = self.layout.start_values_m(geometry)
+        self.monitor = IntegrityMonitor(geometry, noise, clock, integrity)
+        self._epochs_without = np.zeros(self.layout.n_channels, dtype=np.int64)
+
+    @property
+    def start_range_m(self) -> float:
+        """Origin of the SI-carrier range, m."""
+        return float(self.origins_m[0])
 
     @property
     @abstractmethod
     def x(self) -> np.ndarray:
         """Current state estimate."""
 
+    @property
     @abstractmethod
-    def predict(self, control: StepControl) -> None:
-        """Propagate the state and its covariance one step."""
+    def P(self) -> np.ndarray:
+        """Current state covariance."""
+
+    @abstractmethod
+    def time_update(self, control: StepControl) -> None:
+        """Propagate the state and its covariance one epoch."""
 
     @abstractmethod
     def correct(self, observation: KalmanObservation, epoch: int) -> None:
         """The filter's own measurement update with the epoch's present observations."""
 
+    @abstractmethod
+    def replace_state(self, x: np.ndarray, P: np.ndarray) -> None:
+        """Take ``x``, ``P`` as the state (the integrity monitor's fallback)."""
+
+    def predict(self, control: StepControl) -> None:
+        """:meth:`time_update`, and the integrity monitor's open-loop predictions with it."""
+        self.time_update(control)
+        self.monitor.predict(control)
+
     def update(self, observation: EpochObservation) -> None:
-        """Re-anchor the range origin after a long gap (module docstring), then :meth:`correct`."""
-        if not observation.has_range:
-            self._epochs_without_range += 1
-        else:
-            gathered_m = self.noise.range_offset_m * np.sqrt(self._epochs_without_range)
-            if gathered_m > REANCHOR_SIGMAS * observation.range_sigma_m:
-                self.start_range_m = float(self.geometry.range_m(self.x[X], self.x[Y])) - observation.range_change_m
-            self._epochs_without_range = 0
-        self.correct(observation.kalman(self.noise), observation.index)
+        """Vet and re-anchor the range channels (module docstring), then :meth:`correct` with the rest."""
+        z, sigma, new_origin = observation.range_channels(self.layout.n_towers)
+        use, returning, fallback = self.monitor.assess(z, sigma, new_origin)
+        if fallback is not None:
+            self.replace_state(*fallback)
+        gathered_m = self.noise.range_offset_m * np.sqrt(self._epochs_without)
+        gap = gathered_m > REANCHOR_SIGMAS * np.where(use, sigma, np.inf)
+        reanchor = use & (new_origin | returning | gap)
+        predicted = observe(self.x, self.geometry, self.origins_m)[self.layout.rows()]
+        self.origins_m[reanchor] += predicted[reanchor] - z[reanchor]
+        self._epochs_without = np.where(use, 0, self._epochs_without + 1)
+        kalman = observation.kalman(self.noise, self.layout.n_towers, use & ~reanchor)
+        if len(kalman.rows):
+            self.correct(kalman, observation.index)
+        self.monitor.posterior(self.x, self.P)
 
     def estimate(self) -> np.ndarray:
         """The state estimate (a copy)."""

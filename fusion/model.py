@@ -15,11 +15,31 @@ The process model also takes the PDR's step-to-step heading change and speed
 ratio as a control input (:class:`StepControl`, :func:`propagate` says why),
 which makes the heading-rate state the drift of the PDR heading.
 
+Beyond eq. 18 an epoch may carry the receiver's path observations
+(docs/paths.md): the first-path range change to each tower of the
+:class:`Geometry` (``|P - P_k| - |P_0 - P_k|``), and the change of the
+difference of the first-path ranges of tower k and tower 0,
+``(|P - P_k| - |P - P_0b|) - D_k(P_0)``, whose start value ``D_k(P_0)`` is
+known from the GNSS fix, so that the difference places the walker on a
+hyperbola instead of only measuring motion. :class:`ObservationLayout`
+orders these range channels.
+
+Every single-tower carrier-phase range (the SI-carrier range and each
+first-path range) also carries the receiver clock: with a free-running
+oscillator (:class:`ClockModel`) the filters add a clock state, the range
+the clock has integrated (``c``, m) and its rate (``b``, m/s, the f_s drift
+of eq. 9-10 times c / fc), a random-walk rate::
+
+    c_{n+1} = c_n + b_n * dt_n        b_{n+1} = b_n + w_n,  Var(w_n) = q dt_n
+
+and the range observations become ``... + c``. A tower difference cancels
+the clock.
+
 The module also holds the observation record every filter's ``update``
 takes (:class:`EpochObservation`) and what the Kalman-type filters share: the
-noise covariances and the observation vector of an epoch without the range
-where the epoch has none (:class:`KalmanObservation`). The loop that drives
-any filter over the epochs is :func:`fusion.driver.run_filter`.
+noise covariances, the Jacobians, and the observation vector of an epoch
+with only the components it has (:class:`KalmanObservation`). The loop that
+drives any filter over the epochs is :func:`fusion.driver.run_filter`.
 
 Keeping the model here lets the particle filter, the UKF family and the rank
 Kalman filter be compared on exactly the same equations.
@@ -27,29 +47,38 @@ Kalman filter be compared on exactly the same equations.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
+
+from dtmbnav.core.constants import CLOCK_PRESETS, SPEED_OF_LIGHT_MPS
 
 #: Column indices of the state vector.
 X, Y, HEADING_RATE, HEADING, SPEED = range(5)
 STATE_SIZE = 5
-#: Component indices of the observation vector (eq. 18).
+#: Columns of the clock states a Kalman-type filter appends with a free-running clock (module docstring).
+CLOCK_BIAS, CLOCK_RATE = 5, 6
+CLOCK_STATE_SIZE = 7
+#: Component indices of the observation vector (eq. 18); the path observations follow (:class:`ObservationLayout`).
 RANGE_ROW, HEADING_ROW, SPEED_ROW = range(3)
 
 
 @dataclass(frozen=True)
 class Geometry:
-    """Where the walk starts and where the tower is.
+    """Where the walk starts and where the towers are.
 
     Attributes
     ----------
     start_x_m, start_y_m : float
         Start position P0 (the last GNSS fix), ENU m.
     tower_x_m, tower_y_m : float
-        Tower position P_b, ENU m.
+        Position of tower 0, P_b, ENU m: the tower whose SI carriers give the
+        range of eq. 18, and the reference of the tower differences.
     tower_height_m : float
-        Tower antenna height above the walker's plane, m.
+        Tower 0's antenna height above the walker's plane, m.
+    other_towers : tuple of (x_m, y_m, height_m)
+        Towers 1, 2, ... of a single-frequency network, same units.
     """
 
     start_x_m: float
@@ -57,14 +86,89 @@ class Geometry:
     tower_x_m: float
     tower_y_m: float
     tower_height_m: float = 0.0
+    other_towers: tuple[tuple[float, float, float], ...] = ()
 
-    def range_m(self, x_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:
-        """3-D distance from ground points to the tower antenna, m."""
-        return np.sqrt((x_m - self.tower_x_m) ** 2 + (y_m - self.tower_y_m) ** 2 + self.tower_height_m**2)
+    def __post_init__(self) -> None:
+        if any(len(t) != 3 for t in self.other_towers):
+            raise ValueError(f"Geometry.other_towers: each tower is (x_m, y_m, height_m), got {self.other_towers}")
 
-    def start_range_m(self) -> float:
-        """Range from P0 to the tower, m."""
-        return float(self.range_m(np.float64(self.start_x_m), np.float64(self.start_y_m)))
+    @property
+    def n_towers(self) -> int:
+        """Number of towers (tower 0 and the others)."""
+        return 1 + len(self.other_towers)
+
+    def towers(self) -> np.ndarray:
+        """Tower positions and heights, shape (n_towers, 3): x m, y m, height m (a copy)."""
+        return self._towers.copy()
+
+    @cached_property
+    def _towers(self) -> np.ndarray:
+        return np.array([(self.tower_x_m, self.tower_y_m, self.tower_height_m), *self.other_towers],
+                        dtype=np.float64).reshape(self.n_towers, 3)
+
+    def range_m(self, x_m: np.ndarray, y_m: np.ndarray, tower: int = 0) -> np.ndarray:
+        """3-D distance from ground points to a tower's antenna, m."""
+        tx, ty, th = self._towers[tower]
+        return np.sqrt((x_m - tx) ** 2 + (y_m - ty) ** 2 + th**2)
+
+    def start_range_m(self, tower: int = 0) -> float:
+        """Range from P0 to a tower, m."""
+        return float(self.range_m(np.float64(self.start_x_m), np.float64(self.start_y_m), tower))
+
+
+@dataclass(frozen=True)
+class ObservationLayout:
+    """The range channels of a geometry and where they sit in the observation vector.
+
+    Range channel ``j`` (the order of :meth:`EpochObservation.range_channels`):
+    0 the SI-carrier range to tower 0 (row :data:`RANGE_ROW`); ``1 .. T`` the
+    first-path range to tower ``j - 1``; ``T + 1 .. 2T - 1`` the difference of
+    tower ``j - T`` and tower 0. Rows of the observation vector: 0 the
+    SI-carrier range, 1 the PDR heading, 2 the PDR speed, then range channels
+    ``1 ..`` in order (row ``j + 2``).
+
+    Attributes
+    ----------
+    n_towers : int
+        T.
+    """
+
+    n_towers: int = 1
+
+    @property
+    def n_channels(self) -> int:
+        """Number of range channels, 2T."""
+        return 2 * self.n_towers
+
+    @property
+    def size(self) -> int:
+        """Length of the observation vector."""
+        return self.n_channels + 2
+
+    def rows(self) -> np.ndarray:
+        """Observation-vector row of each range channel."""
+        return np.concatenate([[RANGE_ROW], np.arange(1, self.n_channels) + 2])
+
+    def tower_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per channel the tower whose range is added and the one subtracted (-1: none)."""
+        t = self.n_towers
+        added = np.concatenate([[0], np.arange(t), np.arange(1, t)]).astype(np.int64)
+        subtracted = np.concatenate([np.full(t + 1, -1), np.zeros(t - 1)]).astype(np.int64)
+        return added, subtracted
+
+    def clock_coefficients(self) -> np.ndarray:
+        """Per channel 1.0 where the receiver clock enters (single-tower carrier phases), 0.0 for differences."""
+        return np.concatenate([np.ones(self.n_towers + 1), np.zeros(self.n_towers - 1)])
+
+    def start_values_m(self, geometry: Geometry) -> np.ndarray:
+        """Each channel's geometric value at P0 (its origin when the walk starts at the fix), m."""
+        ranges = np.array([geometry.start_range_m(k) for k in range(self.n_towers)])
+        return np.concatenate([[ranges[0]], ranges, ranges[1:] - ranges[0]])
+
+    def geometric_m(self, geometry: Geometry, x_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:
+        """Each channel's geometric value (range or range difference) at points, shape (..., n_channels), m."""
+        ranges = np.stack([geometry.range_m(x_m, y_m, k) for k in range(self.n_towers)], axis=-1)
+        return np.concatenate([ranges[..., :1], ranges, ranges[..., 1:] - ranges[..., :1]], axis=-1)
 
 
 @dataclass(frozen=True)
@@ -115,11 +219,13 @@ class ModelNoise:
     range_offset_m : float
         Random walk per epoch of the particle filter's range offset (the
         particle's start range plus the range error the receiver has
-        integrated) in epochs without a range observation, m: across a gap,
-        a fade or a multipath stretch the integrated range may have jumped
-        or drifted, and what it says afterwards is a range change from an
-        unknown new origin. The Kalman-type filters have no offset state and
-        ignore this.
+        integrated) in epochs without a range observation, m, for each range
+        channel (:class:`ObservationLayout`): across a gap, a fade or a
+        multipath stretch the integrated range may have jumped or drifted,
+        and what it says afterwards is a range change from an unknown new
+        origin. The Kalman-type filters have no offset state; they re-anchor
+        once this walk would have gathered more than a few sigmas
+        (:mod:`fusion.kalman`).
     initial_position_m : float
         Spread of the initial position around P0 (GNSS fix error), m.
     initial_heading_rad : float
@@ -160,23 +266,113 @@ def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray | float:
     return (np.asarray(angle_rad) + np.pi) % (2.0 * np.pi) - np.pi
 
 
+#: The receiver clock models :class:`ClockModel` knows.
+CLOCK_MODELS = ("disciplined", "free-running")
+
+
+@dataclass(frozen=True)
+class ClockModel:
+    """The receiver clock as the filters model it (module docstring).
+
+    ``disciplined``: a GNSS-disciplined oscillator, whose wander (Allan
+    deviation about 1e-12, docs/paths.md) stays far below the range noise:
+    no clock state. ``free-running``: a TCXO whose frequency wanders by a
+    random walk (random-walk FM); the filters carry the clock states. Its
+    Allan variance is ``q_y tau / 3`` (q_y per second, fractional), so a
+    deviation ``sigma_y`` at ``tau`` gives ``q_y = 3 sigma_y^2 / tau``; in
+    range units the rate's random walk has ``q = c^2 q_y`` (m^2/s^3; 1e-9 of
+    fractional frequency is c * 1e-9 = 0.3 m/s of false radial velocity).
+
+    Attributes
+    ----------
+    kind : {"disciplined", "free-running"}
+    allan_deviation : float or None
+        Allan deviation at ``allan_tau_s`` of the free-running clock; None
+        takes the ``free-running`` preset (:data:`dtmbnav.core.constants.CLOCK_PRESETS`,
+        the clock the simulator draws).
+    allan_tau_s : float
+        Averaging time of ``allan_deviation``, s.
+    initial_rate_mps : float
+        Standard deviation of the clock rate at the first epoch, m/s: what
+        the receiver's f_s calibration at the start (docs/method.md §2) left,
+        and the wander since.
+    initial_bias_m : float
+        Standard deviation of the range the clock integrated before the
+        first epoch, m.
+    """
+
+    kind: str = "disciplined"
+    allan_deviation: float | None = None
+    allan_tau_s: float = 1.0
+    initial_rate_mps: float = 0.5
+    initial_bias_m: float = 0.1
+
+    def __post_init__(self) -> None:
+        if self.kind not in CLOCK_MODELS:
+            raise ValueError(f"clock model {self.kind!r}: expected one of {', '.join(CLOCK_MODELS)}")
+        if self.allan_deviation is not None and not self.allan_deviation > 0:
+            raise ValueError(f"clock Allan deviation must be positive, got {self.allan_deviation}")
+        if not self.allan_tau_s > 0:
+            raise ValueError(f"clock Allan tau must be positive, got {self.allan_tau_s}")
+
+    @property
+    def has_state(self) -> bool:
+        """Whether the filters carry the clock states."""
+        return self.kind == "free-running"
+
+    def rate_psd_m2ps3(self) -> float:
+        """q: spectral density of the clock rate's random walk in range units, m^2/s^3."""
+        adev = CLOCK_PRESETS["free-running"][1] if self.allan_deviation is None else self.allan_deviation
+        return SPEED_OF_LIGHT_MPS**2 * 3.0 * adev**2 / self.allan_tau_s
+
+    def process_covariance(self, elapsed_s: float) -> np.ndarray:
+        """Covariance of the noise the clock states [c, b] pick up over ``elapsed_s`` (integrated random walk)."""
+        q = self.rate_psd_m2ps3() if self.has_state else 0.0
+        t = elapsed_s
+        return q * np.array([[t**3 / 3.0, t**2 / 2.0], [t**2 / 2.0, t]])
+
+    def initial_covariance(self) -> np.ndarray:
+        """Covariance of [c, b] at the first epoch."""
+        if not self.has_state:
+            return np.zeros((2, 2))
+        return np.diag([self.initial_bias_m**2, self.initial_rate_mps**2])
+
+
 @dataclass(frozen=True)
 class StepControl:
     """What the PDR says about one step, used as the process model's control input.
 
+    An epoch without a step (a standstill, :mod:`fusion.observations`) has
+    ``dt_s = 0``: nothing moves and no motion noise is added; only the clock
+    runs on, over ``interval_s``.
+
     Attributes
     ----------
     dt_s : float
-        Step duration, s.
+        Step duration, s (0 for an epoch without a step).
     heading_increment_rad : float
         PDR heading change since the previous step, rad.
     speed_ratio : float
         PDR speed of this step over that of the previous step.
+    interval_s : float or None
+        Time since the previous epoch, s (over which the clock runs); None
+        takes ``dt_s``.
     """
 
     dt_s: float
     heading_increment_rad: float = 0.0
     speed_ratio: float = 1.0
+    interval_s: float | None = None
+
+    @property
+    def elapsed_s(self) -> float:
+        """Time since the previous epoch, s."""
+        return self.dt_s if self.interval_s is None else self.interval_s
+
+    @property
+    def is_step(self) -> bool:
+        """Whether the walker takes a step in this epoch."""
+        return self.dt_s > 0.0
 
 
 def propagate(states: np.ndarray, control: StepControl) -> np.ndarray:
@@ -198,15 +394,18 @@ def propagate(states: np.ndarray, control: StepControl) -> np.ndarray:
       (eq. 17 moves along the previous one, which at 90 deg corners puts the
       step on the wrong leg).
 
+    Rows with the clock states (:data:`CLOCK_STATE_SIZE` columns) also
+    integrate the clock rate over ``control.elapsed_s``.
+
     Parameters
     ----------
-    states : ndarray, shape (..., 5)
+    states : ndarray, shape (..., 5) or (..., 7)
         States before the step.
     control : StepControl
 
     Returns
     -------
-    ndarray, shape (..., 5)
+    ndarray
         States after the step (a new array).
     """
     out = np.array(states, dtype=np.float64, copy=True)
@@ -217,31 +416,46 @@ def propagate(states: np.ndarray, control: StepControl) -> np.ndarray:
     out[..., Y] += speed * dt * np.cos(heading)
     out[..., HEADING] = heading
     out[..., SPEED] = speed
+    if states.shape[-1] == CLOCK_STATE_SIZE:
+        out[..., CLOCK_BIAS] += states[..., CLOCK_RATE] * control.elapsed_s
     return out
 
 
-def observe(states: np.ndarray, geometry: Geometry, start_range_m: np.ndarray | float) -> np.ndarray:
-    """Noise-free observation model (eq. 18-19) of rows of ``states``.
+def observe(states: np.ndarray, geometry: Geometry, origins_m: np.ndarray | float) -> np.ndarray:
+    """Noise-free observation model (eq. 18-19 and the path channels) of rows of ``states``.
 
     Parameters
     ----------
-    states : ndarray, shape (..., 5)
+    states : ndarray, shape (..., 5) or (..., 7)
+        With 7 columns the clock's integrated range enters every single-tower range.
     geometry : Geometry
-    start_range_m : float or ndarray
-        |P_0 - P_b| for each row (a particle carries its own start), m.
+    origins_m : float or ndarray
+        Origin of each range channel (:class:`ObservationLayout`), m, shape
+        (..., n_channels): for the SI-carrier range |P_0 - P_b| (a particle
+        carries its own start); a scalar gives the SI-carrier range's and
+        leaves the others at their values at P0.
 
     Returns
     -------
-    ndarray, shape (..., 3)
-        [range change m, heading rad, speed m/s].
+    ndarray, shape (..., ObservationLayout.size)
+        [SI range change m, heading rad, speed m/s, path channels m].
     """
-    rng = geometry.range_m(states[..., X], states[..., Y]) - start_range_m
-    return np.stack([rng, states[..., HEADING], states[..., SPEED]], axis=-1)
+    layout = ObservationLayout(geometry.n_towers)
+    origins = np.asarray(origins_m, dtype=np.float64)
+    if origins.ndim == 0:
+        origins = np.concatenate([[origins], layout.start_values_m(geometry)[1:]])
+    channels = layout.geometric_m(geometry, states[..., X], states[..., Y]) - origins
+    if states.shape[-1] == CLOCK_STATE_SIZE:
+        channels = channels + layout.clock_coefficients() * states[..., CLOCK_BIAS, None]
+    return np.concatenate([channels[..., :1], states[..., HEADING, None], states[..., SPEED, None], channels[..., 1:]],
+                          axis=-1)
 
 
-def initial_state(geometry: Geometry, heading_rad: float, speed_mps: float) -> np.ndarray:
-    """State at P0 walking at ``heading_rad`` and ``speed_mps`` with no turn rate."""
-    return np.array([geometry.start_x_m, geometry.start_y_m, 0.0, heading_rad, speed_mps])
+def initial_state(geometry: Geometry, heading_rad: float, speed_mps: float,
+                  clock: ClockModel = ClockModel()) -> np.ndarray:
+    """State at P0 walking at ``heading_rad`` and ``speed_mps`` with no turn rate (clock states 0 if any)."""
+    motion = np.array([geometry.start_x_m, geometry.start_y_m, 0.0, heading_rad, speed_mps])
+    return np.concatenate([motion, np.zeros(2)]) if clock.has_state else motion
 
 
 def state_mean(states: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -259,27 +473,80 @@ def state_residual(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return d
 
 
-def process_covariance(noise: ModelNoise) -> np.ndarray:
-    """Q: diagonal covariance of xi1..xi5 per step."""
-    return np.diag(noise.process_sigmas() ** 2)
+def _with_clock(motion: np.ndarray, clock_block: np.ndarray, clock: ClockModel) -> np.ndarray:
+    if not clock.has_state:
+        return motion
+    out = np.zeros((CLOCK_STATE_SIZE, CLOCK_STATE_SIZE))
+    out[:STATE_SIZE, :STATE_SIZE] = motion
+    out[STATE_SIZE:, STATE_SIZE:] = clock_block
+    return out
 
 
-def initial_covariance(noise: ModelNoise) -> np.ndarray:
+def process_covariance(noise: ModelNoise, control: StepControl | None = None,
+                       clock: ClockModel = ClockModel()) -> np.ndarray:
+    """Q: diagonal covariance of xi1..xi5 per step (none in an epoch without a step), and the clock's over the epoch."""
+    stepping = control is None or control.is_step
+    motion = np.diag(noise.process_sigmas() ** 2) if stepping else np.zeros((STATE_SIZE, STATE_SIZE))
+    return _with_clock(motion, clock.process_covariance(0.0 if control is None else control.elapsed_s), clock)
+
+
+def initial_covariance(noise: ModelNoise, clock: ClockModel = ClockModel()) -> np.ndarray:
     """P0: diagonal covariance of the initial state."""
-    return np.diag(noise.initial_sigmas() ** 2)
+    return _with_clock(np.diag(noise.initial_sigmas() ** 2), clock.initial_covariance(), clock)
+
+
+def transition_jacobian(x: np.ndarray, control: StepControl) -> np.ndarray:
+    """d propagate / d x at ``x`` (:func:`propagate`); ``x`` may hold rows of states, shape (..., n) -> (..., n, n)."""
+    x = np.asarray(x, dtype=np.float64)
+    dt = control.dt_s
+    heading = x[..., HEADING] + control.heading_increment_rad + x[..., HEADING_RATE] * dt
+    s, c = np.sin(heading), np.cos(heading)
+    distance = x[..., SPEED] * control.speed_ratio * dt
+    d_distance_d_speed = control.speed_ratio * dt
+    n = x.shape[-1]
+    f = np.broadcast_to(np.eye(n), x.shape[:-1] + (n, n)).copy()
+    f[..., X, HEADING], f[..., X, HEADING_RATE], f[..., X, SPEED] = (distance * c, distance * c * dt,
+                                                                     d_distance_d_speed * s)
+    f[..., Y, HEADING], f[..., Y, HEADING_RATE], f[..., Y, SPEED] = (-distance * s, -distance * s * dt,
+                                                                     d_distance_d_speed * c)
+    f[..., HEADING, HEADING_RATE] = dt
+    f[..., SPEED, SPEED] = control.speed_ratio
+    if n == CLOCK_STATE_SIZE:
+        f[..., CLOCK_BIAS, CLOCK_RATE] = control.elapsed_s
+    return f
+
+
+def observation_jacobian(x: np.ndarray, geometry: Geometry) -> np.ndarray:
+    """d observe / d x at ``x``: one row per observation-vector component (:class:`ObservationLayout`)."""
+    layout = ObservationLayout(geometry.n_towers)
+    towers = geometry.towers()
+    ranges = np.array([geometry.range_m(x[X], x[Y], k) for k in range(geometry.n_towers)])
+    unit = (x[[X, Y]] - towers[:, :2]) / ranges[:, None]  # d range_k / d (x, y)
+    added, subtracted = layout.tower_pairs()
+    d_channels = unit[added] - np.where(subtracted[:, None] >= 0, unit[subtracted], 0.0)
+    h = np.zeros((layout.size, len(x)))
+    rows = layout.rows()
+    h[rows[:, None], [X, Y]] = d_channels
+    h[HEADING_ROW, HEADING] = 1.0
+    h[SPEED_ROW, SPEED] = 1.0
+    if len(x) == CLOCK_STATE_SIZE:
+        h[rows, CLOCK_BIAS] = layout.clock_coefficients()
+    return h
 
 
 @dataclass(frozen=True)
 class KalmanObservation:
-    """An epoch's observations as a Kalman-type filter uses them: the present components of eq. 18.
+    """An epoch's observations as a Kalman-type filter uses them: the present components.
 
     Attributes
     ----------
     z : ndarray
         Observed values, in the order of ``rows``.
     rows : ndarray of int
-        Which components of eq. 18 they are (:data:`RANGE_ROW`, :data:`HEADING_ROW`,
-        :data:`SPEED_ROW`); the range is left out where the epoch has none.
+        Which components of the observation vector they are (:data:`RANGE_ROW`,
+        :data:`HEADING_ROW`, :data:`SPEED_ROW`, then the path channels of
+        :class:`ObservationLayout`); a range is left out where the epoch has
+        none, the PDR's heading and speed in an epoch without a step.
     sigma : ndarray
         Their standard deviations.
     """
@@ -289,40 +556,58 @@ class KalmanObservation:
     sigma: np.ndarray
 
     @property
-    def heading_index(self) -> int:
-        """Position of the heading in ``z``."""
-        return int(np.nonzero(self.rows == HEADING_ROW)[0][0])
+    def heading_index(self) -> int | None:
+        """Position of the heading in ``z`` (None without one)."""
+        where = np.nonzero(self.rows == HEADING_ROW)[0]
+        return int(where[0]) if where.size else None
 
     def residual(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """``a - b`` for observation vectors, the heading wrapped."""
         d = np.asarray(a, dtype=np.float64) - b
-        d[..., self.heading_index] = wrap_angle(d[..., self.heading_index])
+        k = self.heading_index
+        if k is not None:
+            d[..., k] = wrap_angle(d[..., k])
         return d
 
     def mean(self, predicted: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """Weighted mean of predicted observation rows, circular for the heading."""
         mean = weights @ predicted
-        h = predicted[:, self.heading_index]
-        mean[self.heading_index] = np.arctan2(weights @ np.sin(h), weights @ np.cos(h))
+        k = self.heading_index
+        if k is not None:
+            h = predicted[:, k]
+            mean[k] = np.arctan2(weights @ np.sin(h), weights @ np.cos(h))
         return mean
+
+
+def _empty() -> np.ndarray:
+    return np.empty(0)
 
 
 @dataclass(frozen=True)
 class EpochObservation:
-    """Everything one epoch observes (eq. 18); every filter's ``update`` takes this.
+    """Everything one epoch observes (eq. 18 and the path channels); every filter's ``update`` takes this.
 
     Attributes
     ----------
     index : int
         Epoch number (filters that keep per-epoch side information look it up).
     range_change_m : float
-        Range change since P0, m; NaN when the epoch has no range.
+        SI-carrier range change since P0, m; NaN when the epoch has no range.
     range_sigma_m : float
         Its standard deviation, m (NaN with the range).
     pdr_heading_rad : float
-        PDR heading made absolute with the solved initial heading, rad.
+        PDR heading made absolute with the solved initial heading, rad; NaN
+        in an epoch without a step.
     pdr_speed_mps : float
-        PDR speed, m/s.
+        PDR speed, m/s; NaN in an epoch without a step.
+    first_path_range_m, first_path_sigma_m : ndarray
+        First-path range change to tower k (index k) and its standard
+        deviation, m; NaN where none; empty without path observations.
+    first_path_new_origin : ndarray of bool
+        Where a first-path range restarts from an unknown origin (a slip or a
+        re-acquired path, :mod:`fusion.observations`).
+    range_difference_m, range_difference_sigma_m, range_difference_new_origin : ndarray
+        The same for the difference of tower k and tower 0 (index k - 1).
     """
 
     index: int
@@ -330,15 +615,58 @@ class EpochObservation:
     range_sigma_m: float
     pdr_heading_rad: float
     pdr_speed_mps: float
+    first_path_range_m: np.ndarray = field(default_factory=_empty)
+    first_path_sigma_m: np.ndarray = field(default_factory=_empty)
+    first_path_new_origin: np.ndarray = field(default_factory=_empty)
+    range_difference_m: np.ndarray = field(default_factory=_empty)
+    range_difference_sigma_m: np.ndarray = field(default_factory=_empty)
+    range_difference_new_origin: np.ndarray = field(default_factory=_empty)
 
     @property
     def has_range(self) -> bool:
-        """Whether the epoch has a range observation."""
+        """Whether the epoch has an SI-carrier range observation."""
         return not np.isnan(self.range_change_m)
 
-    def kalman(self, noise: ModelNoise) -> KalmanObservation:
-        """The present components with their sigmas (the PDR's from ``noise``)."""
-        z = np.array([self.range_change_m, self.pdr_heading_rad, self.pdr_speed_mps])
-        sigma = np.array([self.range_sigma_m, noise.pdr_heading_rad, noise.pdr_speed_mps])
-        rows = np.array([RANGE_ROW, HEADING_ROW, SPEED_ROW]) if self.has_range else np.array([HEADING_ROW, SPEED_ROW])
-        return KalmanObservation(z=z[rows], rows=rows, sigma=sigma[rows])
+    def range_channels(self, n_towers: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every range channel of :class:`ObservationLayout` (``n_towers``): values, sigmas (NaN: none), new origins.
+
+        Raises
+        ------
+        ValueError
+            If the epoch has path observations for more towers than ``n_towers``.
+        """
+        def padded(values: np.ndarray, n: int, fill: float | bool) -> np.ndarray:
+            values = np.asarray(values)
+            if len(values) > n:
+                raise ValueError(f"epoch {self.index}: path observations for {len(values)} channels, "
+                                 f"the geometry has {n}")
+            return np.concatenate([values, np.full(n - len(values), fill)])
+
+        z = np.concatenate([[self.range_change_m], padded(self.first_path_range_m, n_towers, np.nan),
+                            padded(self.range_difference_m, n_towers - 1, np.nan)]).astype(np.float64)
+        sigma = np.concatenate([[self.range_sigma_m], padded(self.first_path_sigma_m, n_towers, np.nan),
+                                padded(self.range_difference_sigma_m, n_towers - 1, np.nan)]).astype(np.float64)
+        new_origin = np.concatenate([[False], padded(self.first_path_new_origin, n_towers, False),
+                                     padded(self.range_difference_new_origin, n_towers - 1, False)]).astype(bool)
+        present = np.isfinite(z) & np.isfinite(sigma)
+        return np.where(present, z, np.nan), np.where(present, sigma, np.nan), new_origin & present
+
+    def kalman(self, noise: ModelNoise, n_towers: int = 1, use: np.ndarray | None = None) -> KalmanObservation:
+        """The present components with their sigmas (the PDR's from ``noise``).
+
+        ``use`` (bool per range channel) keeps only those range channels
+        (default: every present one).
+        """
+        z, sigma, _ = self.range_channels(n_towers)
+        keep = np.isfinite(z) if use is None else np.asarray(use, dtype=bool) & np.isfinite(z)
+        layout = ObservationLayout(n_towers)
+        rows = layout.rows()
+        full_z = np.full(layout.size, np.nan)
+        full_sigma = np.full(layout.size, np.nan)
+        full_z[rows[keep]] = z[keep]
+        full_sigma[rows[keep]] = sigma[keep]
+        if not np.isnan(self.pdr_heading_rad):
+            full_z[[HEADING_ROW, SPEED_ROW]] = self.pdr_heading_rad, self.pdr_speed_mps
+            full_sigma[[HEADING_ROW, SPEED_ROW]] = noise.pdr_heading_rad, noise.pdr_speed_mps
+        present = np.flatnonzero(np.isfinite(full_z))
+        return KalmanObservation(z=full_z[present], rows=present, sigma=full_sigma[present])

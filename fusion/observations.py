@@ -39,16 +39,42 @@ noise. The rule, applied per step time ``t_n``:
 Where an epoch has no range observation, the integrated range may have
 jumped or drifted (a gap, a fade, a multipath stretch): the particle filter
 lets its range offset wander there (:mod:`fusion.particle_filter`).
+
+**Path channels** (:class:`PathRanges`: the first-path range to each tower,
+and the difference of tower k's and tower 0's first-path ranges; docs/paths.md)
+follow rules 1-5 per channel with :class:`PathAggregationConfig`, and these
+instead of rule 6 (a resolved path does not beat against the others):
+
+7. A frame flagged as a slip, and a frame where the path's age drops (the
+   path was lost and found again), is an origin break: an epoch whose
+   window holds one has no observation, and the next epoch that has one is
+   marked as a new origin (the filters re-anchor the channel there).
+8. An epoch whose path is younger than ``min_path_age_s`` (mean over the
+   window) has no observation, and the sigma of rule 5 grows by a further
+   ``sqrt(1 + path_settle_s / age)``: a freshly found path may be a sidelobe
+   or a passing reflection, and a path that has held for a while is the
+   better bet.
+
+**Standstills.** Where the PDR has no step for longer than the step
+detector's longest step (``StepDetectorConfig.max_step_s``: the walker stood
+still), and before the first step, the filters get epochs without a step,
+every ``epoch_s`` from ``margin_s`` after the last step to ``margin_s``
+before the next (:class:`StandstillConfig`). Nothing moves in them, so the
+range they see changes only with the receiver clock: with a free-running
+clock (:class:`fusion.model.ClockModel`) this is where its rate is observed
+directly and re-anchored, the method's f_s calibration (docs/method.md §2)
+repeated at every stop. The filters report no track row for them.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from dtmbnav.core.records import ColumnRecord, PdrSteps, RangeSeries
+from dtmbnav.core.records import ColumnRecord, PathRangeSeries, PdrSteps, RangeSeries
 from fusion.model import EpochObservation, StepControl, wrap_angle
+from fusion.pdr.steps import StepDetectorConfig
 
 
 @dataclass(frozen=True)
@@ -98,6 +124,77 @@ class AggregationConfig:
     settle_s: float = 3.0
 
 
+@dataclass(frozen=True)
+class PathAggregationConfig:
+    """Parameters of the path channels' rule (module docstring, rules 1-5, 7, 8).
+
+    Attributes
+    ----------
+    window_s, min_valid_fraction, base_sigma_m, good_snr_db : float
+        As :class:`AggregationConfig`.
+    min_path_age_s : float
+        Epochs whose path is younger than this have no observation, s.
+    path_settle_s : float
+        Age scale of the sigma's inflation for young paths, s.
+    """
+
+    window_s: float = AggregationConfig.window_s
+    min_valid_fraction: float = AggregationConfig.min_valid_fraction
+    base_sigma_m: float = AggregationConfig.base_sigma_m
+    good_snr_db: float = AggregationConfig.good_snr_db
+    min_path_age_s: float = 0.5
+    path_settle_s: float = 2.0
+
+
+@dataclass(frozen=True)
+class StandstillConfig:
+    """Where the filters get epochs without a step (module section "Standstills").
+
+    Attributes
+    ----------
+    min_gap_s : float
+        A longer time between two steps (or before the first) means the
+        walker stood still, s: the step detector's own bound.
+    margin_s : float
+        Standstill epochs keep this clear of the steps around them, s.
+    epoch_s : float
+        Spacing of the standstill epochs, s.
+    """
+
+    min_gap_s: float = StepDetectorConfig.max_step_s
+    margin_s: float = 1.0
+    epoch_s: float = 0.5
+
+
+@dataclass(frozen=True)
+class PathRanges:
+    """The receiver's path observations of one recording (docs/paths.md).
+
+    Attributes
+    ----------
+    first_path : dict of int -> PathRangeSeries
+        First-path range of tower k (:class:`fusion.model.Geometry` order).
+    differences : dict of int -> PathRangeSeries
+        First-path range of tower k minus that of tower 0 (k >= 1).
+    """
+
+    first_path: dict[int, PathRangeSeries] = field(default_factory=dict)
+    differences: dict[int, PathRangeSeries] = field(default_factory=dict)
+
+
+@dataclass
+class PathEpochs(ColumnRecord):
+    """Path observations at the filter epochs (columns as :class:`FilterEpochs`'s of the same names)."""
+
+    t_s: np.ndarray
+    first_path_range_m: np.ndarray
+    first_path_sigma_m: np.ndarray
+    first_path_new_origin: np.ndarray
+    range_difference_m: np.ndarray
+    range_difference_sigma_m: np.ndarray
+    range_difference_new_origin: np.ndarray
+
+
 @dataclass
 class RangeEpochs(ColumnRecord):
     """Range observations at the filter epochs.
@@ -126,28 +223,42 @@ class RangeEpochs(ColumnRecord):
 
 @dataclass
 class FilterEpochs(ColumnRecord):
-    """Everything a filter consumes per epoch (one PDR step).
+    """Everything a filter consumes per epoch (one PDR step, or a moment of a standstill).
 
     Attributes
     ----------
     t_s : ndarray
-        Step time, s.
+        Epoch time, s.
     dt_s : ndarray
         Step duration as the PDR measured it (step length / speed), s; the
         process model moves by ``speed * dt_s``, so a pause between steps
-        does not move the walker.
+        does not move the walker. 0 for an epoch without a step (a
+        standstill, module section "Standstills").
     range_change_m, range_sigma_m : ndarray
         Range observation and its standard deviation, m (NaN: none).
     snr_db : ndarray
         Link SNR of the epoch, dB (NaN: none).
     pdr_heading_rad : ndarray
-        PDR heading made absolute with the solved initial heading, rad.
+        PDR heading made absolute with the solved initial heading, rad (an
+        epoch without a step holds the last step's).
     pdr_heading_increment_rad : ndarray
-        PDR heading change since the previous step (0 for the first), rad.
+        PDR heading change since the previous step (0 for the first, and
+        for an epoch without a step), rad.
     pdr_speed_mps : ndarray
-        PDR speed, m/s.
+        PDR speed, m/s (an epoch without a step holds the last step's).
     pdr_speed_ratio : ndarray
-        PDR speed over the previous step's (1 for the first).
+        PDR speed over the previous step's (1 for the first, and for an
+        epoch without a step).
+    interval_s : ndarray or None
+        Time since the previous epoch, s (the first: its ``dt_s``); None
+        fills it so.
+    first_path_range_m, first_path_sigma_m : ndarray, shape (N, T) or None
+        First-path range change to tower k (column k) and its standard
+        deviation, m (NaN: none); None: no first-path observations (N, 0).
+    first_path_new_origin : ndarray of bool, shape (N, T) or None
+        Where column k restarts from a new origin.
+    range_difference_m, range_difference_sigma_m, range_difference_new_origin : ndarray, shape (N, T - 1) or None
+        The same for the difference of tower k and tower 0 (column k - 1).
     """
 
     t_s: np.ndarray
@@ -159,18 +270,53 @@ class FilterEpochs(ColumnRecord):
     pdr_heading_increment_rad: np.ndarray
     pdr_speed_mps: np.ndarray
     pdr_speed_ratio: np.ndarray
+    interval_s: np.ndarray | None = None
+    first_path_range_m: np.ndarray | None = None
+    first_path_sigma_m: np.ndarray | None = None
+    first_path_new_origin: np.ndarray | None = None
+    range_difference_m: np.ndarray | None = None
+    range_difference_sigma_m: np.ndarray | None = None
+    range_difference_new_origin: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        n = len(self.t_s)
+        if self.interval_s is None:
+            self.interval_s = np.concatenate([np.asarray(self.dt_s[:1], dtype=np.float64), np.diff(self.t_s)])
+        for name, fill in (("first_path_range_m", np.nan), ("first_path_sigma_m", np.nan),
+                           ("first_path_new_origin", False), ("range_difference_m", np.nan),
+                           ("range_difference_sigma_m", np.nan), ("range_difference_new_origin", False)):
+            if getattr(self, name) is None:
+                setattr(self, name, np.full((n, 0), fill))
+        super().__post_init__()
+
+    @property
+    def is_step(self) -> np.ndarray:
+        """Which epochs are PDR steps (the others are standstill epochs)."""
+        return np.asarray(self.dt_s) > 0.0
+
+    def initial_heading_speed(self) -> tuple[float, float]:
+        """PDR heading (rad) and speed (m/s) of the first step: the filters' initial state."""
+        first = int(np.argmax(self.is_step))
+        return float(self.pdr_heading_rad[first]), float(self.pdr_speed_mps[first])
 
     def control(self, n: int) -> StepControl:
         """The process-model control input of epoch ``n``."""
         return StepControl(float(self.dt_s[n]), float(self.pdr_heading_increment_rad[n]),
-                           float(self.pdr_speed_ratio[n]))
+                           float(self.pdr_speed_ratio[n]), float(self.interval_s[n]))
 
     def observation(self, n: int) -> EpochObservation:
-        """The observation record of epoch ``n`` (the range NaN where it has none)."""
+        """The observation record of epoch ``n`` (NaN where it has no range; no PDR observation without a step)."""
+        step = bool(self.is_step[n])
         return EpochObservation(index=n, range_change_m=float(self.range_change_m[n]),
                                 range_sigma_m=float(self.range_sigma_m[n]),
-                                pdr_heading_rad=float(self.pdr_heading_rad[n]),
-                                pdr_speed_mps=float(self.pdr_speed_mps[n]))
+                                pdr_heading_rad=float(self.pdr_heading_rad[n]) if step else np.nan,
+                                pdr_speed_mps=float(self.pdr_speed_mps[n]) if step else np.nan,
+                                first_path_range_m=self.first_path_range_m[n],
+                                first_path_sigma_m=self.first_path_sigma_m[n],
+                                first_path_new_origin=self.first_path_new_origin[n],
+                                range_difference_m=self.range_difference_m[n],
+                                range_difference_sigma_m=self.range_difference_sigma_m[n],
+                                range_difference_new_origin=self.range_difference_new_origin[n])
 
 
 def _check_ranges(ranges: RangeSeries) -> None:
@@ -187,6 +333,11 @@ def _window_sums(t_s: np.ndarray, values: np.ndarray, centres: np.ndarray, width
     hi = np.searchsorted(t_s, centres + width_s / 2.0, side="right")
     cum = np.concatenate([np.zeros((1, values.shape[1])), np.cumsum(values, axis=0)])
     return tuple(cum[hi, j] - cum[lo, j] for j in range(values.shape[1]))
+
+
+def snr_inflation(snr_db: np.ndarray, good_snr_db: float) -> np.ndarray:
+    """Variance factor of module rule 5: ``max(1, 10^((good_snr_db - snr) / 10))``."""
+    return np.maximum(1.0, 10.0 ** ((good_snr_db - np.asarray(snr_db, dtype=np.float64)) / 10.0))
 
 
 def rician_k_db(t_s: np.ndarray, snr_db: np.ndarray, valid: np.ndarray, centres: np.ndarray,
@@ -266,8 +417,7 @@ def aggregate_ranges(ranges: RangeSeries, epoch_t_s: np.ndarray,
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_range = range_sum / n_valid
         snr_db = 10.0 * np.log10(snr_lin_sum / n_valid)
-        inflation = np.maximum(1.0, 10.0 ** ((config.good_snr_db - snr_db) / 10.0))
-        sigma = config.base_sigma_m * np.sqrt(inflation / fraction)
+        sigma = config.base_sigma_m * np.sqrt(snr_inflation(snr_db, config.good_snr_db) / fraction)
     if config.max_snr_deficit_db is not None and np.any(np.isfinite(snr_db)):
         los_snr_db = np.nanpercentile(snr_db, config.los_snr_percentile)
         keep &= ~(snr_db < los_snr_db - config.max_snr_deficit_db)
@@ -282,6 +432,97 @@ def aggregate_ranges(ranges: RangeSeries, epoch_t_s: np.ndarray,
     )
 
 
+def aggregate_path(series: PathRangeSeries, epoch_t_s: np.ndarray,
+                   config: PathAggregationConfig = PathAggregationConfig()) -> tuple[np.ndarray, ...]:
+    """One path channel at the epoch times (module docstring, rules 1-5, 7, 8).
+
+    Returns
+    -------
+    range_change_m, sigma_m : ndarray
+        Observation and its standard deviation, m (NaN: none).
+    new_origin : ndarray of bool
+        Epochs whose observation starts from a new origin.
+    """
+    _check_ranges(series)
+    epoch_t_s = np.asarray(epoch_t_s, dtype=np.float64)
+    age = np.asarray(series.path_age_s, dtype=np.float64)
+    slip = np.asarray(series.slip, dtype=bool)
+    breaks = slip | np.concatenate([[False], np.diff(age) < 0])
+    valid = np.asarray(series.valid, dtype=bool) & np.isfinite(series.range_change_m) & ~slip
+    n_valid, range_sum, snr_lin_sum, age_sum, n_breaks = _window_sums(
+        series.t_s, np.stack([valid.astype(np.float64), np.where(valid, series.range_change_m, 0.0),
+                              np.where(valid, 10.0 ** (series.snr_db / 10.0), 0.0), np.where(valid, age, 0.0),
+                              breaks.astype(np.float64)], axis=1), epoch_t_s, config.window_s)
+    fraction = np.minimum(n_valid / (config.window_s / np.median(np.diff(series.t_s))), 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_range = range_sum / n_valid
+        mean_age = age_sum / n_valid
+        sigma = config.base_sigma_m * np.sqrt(snr_inflation(10.0 * np.log10(snr_lin_sum / n_valid), config.good_snr_db)
+                                              / fraction * (1.0 + config.path_settle_s / mean_age))
+    keep = ((fraction >= config.min_valid_fraction) & (n_valid > 0) & (n_breaks == 0)
+            & (mean_age >= config.min_path_age_s))
+    # Rule 7: a kept epoch after an origin break since the previous kept epoch (or since the start) is a new origin.
+    breaks_before = np.cumsum(breaks)[np.clip(np.searchsorted(series.t_s, epoch_t_s, side="right") - 1, 0, None)]
+    breaks_before = np.where(epoch_t_s < series.t_s[0], 0, breaks_before)
+    kept_breaks = breaks_before[keep]
+    new_origin = np.zeros(len(epoch_t_s), dtype=bool)
+    new_origin[keep] = np.diff(kept_breaks, prepend=0) > 0
+    nan = np.full(len(epoch_t_s), np.nan)
+    return np.where(keep, mean_range, nan), np.where(keep, sigma, nan), new_origin
+
+
+def aggregate_paths(paths: PathRanges, epoch_t_s: np.ndarray, n_towers: int,
+                    config: PathAggregationConfig = PathAggregationConfig()) -> PathEpochs:
+    """Every path channel of a recording at the epoch times (:func:`aggregate_path`).
+
+    Raises
+    ------
+    ValueError
+        For a tower index outside the geometry's ``n_towers``.
+    """
+    epoch_t_s = np.asarray(epoch_t_s, dtype=np.float64)
+    n = len(epoch_t_s)
+
+    def columns(series: dict[int, PathRangeSeries], first: int, count: int, what: str) -> list[np.ndarray]:
+        out = [np.full((n, count), np.nan), np.full((n, count), np.nan), np.zeros((n, count), dtype=bool)]
+        for k, one in series.items():
+            if not first <= k < first + count:
+                raise ValueError(f"paths.{what}: tower {k} outside {first}..{first + count - 1}")
+            for column, values in zip(out, aggregate_path(one, epoch_t_s, config)):
+                column[:, k - first] = values
+        return out
+
+    return PathEpochs(epoch_t_s, *columns(paths.first_path, 0, n_towers, "first_path"),
+                      *columns(paths.differences, 1, n_towers - 1, "differences"))
+
+
+def standstill_times(step_t_s: np.ndarray, start_t_s: float,
+                     config: StandstillConfig = StandstillConfig()) -> np.ndarray:
+    """Times of the epochs without a step (module section "Standstills"), s.
+
+    Parameters
+    ----------
+    step_t_s : ndarray
+        PDR step times, s.
+    start_t_s : float
+        Start of the recording (of the receiver's range), s: the first
+        standstill runs from there to the first step.
+    config : StandstillConfig
+    """
+    step_t_s = np.asarray(step_t_s, dtype=np.float64)
+    before = np.concatenate([[start_t_s], step_t_s[:-1]])
+    times = [np.arange(a + config.margin_s, b - config.margin_s + 1e-9, config.epoch_s)
+             for a, b in zip(before, step_t_s) if b - a > config.min_gap_s]
+    return np.concatenate(times) if times else np.empty(0)
+
+
+def epoch_times(step_t_s: np.ndarray, start_t_s: float, config: StandstillConfig | None = StandstillConfig()
+                ) -> np.ndarray:
+    """The filter epochs: the step times and, unless ``config`` is None, the standstill epochs, in order, s."""
+    still = np.empty(0) if config is None else standstill_times(step_t_s, start_t_s, config)
+    return np.sort(np.concatenate([np.asarray(step_t_s, dtype=np.float64), still]))
+
+
 def step_durations_s(pdr: PdrSteps) -> np.ndarray:
     """Duration of each step as the PDR measured it: length / speed, s."""
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -294,18 +535,22 @@ def step_durations_s(pdr: PdrSteps) -> np.ndarray:
     return dt
 
 
-def build_epochs(pdr: PdrSteps, range_epochs: RangeEpochs, initial_heading_rad: float) -> FilterEpochs:
-    """Filter epochs at the PDR step times.
+def build_epochs(pdr: PdrSteps, range_epochs: RangeEpochs, initial_heading_rad: float,
+                 paths: PathEpochs | None = None) -> FilterEpochs:
+    """Filter epochs at the PDR step times and any standstill epochs between them.
 
     Parameters
     ----------
     pdr : PdrSteps
         PDR output (relative heading).
     range_epochs : RangeEpochs
-        :func:`aggregate_ranges` at ``pdr.t_s``.
+        :func:`aggregate_ranges` at the epoch times: ``pdr.t_s``, or
+        :func:`epoch_times` (the steps and the standstill epochs).
     initial_heading_rad : float
         Solved initial heading (fusion.heading_init), added to the PDR's
         relative heading.
+    paths : PathEpochs, optional
+        :func:`aggregate_paths` at the same epoch times.
 
     Returns
     -------
@@ -313,20 +558,33 @@ def build_epochs(pdr: PdrSteps, range_epochs: RangeEpochs, initial_heading_rad: 
     """
     if len(pdr) < 2:
         raise ValueError(f"pdr: need at least 2 steps, got {len(pdr)}")
-    if len(range_epochs) != len(pdr) or not np.array_equal(range_epochs.t_s, pdr.t_s):
-        raise ValueError("range_epochs: not aggregated at the PDR step times")
+    t_s = np.asarray(range_epochs.t_s, dtype=np.float64)
+    step = np.clip(np.searchsorted(t_s, pdr.t_s), 0, len(t_s) - 1)
+    if not np.array_equal(t_s[step], pdr.t_s) or np.any(np.diff(t_s) <= 0):
+        raise ValueError("range_epochs: not aggregated at the PDR step times (and standstill epochs)")
+    if paths is not None and not np.array_equal(paths.t_s, t_s):
+        raise ValueError("paths: not aggregated at the epoch times of range_epochs")
     heading = np.asarray(pdr.heading_rad, dtype=np.float64)
     speed = np.asarray(pdr.speed_mps, dtype=np.float64)
     if np.any(~np.isfinite(speed) | (speed <= 0)):
         raise ValueError("pdr.speed_mps: every step needs a finite positive speed")
+    # Each epoch holds the PDR values of the latest step (the first step's before it); only steps move.
+    latest = np.clip(np.searchsorted(pdr.t_s, t_s, side="right") - 1, 0, None)
+
+    def at_steps(values: np.ndarray, elsewhere: float) -> np.ndarray:
+        out = np.full(len(t_s), elsewhere)
+        out[step] = values
+        return out
+
     return FilterEpochs(
-        t_s=np.asarray(pdr.t_s, dtype=np.float64),
-        dt_s=step_durations_s(pdr),
+        t_s=t_s,
+        dt_s=at_steps(step_durations_s(pdr), 0.0),
         range_change_m=range_epochs.range_change_m,
         range_sigma_m=range_epochs.sigma_m,
         snr_db=range_epochs.snr_db,
-        pdr_heading_rad=heading + initial_heading_rad,
-        pdr_heading_increment_rad=np.asarray(wrap_angle(np.diff(heading, prepend=heading[0]))),
-        pdr_speed_mps=speed,
-        pdr_speed_ratio=np.concatenate([[1.0], speed[1:] / speed[:-1]]),
+        pdr_heading_rad=heading[latest] + initial_heading_rad,
+        pdr_heading_increment_rad=at_steps(np.asarray(wrap_angle(np.diff(heading, prepend=heading[0]))), 0.0),
+        pdr_speed_mps=speed[latest],
+        pdr_speed_ratio=at_steps(np.concatenate([[1.0], speed[1:] / speed[:-1]]), 1.0),
+        **({} if paths is None else {k: v for k, v in paths.columns().items() if k != "t_s"}),
     )

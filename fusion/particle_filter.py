@@ -1,29 +1,43 @@
 """Particle-filter fusion of DTMB range and PDR (docs/method.md §5, eq. 16-23, Algorithm 1).
 
 State and observations are those of :mod:`fusion.model`. Each particle also
-carries a range offset: its own start range |P_0 - P_b| (eq. 19 uses the
-state at n = 0), so the range observation constrains the walked displacement
-and an error in the GNSS start fix is not mistaken for a range error. In
-epochs without a range observation (gap, fade, multipath:
-:mod:`fusion.observations`) the offset takes a random-walk step of
-``ModelNoise.range_offset_m``: the range error integrated across such a
-stretch becomes a new, uncertain origin instead of a position error.
+carries a range offset per range channel (:class:`fusion.model.ObservationLayout`):
+for the SI-carrier range and the first-path ranges its own start range
+|P_0 - P_k| (eq. 19 uses the state at n = 0), so these ranges constrain the
+walked displacement and an error in the GNSS start fix is not mistaken for a
+range error; for a tower difference the difference's value at the GNSS fix,
+with the fix's uncertainty (its gradient times ``initial_position_m``), so
+that the difference constrains the position itself (a hyperbola). In epochs
+without a channel's observation (gap, fade, multipath, slip:
+:mod:`fusion.observations`; or dropped by :mod:`fusion.integrity`) its offset
+takes a random-walk step of ``ModelNoise.range_offset_m``: the range error
+integrated across such a stretch becomes a new, uncertain origin instead of
+a position error. With a free-running clock (:class:`fusion.model.ClockModel`)
+the particle also carries the clock's integrated range and rate, which enter
+every single-tower range.
 
-The offset enters the range observation linearly, so it is not sampled but
-marginalised (a Rao-Blackwellised particle filter): each particle holds the
-mean of its offset, and one variance ``P`` serves all of them, because every
-particle sees the same sequence of gaps and observation sigmas. A range
-observation weighs a particle by its innovation over ``S = sigma_r^2 + P`` and
-moves its offset by the Kalman gain ``P / S``; ``P`` then shrinks to
-``P sigma_r^2 / S``. Sampling the offset instead (a random-walk draw per
-particle) fails where it matters: after a blocked stretch the offsets are
-spread over tens of metres, the first returning range keeps only the few
-particles whose draw happens to match it, and the cloud collapses onto
-positions picked by the offset noise, and each such collapse kicks the track
-along the line of sight (a test measures the effective sample size both ways).
-With the outlier mixture below, the Kalman step of each particle is scaled by
-its probability that the observation is an inlier, and ``P`` shrinks by the
-mean of that probability.
+Offsets and clock enter the range observations linearly, so they are not
+sampled but marginalised (a Rao-Blackwellised particle filter): each particle
+holds the mean of this linear state, and one covariance ``P`` serves all of
+them, because every particle sees the same sequence of gaps, observation
+sigmas and epoch intervals. A range observation ``z = g(x, y) + H a`` (``g``
+the range or range difference, ``a`` the linear state, ``H`` -1 on the
+channel's offset and 1 on the clock's range for a single-tower range) weighs
+a particle by its innovation over ``S = sigma^2 + H P H^T`` and moves its
+linear state by the Kalman gain ``K = P H^T / S``; ``P`` then shrinks to
+``P - K S K^T``; several channels are taken one after the other. Sampling
+the offset instead (a random-walk draw per particle) fails where it
+matters: after a blocked stretch the offsets are spread over tens of metres,
+the first returning range keeps only the few particles whose draw happens
+to match it, and the cloud collapses onto positions picked by the offset
+noise, and each such collapse kicks the track along the line of sight (a
+test measures the effective sample size both ways). With the outlier
+mixture below, the Kalman step of each particle is scaled by its probability
+that the observation is an inlier, and ``P`` shrinks by the mean of that
+probability. A channel that restarts from a new origin (the data say so, or
+it returns after the integrity monitor dropped it) is re-anchored: each
+particle's offset is set so that the observation agrees with the particle,
+and the observation weighs nothing.
 
 Algorithm 1 per epoch: propagate with the transition prior (eq. 17) ->
 weight by the likelihood in the log domain and normalise (eq. 20-21) ->
@@ -32,6 +46,9 @@ below ``resample_ess_fraction * Np`` (eq. 23) -> weighted-mean estimate with a
 circular mean for the heading (eq. 22).
 
 Robustness choices:
+- The integrity monitor (:mod:`fusion.integrity`) drops a channel whose
+  innovations stop being consistent (a steady multipath or clock bend the
+  mixture cannot see) and takes it back as a new origin.
 - Log-weights, normalised by subtracting their maximum, so a likelihood that
   underflows for every particle (an outlier observation) still leaves a valid
   weight vector; if every log-weight is -inf or NaN the weights are reset to
@@ -63,8 +80,10 @@ from numba import njit
 from dtmbnav.core.records import Track
 from fusion import DEFAULT_PARTICLES
 from fusion.driver import run_filter
-from fusion.model import (HEADING, HEADING_RATE, HEADING_ROW, RANGE_ROW, SPEED, SPEED_ROW, STATE_SIZE,
-                          EpochObservation, Geometry, ModelNoise, StepControl, X, Y, propagate)
+from fusion.integrity import IntegrityConfig, IntegrityMonitor
+from fusion.model import (HEADING, HEADING_RATE, SPEED, STATE_SIZE, ClockModel, EpochObservation, Geometry,
+                          ModelNoise, ObservationLayout, StepControl, X, Y, initial_state, observation_jacobian,
+                          propagate, state_mean, state_residual)
 from fusion.observations import FilterEpochs
 
 # --- numba kernels -------------------------------------------------------------------------
@@ -84,49 +103,57 @@ def propagate_kernel(particles: np.ndarray, dt_s: float, heading_increment_rad: 
 
 
 @njit(cache=True)
-def log_likelihood_kernel(particles: np.ndarray, range_offset_m: np.ndarray, tower: np.ndarray,
-                          observation: np.ndarray, sigma: np.ndarray, outlier: np.ndarray, offset_gain: float,
-                          log_w: np.ndarray) -> float:
-    """Eq. 20 in the log domain, and the Kalman step of each particle's range offset.
+def range_likelihood_kernel(particles: np.ndarray, linear: np.ndarray, towers: np.ndarray, added: int,
+                            subtracted: int, h_linear: np.ndarray, gain: np.ndarray, observation: float,
+                            sigma: float, outlier: np.ndarray, log_w: np.ndarray) -> float:
+    """Eq. 20 in the log domain for one range channel, and the Kalman step of each particle's linear state.
 
-    Adds each particle's log-likelihood to ``log_w``. ``tower`` is
-    [x, y, height]; ``observation`` is [range change, heading, speed] and
-    ``sigma`` their standard deviations, the range one being the innovation's
-    ``sqrt(sigma_r^2 + P)`` with ``P`` the offset variance (module docstring);
-    a NaN range observation is skipped. The range term is the
-    Gaussian/uniform mixture of :class:`ModelNoise`: ``outlier`` is
-    [log(1 - p) - log(sigma sqrt(2 pi)), log(p / span)].
-
-    Each particle's offset then moves by ``-offset_gain * innovation``
-    (``offset_gain = P / S``), scaled by the particle's posterior probability
-    that the observation is not an outlier.
+    The predicted observation of particle ``i`` is the range to tower
+    ``added`` (rows of ``towers``: x, y, height) minus the range to tower
+    ``subtracted`` (-1: none) plus ``h_linear . linear[i]``; its log-likelihood
+    is added to ``log_w``. ``sigma`` is the innovation's ``sqrt(sigma_r^2 + H P H^T)``
+    (module docstring). The term is the Gaussian/uniform mixture of
+    :class:`ModelNoise`: ``outlier`` is [log(1 - p) - log(sigma sqrt(2 pi)),
+    log(p / span)]. Each particle's linear state then moves by ``gain *
+    innovation``, scaled by the particle's posterior probability that the
+    observation is not an outlier.
 
     Returns
     -------
     float
-        Mean of that probability over the particles (1.0 without a range).
+        Mean of that probability over the particles.
     """
-    use_range = not np.isnan(observation[RANGE_ROW])
     inlier_sum = 0.0
     for i in range(particles.shape[0]):
-        ll = 0.0
-        if use_range:
-            dx = particles[i, X] - tower[0]
-            dy = particles[i, Y] - tower[1]
-            r = np.sqrt(dx * dx + dy * dy + tower[2] * tower[2])
-            innovation = observation[RANGE_ROW] - (r - range_offset_m[i])
-            d = innovation / sigma[RANGE_ROW]
-            gaussian = outlier[0] - 0.5 * d * d
-            ll = np.logaddexp(gaussian, outlier[1])
-            inlier = np.exp(gaussian - ll)
-            range_offset_m[i] -= inlier * offset_gain * innovation
-            inlier_sum += inlier
-        dh = ((particles[i, HEADING] - observation[HEADING_ROW] + np.pi) % (2.0 * np.pi) - np.pi) / sigma[HEADING_ROW]
-        ds = (particles[i, SPEED] - observation[SPEED_ROW]) / sigma[SPEED_ROW]
-        log_w[i] += ll - 0.5 * (dh * dh + ds * ds)
-    if not use_range:
-        return 1.0
+        dx = particles[i, X] - towers[added, 0]
+        dy = particles[i, Y] - towers[added, 1]
+        predicted = np.sqrt(dx * dx + dy * dy + towers[added, 2] * towers[added, 2])
+        if subtracted >= 0:
+            dx = particles[i, X] - towers[subtracted, 0]
+            dy = particles[i, Y] - towers[subtracted, 1]
+            predicted -= np.sqrt(dx * dx + dy * dy + towers[subtracted, 2] * towers[subtracted, 2])
+        for k in range(linear.shape[1]):
+            predicted += h_linear[k] * linear[i, k]
+        innovation = observation - predicted
+        d = innovation / sigma
+        gaussian = outlier[0] - 0.5 * d * d
+        ll = np.logaddexp(gaussian, outlier[1])
+        inlier = np.exp(gaussian - ll)
+        for k in range(linear.shape[1]):
+            linear[i, k] += inlier * gain[k] * innovation
+        inlier_sum += inlier
+        log_w[i] += ll
     return inlier_sum / particles.shape[0]
+
+
+@njit(cache=True)
+def pdr_likelihood_kernel(particles: np.ndarray, heading_rad: float, speed_mps: float, heading_sigma_rad: float,
+                          speed_sigma_mps: float, log_w: np.ndarray) -> None:
+    """Eq. 20 in the log domain for the PDR heading (wrapped) and speed observations, added to ``log_w``."""
+    for i in range(particles.shape[0]):
+        dh = ((particles[i, HEADING] - heading_rad + np.pi) % (2.0 * np.pi) - np.pi) / heading_sigma_rad
+        ds = (particles[i, SPEED] - speed_mps) / speed_sigma_mps
+        log_w[i] -= 0.5 * (dh * dh + ds * ds)
 
 
 @njit(cache=True)
@@ -187,24 +214,33 @@ def propagate_reference(particles: np.ndarray, dt_s: float, heading_increment_ra
     particles[:] = propagate(particles, StepControl(dt_s, heading_increment_rad, speed_ratio)) + noise
 
 
-def log_likelihood_reference(particles: np.ndarray, range_offset_m: np.ndarray, tower: np.ndarray,
-                             observation: np.ndarray, sigma: np.ndarray, outlier: np.ndarray, offset_gain: float,
-                             log_w: np.ndarray) -> float:
-    """Numpy twin of :func:`log_likelihood_kernel`."""
-    ll = -0.5 * (((particles[:, HEADING] - observation[HEADING_ROW] + np.pi) % (2.0 * np.pi) - np.pi) / sigma[HEADING_ROW]) ** 2
-    ll -= 0.5 * ((particles[:, SPEED] - observation[SPEED_ROW]) / sigma[SPEED_ROW]) ** 2
-    inlier_mean = 1.0
-    if not np.isnan(observation[RANGE_ROW]):
-        r = np.sqrt((particles[:, X] - tower[0]) ** 2 + (particles[:, Y] - tower[1]) ** 2 + tower[2] ** 2)
-        innovation = observation[RANGE_ROW] - (r - range_offset_m)
-        gaussian = outlier[0] - 0.5 * (innovation / sigma[RANGE_ROW]) ** 2
-        mixture = np.logaddexp(gaussian, outlier[1])
-        inlier = np.exp(gaussian - mixture)
-        range_offset_m -= inlier * offset_gain * innovation
-        inlier_mean = float(np.mean(inlier))
-        ll += mixture
-    log_w += ll
-    return inlier_mean
+def tower_distance_m(particles: np.ndarray, towers: np.ndarray, tower: int) -> np.ndarray:
+    """3-D distance of each particle to a tower (rows of ``towers``: x, y, height), m."""
+    return np.sqrt((particles[:, X] - towers[tower, 0]) ** 2 + (particles[:, Y] - towers[tower, 1]) ** 2
+                   + towers[tower, 2] ** 2)
+
+
+def range_likelihood_reference(particles: np.ndarray, linear: np.ndarray, towers: np.ndarray, added: int,
+                               subtracted: int, h_linear: np.ndarray, gain: np.ndarray, observation: float,
+                               sigma: float, outlier: np.ndarray, log_w: np.ndarray) -> float:
+    """Numpy twin of :func:`range_likelihood_kernel`."""
+    predicted = tower_distance_m(particles, towers, added) + linear @ h_linear
+    if subtracted >= 0:
+        predicted -= tower_distance_m(particles, towers, subtracted)
+    innovation = observation - predicted
+    gaussian = outlier[0] - 0.5 * (innovation / sigma) ** 2
+    mixture = np.logaddexp(gaussian, outlier[1])
+    inlier = np.exp(gaussian - mixture)
+    linear += (inlier * innovation)[:, None] * gain
+    log_w += mixture
+    return float(np.mean(inlier))
+
+
+def pdr_likelihood_reference(particles: np.ndarray, heading_rad: float, speed_mps: float, heading_sigma_rad: float,
+                             speed_sigma_mps: float, log_w: np.ndarray) -> None:
+    """Numpy twin of :func:`pdr_likelihood_kernel`."""
+    dh = ((particles[:, HEADING] - heading_rad + np.pi) % (2.0 * np.pi) - np.pi) / heading_sigma_rad
+    log_w -= 0.5 * (dh**2 + ((particles[:, SPEED] - speed_mps) / speed_sigma_mps) ** 2)
 
 
 def normalise_reference(log_w: np.ndarray, weights: np.ndarray) -> float:
@@ -232,17 +268,19 @@ def systematic_resample_reference(weights: np.ndarray, u: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Kernels:
-    """One implementation of the four filter kernels."""
+    """One implementation of the filter kernels."""
 
     propagate: Callable[..., None]
-    log_likelihood: Callable[..., None]
+    range_likelihood: Callable[..., float]
+    pdr_likelihood: Callable[..., None]
     normalise: Callable[..., float]
     resample: Callable[..., np.ndarray]
 
 
 BACKENDS = {
-    "numba": Kernels(propagate_kernel, log_likelihood_kernel, normalise_kernel, systematic_resample_kernel),
-    "numpy": Kernels(propagate_reference, log_likelihood_reference, normalise_reference,
+    "numba": Kernels(propagate_kernel, range_likelihood_kernel, pdr_likelihood_kernel, normalise_kernel,
+                     systematic_resample_kernel),
+    "numpy": Kernels(propagate_reference, range_likelihood_reference, pdr_likelihood_reference, normalise_reference,
                      systematic_resample_reference),
 }
 
@@ -253,7 +291,7 @@ class ParticleFilter:
     Parameters
     ----------
     geometry : Geometry
-        P0 and the tower.
+        P0 and the towers.
     noise : ModelNoise
         Process and observation noise.
     n_particles : int
@@ -264,10 +302,23 @@ class ParticleFilter:
         Resample when ESS < this fraction of Np (eq. 23).
     backend : {"numba", "numpy"}
         Kernel implementation; both give the same numbers for the same seed.
+    clock : ClockModel
+        The receiver clock; a free-running one adds the clock to the linear state.
+    integrity : IntegrityConfig
+        The range integrity monitor (:mod:`fusion.integrity`).
+
+    Attributes
+    ----------
+    linear : ndarray, shape (Np, n_channels + 2)
+        Each particle's mean of the marginalised linear state: the offset of
+        every range channel, then the clock's integrated range (m) and rate (m/s).
+    linear_cov : ndarray
+        Their covariance, one for all particles.
     """
 
     def __init__(self, geometry: Geometry, noise: ModelNoise = ModelNoise(), n_particles: int = DEFAULT_PARTICLES,
-                 seed: int = 0, resample_ess_fraction: float = 0.5, backend: str = "numba") -> None:
+                 seed: int = 0, resample_ess_fraction: float = 0.5, backend: str = "numba",
+                 clock: ClockModel = ClockModel(), integrity: IntegrityConfig = IntegrityConfig()) -> None:
         if n_particles < 2:
             raise ValueError(f"n_particles must be >= 2, got {n_particles}")
         if not 0.0 < resample_ess_fraction <= 1.0:
@@ -276,69 +327,169 @@ class ParticleFilter:
             raise ValueError(f"backend must be one of {sorted(BACKENDS)}, got {backend!r}")
         self.geometry = geometry
         self.noise = noise
+        self.clock = clock
         self.n_particles = n_particles
         self.resample_ess_fraction = resample_ess_fraction
         self.kernels = BACKENDS[backend]
         self.rng = np.random.default_rng(seed)
-        self._tower = np.array([geometry.tower_x_m, geometry.tower_y_m, geometry.tower_height_m])
+        self.layout = ObservationLayout(geometry.n_towers)
+        self.monitor = IntegrityMonitor(geometry, noise, clock, integrity)
+        self._towers = geometry.towers()
+        self._added, self._subtracted = self.layout.tower_pairs()
+        n_channels = self.layout.n_channels
+        self._bias, self._rate = n_channels, n_channels + 1
+        # Observation rows of the linear state: -1 on the channel's offset, the clock's range where it enters.
+        self._h_linear = np.zeros((n_channels, n_channels + 2))
+        self._h_linear[np.arange(n_channels), np.arange(n_channels)] = -1.0
+        self._h_linear[:, self._bias] = self.layout.clock_coefficients()
         self._process_sigmas = noise.process_sigmas()
         self.particles = np.zeros((n_particles, STATE_SIZE))
-        self.range_offset_m = np.zeros(n_particles)
-        self.range_offset_var_m2 = 0.0
+        self.linear = np.zeros((n_particles, n_channels + 2))
+        self.linear_cov = np.zeros((n_channels + 2, n_channels + 2))
         self.log_w = np.full(n_particles, -np.log(n_particles))
         self.weights = np.full(n_particles, 1.0 / n_particles)
         self.ess = float(n_particles)
         self.resample_count = 0
+
+    @property
+    def range_offset_m(self) -> np.ndarray:
+        """Each particle's offset of the SI-carrier range (a view), m."""
+        return self.linear[:, 0]
+
+    @property
+    def range_offset_var_m2(self) -> float:
+        """Variance of the SI-carrier range offset, m^2."""
+        return float(self.linear_cov[0, 0])
+
+    @property
+    def clock_rate_mps(self) -> float:
+        """Weighted mean of the clock rate, m/s (0 with a disciplined clock)."""
+        return float(self.weights @ self.linear[:, self._rate])
 
     def initialise(self, heading_rad: float, speed_mps: float) -> None:
         """Draw the particles around P0, the initial heading and speed (Algorithm 1, step 1)."""
         centre = np.array([self.geometry.start_x_m, self.geometry.start_y_m, 0.0, heading_rad, speed_mps])
         spread = self.noise.initial_sigmas()
         self.particles = centre + spread * self.rng.standard_normal((self.n_particles, STATE_SIZE))
-        self.range_offset_m = self.geometry.range_m(self.particles[:, X], self.particles[:, Y])
-        self.range_offset_var_m2 = 0.0
+        # Single-tower channels start at each particle's own range; differences at the fix's (module docstring).
+        own = self.layout.geometric_m(self.geometry, self.particles[:, X], self.particles[:, Y])
+        at_fix = self.layout.start_values_m(self.geometry)
+        difference = self._subtracted >= 0
+        self.linear[:] = 0.0
+        self.linear[:, :self.layout.n_channels] = np.where(difference, at_fix, own)
+        start = initial_state(self.geometry, heading_rad, speed_mps)
+        gradient = np.hypot(*observation_jacobian(start, self.geometry)[self.layout.rows()][:, [X, Y]].T)
+        self.linear_cov[:] = 0.0
+        self.linear_cov[np.arange(self.layout.n_channels), np.arange(self.layout.n_channels)] = np.where(
+            difference, (gradient * self.noise.initial_position_m) ** 2, 0.0)
+        self.linear_cov[self._bias:, self._bias:] = self.clock.initial_covariance()
         self.log_w[:] = -np.log(self.n_particles)
         self.weights[:] = 1.0 / self.n_particles
         self.ess = float(self.n_particles)
 
     def predict(self, control: StepControl) -> None:
-        """Propagate every particle one step (eq. 17, :func:`fusion.model.propagate`)."""
-        noise = self.rng.standard_normal((self.n_particles, STATE_SIZE)) * self._process_sigmas
-        self.kernels.propagate(self.particles, control.dt_s, control.heading_increment_rad, control.speed_ratio,
-                               noise)
+        """Propagate every particle one step (eq. 17, :func:`fusion.model.propagate`) and the linear state.
+
+        An epoch without a step moves nothing and adds no motion noise; the
+        clock runs on over the epoch's interval.
+        """
+        if control.is_step:
+            noise = self.rng.standard_normal((self.n_particles, STATE_SIZE)) * self._process_sigmas
+            self.kernels.propagate(self.particles, control.dt_s, control.heading_increment_rad, control.speed_ratio,
+                                   noise)
+        self.monitor.predict(control)
+        if self.clock.has_state:
+            elapsed = control.elapsed_s
+            self.linear[:, self._bias] += self.linear[:, self._rate] * elapsed
+            f = np.eye(len(self.linear_cov))
+            f[self._bias, self._rate] = elapsed
+            self.linear_cov = f @ self.linear_cov @ f.T
+            self.linear_cov[self._bias:, self._bias:] += self.clock.process_covariance(elapsed)
+
+    def summary(self) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean and covariance of the state (with the clock's range and rate after it, if any).
+
+        What the integrity monitor carries forward (:mod:`fusion.integrity`);
+        the clock's part adds the shared covariance of the marginalised state.
+        """
+        w = self.weights
+        states = self.particles
+        if self.clock.has_state:
+            states = np.column_stack([states, self.linear[:, self._bias:]])
+        mean = state_mean(states, w)
+        d = state_residual(states, mean)
+        cov = (d * w[:, None]).T @ d
+        if self.clock.has_state:
+            cov[STATE_SIZE:, STATE_SIZE:] += self.linear_cov[self._bias:, self._bias:]
+        return mean, cov
+
+    def fall_back(self, x: np.ndarray) -> None:
+        """Move the cloud (and the clock means) so that its mean is ``x`` (the integrity monitor's fallback)."""
+        shift = state_residual(x, self.summary()[0])
+        self.particles += shift[:STATE_SIZE]
+        if self.clock.has_state:
+            self.linear[:, self._bias:] += shift[STATE_SIZE:]
 
     def update(self, observation: EpochObservation) -> None:
         """Weight by the observation (eq. 20-21) and resample on low ESS (eq. 23).
 
-        The observation may lack the range (NaN): only the PDR heading and
-        speed then weigh, and the range offsets' variance grows by one
-        random-walk step (module docstring).
+        Each range channel the epoch lacks (NaN), or the integrity monitor
+        drops, lets its offset's variance grow by one random-walk step
+        (module docstring); a channel restarting from a new origin is
+        re-anchored; the others weigh the particles one after the other. The
+        PDR heading and speed weigh in epochs with a step. Where the monitor
+        drops a channel the cloud first moves to the monitor's open-loop
+        state (:meth:`fall_back`).
         """
-        offset_gain = 0.0
-        innovation_sigma_m = observation.range_sigma_m
-        if not observation.has_range:
-            self.range_offset_var_m2 += self.noise.range_offset_m**2
-        else:
-            innovation_var_m2 = observation.range_sigma_m**2 + self.range_offset_var_m2
-            innovation_sigma_m = np.sqrt(innovation_var_m2)
-            offset_gain = self.range_offset_var_m2 / innovation_var_m2
-        z = np.array([observation.range_change_m, observation.pdr_heading_rad, observation.pdr_speed_mps],
-                     dtype=np.float64)
-        sigma = np.array([innovation_sigma_m, self.noise.pdr_heading_rad, self.noise.pdr_speed_mps])
-        p = self.noise.range_outlier_probability
-        outlier = np.array([np.log1p(-p) - np.log(innovation_sigma_m * np.sqrt(2.0 * np.pi)),
-                            np.log(p / self.noise.range_outlier_span_m)])
-        inlier = self.kernels.log_likelihood(self.particles, self.range_offset_m, self._tower, z, sigma,
-                                             outlier, offset_gain, self.log_w)
-        self.range_offset_var_m2 *= 1.0 - inlier * offset_gain
+        z, sigma, new_origin = observation.range_channels(self.layout.n_towers)
+        use, returning, fallback = self.monitor.assess(z, sigma, new_origin)
+        if fallback is not None:
+            self.fall_back(fallback[0])
+        channels = np.arange(self.layout.n_channels)
+        self.linear_cov[channels[~use], channels[~use]] += self.noise.range_offset_m**2
+        reanchor = use & (new_origin | returning)
+        for j in np.flatnonzero(reanchor):
+            self._reanchor(j, z[j], sigma[j])
+        for j in np.flatnonzero(use & ~reanchor):
+            self._weigh_range(j, z[j], sigma[j])
+        if not np.isnan(observation.pdr_heading_rad):
+            self.kernels.pdr_likelihood(self.particles, observation.pdr_heading_rad, observation.pdr_speed_mps,
+                                        self.noise.pdr_heading_rad, self.noise.pdr_speed_mps, self.log_w)
         self.ess = self.kernels.normalise(self.log_w, self.weights)
         if self.ess < self.resample_ess_fraction * self.n_particles:
             index = self.kernels.resample(self.weights, self.rng.random())
             self.particles = self.particles[index]
-            self.range_offset_m = self.range_offset_m[index]
+            self.linear = self.linear[index]
             self.log_w[:] = -np.log(self.n_particles)
             self.weights[:] = 1.0 / self.n_particles
             self.resample_count += 1
+        self.monitor.posterior(*self.summary())
+
+    def _weigh_range(self, channel: int, z: float, sigma: float) -> None:
+        """One range channel's likelihood and Kalman step of the linear state (module docstring)."""
+        h = self._h_linear[channel]
+        ph = self.linear_cov @ h
+        innovation_var = sigma**2 + h @ ph
+        gain = ph / innovation_var
+        innovation_sigma = np.sqrt(innovation_var)
+        p = self.noise.range_outlier_probability
+        outlier = np.array([np.log1p(-p) - np.log(innovation_sigma * np.sqrt(2.0 * np.pi)),
+                            np.log(p / self.noise.range_outlier_span_m)])
+        inlier = self.kernels.range_likelihood(self.particles, self.linear, self._towers,
+                                               int(self._added[channel]), int(self._subtracted[channel]), h, gain,
+                                               z, innovation_sigma, outlier, self.log_w)
+        self.linear_cov -= inlier * innovation_var * np.outer(gain, gain)
+
+    def _reanchor(self, channel: int, z: float, sigma: float) -> None:
+        """Make ``z`` a new origin of ``channel``: each particle's offset so that it agrees, known to ``sigma``."""
+        geometric = tower_distance_m(self.particles, self._towers, int(self._added[channel]))
+        if self._subtracted[channel] >= 0:
+            geometric -= tower_distance_m(self.particles, self._towers, int(self._subtracted[channel]))
+        clock = self._h_linear[channel, self._bias] * self.linear[:, self._bias]
+        self.linear[:, channel] = geometric + clock - z
+        self.linear_cov[channel, :] = 0.0
+        self.linear_cov[:, channel] = 0.0
+        self.linear_cov[channel, channel] = sigma**2
 
     def estimate(self) -> np.ndarray:
         """Weighted mean state (eq. 22), circular mean for the heading, heading in [0, 2 pi)."""
@@ -351,19 +502,20 @@ class ParticleFilter:
 
 def run_particle_filter(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise(),
                         n_particles: int = DEFAULT_PARTICLES, seed: int = 0, backend: str = "numba",
-                        resample_ess_fraction: float = 0.5) -> Track:
+                        resample_ess_fraction: float = 0.5, clock: ClockModel = ClockModel(),
+                        integrity: IntegrityConfig = IntegrityConfig()) -> Track:
     """Run Algorithm 1 over all epochs and return the estimated track.
 
-    The initial heading and speed are the first epoch's PDR heading (already
+    The initial heading and speed are the first step's PDR heading (already
     absolute: relative heading + solved initial heading) and PDR speed.
 
     Returns
     -------
     Track
-        One row per epoch, at the epoch times.
+        One row per step epoch, at the epoch times.
     """
-    pf = ParticleFilter(geometry, noise, n_particles, seed, resample_ess_fraction, backend)
-    pf.initialise(float(epochs.pdr_heading_rad[0]), float(epochs.pdr_speed_mps[0]))
+    pf = ParticleFilter(geometry, noise, n_particles, seed, resample_ess_fraction, backend, clock, integrity)
+    pf.initialise(*epochs.initial_heading_speed())
     return run_filter(pf, epochs)
 
 

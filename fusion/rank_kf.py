@@ -24,9 +24,10 @@ from scipy.stats import norm
 
 from dtmbnav.core.records import Track
 from fusion.driver import run_filter
+from fusion.integrity import IntegrityConfig
 from fusion.kalman import RangeKalmanFilter
-from fusion.model import (Geometry, KalmanObservation, ModelNoise, StepControl, initial_covariance, initial_state,
-                          observe, process_covariance, propagate, state_mean, state_residual)
+from fusion.model import (ClockModel, Geometry, KalmanObservation, ModelNoise, StepControl, initial_covariance,
+                          initial_state, observe, process_covariance, propagate, state_mean, state_residual)
 from fusion.observations import FilterEpochs
 
 
@@ -96,11 +97,11 @@ class RangePdrRankKf(RangeKalmanFilter):
     """Rank KF on the shared range/PDR model (:class:`fusion.kalman.RangeKalmanFilter`)."""
 
     def __init__(self, geometry: Geometry, noise: ModelNoise, initial_heading_rad: float,
-                 initial_speed_mps: float, layers: int = 2) -> None:
-        super().__init__(geometry, noise)
-        self.Q = process_covariance(noise)
-        self.rkf = RankKalmanFilter(initial_state(geometry, initial_heading_rad, initial_speed_mps),
-                                    initial_covariance(noise), self._mean, state_residual, layers)
+                 initial_speed_mps: float, layers: int = 2, clock: ClockModel = ClockModel(),
+                 integrity: IntegrityConfig = IntegrityConfig()) -> None:
+        super().__init__(geometry, noise, clock, integrity)
+        self.rkf = RankKalmanFilter(initial_state(geometry, initial_heading_rad, initial_speed_mps, clock),
+                                    initial_covariance(noise, clock), self._mean, state_residual, layers)
 
     @staticmethod
     def _mean(points: np.ndarray) -> np.ndarray:
@@ -111,21 +112,31 @@ class RangePdrRankKf(RangeKalmanFilter):
         """Current state estimate."""
         return self.rkf.x
 
-    def predict(self, control: StepControl) -> None:
+    @property
+    def P(self) -> np.ndarray:
+        """Current state covariance."""
+        return self.rkf.P
+
+    def time_update(self, control: StepControl) -> None:
         """Rank-sampled prediction through :func:`fusion.model.propagate`."""
-        self.rkf.predict(lambda pts: propagate(pts, control), self.Q)
+        self.rkf.predict(lambda pts: propagate(pts, control), process_covariance(self.noise, control, self.clock))
+
+    def replace_state(self, x: np.ndarray, P: np.ndarray) -> None:
+        """Take ``x``, ``P`` as the state."""
+        self.rkf.x, self.rkf.P = x, P
 
     def correct(self, observation: KalmanObservation, epoch: int) -> None:
         """Rank-sampled update with the epoch's observations (``epoch`` unused)."""
         self.rkf.update(
             observation.z,
-            lambda pts: observe(pts, self.geometry, self.start_range_m)[:, observation.rows],
+            lambda pts: observe(pts, self.geometry, self.origins_m)[:, observation.rows],
             np.diag(observation.sigma**2),
             lambda zs: observation.mean(zs, np.full(len(zs), 1.0 / len(zs))),
             observation.residual)
 
 
-def run_rank_kf(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise()) -> Track:
+def run_rank_kf(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise(),
+                clock: ClockModel = ClockModel(), integrity: IntegrityConfig = IntegrityConfig()) -> Track:
     """Run the rank KF over all epochs."""
-    kf = RangePdrRankKf(geometry, noise, float(epochs.pdr_heading_rad[0]), float(epochs.pdr_speed_mps[0]))
+    kf = RangePdrRankKf(geometry, noise, *epochs.initial_heading_speed(), clock=clock, integrity=integrity)
     return run_filter(kf, epochs)

@@ -1,8 +1,19 @@
 """Fuse one recording: PDR steps + receiver range -> initial heading -> every filter's track.
 
 This is the function behind ``dtmbnav fuse``: it solves the initial heading
-(eq. 14-15), builds the filter epochs (:mod:`fusion.observations`) and runs
-the requested filters on identical inputs.
+(eq. 14-15), builds the filter epochs (:mod:`fusion.observations`: with a
+free-running clock also the standstill epochs) and runs the requested
+filters on identical inputs.
+
+Which filter takes which observation: every filter (``pf``, ``ukf``,
+``wt-ukf``, ``adaptive-kf``, ``rank-kf``) takes the SI-carrier range, the
+first-path range of every tower and the tower differences (the range
+channels of :class:`fusion.model.ObservationLayout`), the PDR heading and
+speed, and with ``clock_model="free-running"`` carries the clock state; all
+of them vet the range channels with the same integrity monitor
+(:mod:`fusion.integrity`). The WT-UKF re-estimates the SI-carrier range's
+noise only, the adaptive EKF grades the SI-carrier range's by the link SNR;
+the path channels keep the sigma of their aggregation rule.
 """
 
 from __future__ import annotations
@@ -10,12 +21,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable
 
+import numpy as np
+
 from dtmbnav.core.records import PdrSteps, RangeSeries, Track
 from fusion import DEFAULT_PARTICLES, FILTER_NAMES
 from fusion.adaptive_kf import run_adaptive_kf
 from fusion.heading_init import HeadingSolution, solve_initial_heading
-from fusion.model import Geometry, ModelNoise
-from fusion.observations import AggregationConfig, FilterEpochs, aggregate_ranges, build_epochs
+from fusion.integrity import IntegrityConfig
+from fusion.model import CLOCK_MODELS, ClockModel, Geometry, ModelNoise
+from fusion.observations import (AggregationConfig, FilterEpochs, PathAggregationConfig, PathRanges, StandstillConfig,
+                                 aggregate_paths, aggregate_ranges, build_epochs, epoch_times)
 from fusion.particle_filter import run_particle_filter
 from fusion.rank_kf import run_rank_kf
 from fusion.ukf import run_ukf
@@ -34,23 +49,53 @@ class FusionConfig:
         Particle-filter Np.
     seed : int
         Particle-filter seed.
+    clock_model : {"disciplined", "free-running"}
+        The receiver clock (:class:`fusion.model.ClockModel`): a free-running
+        one gives every filter the clock state and the standstill epochs.
+    clock_allan_deviation : float or None
+        Allan deviation of the free-running clock at ``clock_allan_tau_s``;
+        None: the ``free-running`` preset's.
+    clock_allan_tau_s : float
+        Its averaging time, s.
+    integrity : IntegrityConfig
+        The range integrity monitor every filter uses.
+    paths : PathAggregationConfig
+        The path channels' aggregation.
+    standstills : StandstillConfig
+        Where the standstill epochs go.
     """
 
     noise: ModelNoise = field(default_factory=ModelNoise)
     aggregation: AggregationConfig = field(default_factory=AggregationConfig)
     n_particles: int = DEFAULT_PARTICLES
     seed: int = 0
+    clock_model: str = "disciplined"
+    clock_allan_deviation: float | None = None
+    clock_allan_tau_s: float = 1.0
+    integrity: IntegrityConfig = field(default_factory=IntegrityConfig)
+    paths: PathAggregationConfig = field(default_factory=PathAggregationConfig)
+    standstills: StandstillConfig = field(default_factory=StandstillConfig)
+
+    def __post_init__(self) -> None:
+        if self.clock_model not in CLOCK_MODELS:
+            raise ValueError(f"clock_model {self.clock_model!r}: expected one of {', '.join(CLOCK_MODELS)}")
+        self.clock()
+
+    def clock(self) -> ClockModel:
+        """The clock model the filters use."""
+        return ClockModel(self.clock_model, self.clock_allan_deviation, self.clock_allan_tau_s)
 
 
 FilterRunner = Callable[[FilterEpochs, Geometry, FusionConfig], Track]
 
 #: Filter name -> runner. "pf" is the main paper's particle filter.
 FILTERS: dict[str, FilterRunner] = {
-    "pf": lambda e, g, c: run_particle_filter(e, g, c.noise, c.n_particles, c.seed),
-    "ukf": lambda e, g, c: run_ukf(e, g, c.noise),
-    "wt-ukf": lambda e, g, c: run_wt_ukf(e, g, c.noise),
-    "adaptive-kf": lambda e, g, c: run_adaptive_kf(e, g, c.noise),
-    "rank-kf": lambda e, g, c: run_rank_kf(e, g, c.noise),
+    "pf": lambda e, g, c: run_particle_filter(e, g, c.noise, c.n_particles, c.seed, clock=c.clock(),
+                                              integrity=c.integrity),
+    "ukf": lambda e, g, c: run_ukf(e, g, c.noise, c.clock(), c.integrity),
+    "wt-ukf": lambda e, g, c: run_wt_ukf(e, g, c.noise, clock=c.clock(), integrity=c.integrity),
+    "adaptive-kf": lambda e, g, c: run_adaptive_kf(e, g, c.noise, clock=c.clock(), integrity=c.integrity),
+    "rank-kf": lambda e, g, c: run_rank_kf(e, g, c.noise, c.clock(), c.integrity),
 }
 assert tuple(FILTERS) == FILTER_NAMES, "fusion.FILTER_NAMES and fusion.run.FILTERS must list the same filters"
 
@@ -76,6 +121,7 @@ class FusionResult:
 
 def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], tower_xy_m: tuple[float, float],
          filters: tuple[str, ...] = tuple(FILTERS), *, tower_height_m: float = 0.0,
+         other_towers: tuple[tuple[float, float, float], ...] = (), paths: PathRanges | None = None,
          config: FusionConfig = FusionConfig()) -> FusionResult:
     """Run the requested filters on one recording's PDR and receiver output.
 
@@ -93,6 +139,10 @@ def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], to
         Names from :data:`FILTERS`.
     tower_height_m : float
         Tower antenna height above the walker, m.
+    other_towers : tuple of (x_m, y_m, height_m)
+        Further towers of a single-frequency network (:class:`fusion.model.Geometry`).
+    paths : PathRanges, optional
+        The receiver's first-path ranges and tower differences.
     config : FusionConfig
 
     Returns
@@ -107,9 +157,13 @@ def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], to
     unknown = [f for f in filters if f not in FILTERS]
     if unknown:
         raise ValueError(f"fuse: unknown filter(s) {unknown}; known: {', '.join(FILTERS)}")
-    geometry = Geometry(start_xy_m[0], start_xy_m[1], tower_xy_m[0], tower_xy_m[1], tower_height_m)
-    range_epochs = aggregate_ranges(ranges, pdr.t_s, config.aggregation)
-    heading = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, range_epochs.range_change_m, geometry)
-    epochs = build_epochs(pdr, range_epochs, heading.heading_rad)
+    geometry = Geometry(start_xy_m[0], start_xy_m[1], tower_xy_m[0], tower_xy_m[1], tower_height_m, other_towers)
+    standstills = config.standstills if config.clock().has_state else None
+    t_s = epoch_times(pdr.t_s, float(ranges.t_s[0]), standstills)
+    range_epochs = aggregate_ranges(ranges, t_s, config.aggregation)
+    at_steps = np.searchsorted(t_s, pdr.t_s)
+    heading = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, range_epochs.range_change_m[at_steps], geometry)
+    path_epochs = None if paths is None else aggregate_paths(paths, t_s, geometry.n_towers, config.paths)
+    epochs = build_epochs(pdr, range_epochs, heading.heading_rad, path_epochs)
     tracks = {name: FILTERS[name](epochs, geometry, config) for name in filters}
     return FusionResult(tracks=tracks, heading=heading, epochs=epochs)

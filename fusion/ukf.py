@@ -13,8 +13,9 @@ from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from dtmbnav.core.records import Track
 from fusion.driver import run_filter
+from fusion.integrity import IntegrityConfig
 from fusion.kalman import RangeKalmanFilter
-from fusion.model import (STATE_SIZE, Geometry, KalmanObservation, ModelNoise, StepControl, initial_covariance,
+from fusion.model import (ClockModel, Geometry, KalmanObservation, ModelNoise, StepControl, initial_covariance,
                           initial_state, observe, process_covariance, propagate, state_mean, state_residual)
 from fusion.observations import FilterEpochs
 
@@ -28,6 +29,8 @@ class RangePdrUkf(RangeKalmanFilter):
     noise : ModelNoise
     initial_heading_rad, initial_speed_mps : float
         Initial state at P0.
+    clock : ClockModel
+    integrity : IntegrityConfig
     alpha, beta, kappa : float
         Van der Merwe's scaled sigma-point parameters. ``alpha`` is kept
         moderate (0.3) so the sigma points span the heading uncertainty
@@ -35,22 +38,23 @@ class RangePdrUkf(RangeKalmanFilter):
     """
 
     def __init__(self, geometry: Geometry, noise: ModelNoise, initial_heading_rad: float, initial_speed_mps: float,
+                 clock: ClockModel = ClockModel(), integrity: IntegrityConfig = IntegrityConfig(),
                  alpha: float = 0.3, beta: float = 2.0, kappa: float = 0.0) -> None:
-        super().__init__(geometry, noise)
-        points = MerweScaledSigmaPoints(STATE_SIZE, alpha=alpha, beta=beta, kappa=kappa, subtract=state_residual)
+        super().__init__(geometry, noise, clock, integrity)
+        x0 = initial_state(geometry, initial_heading_rad, initial_speed_mps, clock)
+        points = MerweScaledSigmaPoints(len(x0), alpha=alpha, beta=beta, kappa=kappa, subtract=state_residual)
         self.ukf = UnscentedKalmanFilter(
-            dim_x=STATE_SIZE, dim_z=3, dt=1.0, hx=self._hx, fx=self._fx, points=points,
+            dim_x=len(x0), dim_z=self.layout.size, dt=1.0, hx=self._hx, fx=self._fx, points=points,
             x_mean_fn=state_mean, residual_x=state_residual)
-        self.ukf.x = initial_state(geometry, initial_heading_rad, initial_speed_mps)
-        self.ukf.P = initial_covariance(noise)
-        self.ukf.Q = process_covariance(noise)
+        self.ukf.x = x0
+        self.ukf.P = initial_covariance(noise, clock)
 
     @staticmethod
     def _fx(x: np.ndarray, dt: float, control: StepControl) -> np.ndarray:
         return propagate(x, control)
 
     def _hx(self, x: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        return observe(x, self.geometry, self.start_range_m)[rows]
+        return observe(x, self.geometry, self.origins_m)[rows]
 
     @property
     def x(self) -> np.ndarray:
@@ -62,9 +66,15 @@ class RangePdrUkf(RangeKalmanFilter):
         """Current state covariance."""
         return self.ukf.P
 
-    def predict(self, control: StepControl) -> None:
+    def time_update(self, control: StepControl) -> None:
         """Unscented prediction through :func:`fusion.model.propagate`."""
+        self.ukf.Q = process_covariance(self.noise, control, self.clock)
         self.ukf.predict(dt=control.dt_s, control=control)
+
+    def replace_state(self, x: np.ndarray, P: np.ndarray) -> None:
+        """Take ``x``, ``P`` as the prior (and its sigma points, which the update propagates)."""
+        self.ukf.x, self.ukf.P = x, P
+        self.ukf.sigmas_f = self.ukf.points_fn.sigma_points(x, P)
 
     def correct(self, observation: KalmanObservation, epoch: int) -> None:
         """Unscented update with the epoch's observations (``epoch`` is unused here)."""
@@ -78,7 +88,7 @@ class RangePdrUkf(RangeKalmanFilter):
         self.ukf.update(z, R=R, rows=observation.rows)
 
 
-def run_ukf(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise()) -> Track:
-    """Run the UKF over all epochs; initial heading and speed from the first epoch's PDR."""
-    kf = RangePdrUkf(geometry, noise, float(epochs.pdr_heading_rad[0]), float(epochs.pdr_speed_mps[0]))
-    return run_filter(kf, epochs)
+def run_ukf(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise(),
+            clock: ClockModel = ClockModel(), integrity: IntegrityConfig = IntegrityConfig()) -> Track:
+    """Run the UKF over all epochs; initial heading and speed from the first step's PDR."""
+    return run_filter(RangePdrUkf(geometry, noise, *epochs.initial_heading_speed(), clock, integrity), epochs)

@@ -30,7 +30,8 @@ import pywt
 
 from dtmbnav.core.records import Track
 from fusion.driver import run_filter
-from fusion.model import Geometry, KalmanObservation, ModelNoise
+from fusion.integrity import IntegrityConfig
+from fusion.model import ClockModel, Geometry, KalmanObservation, ModelNoise
 from fusion.observations import FilterEpochs
 from fusion.ukf import RangePdrUkf
 
@@ -85,8 +86,9 @@ class WaveletUkf(RangePdrUkf):
     """
 
     def __init__(self, geometry: Geometry, noise: ModelNoise, epochs: FilterEpochs, window: int = 32,
-                 floor_fraction: float = 0.3, wavelet_rows: tuple[int, ...] = (0,)) -> None:
-        super().__init__(geometry, noise, float(epochs.pdr_heading_rad[0]), float(epochs.pdr_speed_mps[0]))
+                 floor_fraction: float = 0.3, wavelet_rows: tuple[int, ...] = (0,), clock: ClockModel = ClockModel(),
+                 integrity: IntegrityConfig = IntegrityConfig()) -> None:
+        super().__init__(geometry, noise, *epochs.initial_heading_speed(), clock, integrity)
         self.window = window
         self.floor_fraction = floor_fraction
         self.wavelet_rows = wavelet_rows
@@ -111,6 +113,8 @@ class WaveletUkf(RangePdrUkf):
 
 
 def run_wt_ukf(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise(), window: int = 32,
-               wavelet_rows: tuple[int, ...] = (0,)) -> Track:
+               wavelet_rows: tuple[int, ...] = (0,), clock: ClockModel = ClockModel(),
+               integrity: IntegrityConfig = IntegrityConfig()) -> Track:
     """Run the WT-UKF over all epochs (``wavelet_rows``: see :class:`WaveletUkf`)."""
-    return run_filter(WaveletUkf(geometry, noise, epochs, window, wavelet_rows=wavelet_rows), epochs)
+    return run_filter(WaveletUkf(geometry, noise, epochs, window, wavelet_rows=wavelet_rows, clock=clock,
+                                 integrity=integrity), epochs)

@@ -11,8 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav.core.records import PdrSteps, RangeSeries, Track
+from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav.core.records import PathRangeSeries, PdrSteps, RangeSeries, Track
 from fusion.model import Geometry
+from fusion.observations import PathRanges
 
 
 @dataclass
@@ -23,20 +25,32 @@ class SyntheticWalk:
     initial_heading_rad: float
 
 
-def polyline_truth(waypoints_m, speed_mps=1.3, still_s=10.0, rate_hz=100.0) -> Track:
-    """Constant-speed walk along a polyline after standing still at its first point."""
+def polyline_truth(waypoints_m, speed_mps=1.3, still_s=10.0, rate_hz=100.0, pauses=()) -> Track:
+    """Constant-speed walk along a polyline after standing still at its first point.
+
+    ``pauses``: (distance walked, m; duration, s) where the walker stops on the way.
+    """
     pts = np.asarray(waypoints_m, dtype=float)
     seg = np.diff(pts, axis=0)
     seg_len = np.hypot(seg[:, 0], seg[:, 1])
     cum = np.concatenate([[0.0], np.cumsum(seg_len)])
-    t = np.arange(0.0, still_s + cum[-1] / speed_mps, 1.0 / rate_hz)
-    dist = np.clip((t - still_s) * speed_mps, 0.0, cum[-1])
+    # Distance walked against time: knots at the start, at each pause's start and end, at the end.
+    knot_t, knot_d = [0.0, still_s], [0.0, 0.0]
+    for at_m, pause_s in sorted(pauses):
+        knot_t.append(knot_t[-1] + (at_m - knot_d[-1]) / speed_mps)
+        knot_d.append(at_m)
+        knot_t.append(knot_t[-1] + pause_s)
+        knot_d.append(at_m)
+    knot_t.append(knot_t[-1] + (cum[-1] - knot_d[-1]) / speed_mps)
+    knot_d.append(cum[-1])
+    t = np.arange(0.0, knot_t[-1], 1.0 / rate_hz)
+    dist = np.interp(t, knot_t, knot_d)
     x = np.interp(dist, cum, pts[:, 0])
     y = np.interp(dist, cum, pts[:, 1])
     i = np.clip(np.searchsorted(cum, dist, side="right") - 1, 0, len(seg) - 1)
     heading = np.arctan2(seg[i, 0], seg[i, 1]) % (2 * np.pi)
-    speed = np.where(t >= still_s, speed_mps, 0.0)
-    return Track(t, x, y, heading, speed)
+    speed = np.gradient(dist, t)
+    return Track(t, x, y, heading, np.where(speed > 0.5 * speed_mps, speed_mps, 0.0))
 
 
 def make_pdr(truth: Track, still_s: float, *, step_s=0.54, gain=1.0, drift_radps=0.0, heading_noise_rad=0.0,
@@ -59,12 +73,20 @@ def make_pdr(truth: Track, still_s: float, *, step_s=0.54, gain=1.0, drift_radps
     return PdrSteps(t_steps, x, y, heading, length / step_s, length), initial
 
 
-def park_like_walk(*, gain=1.0, drift_dps=0.0, seed=0, tower=(2000.0, 2200.0, 150.0)) -> SyntheticWalk:
-    """An asymmetric ~116 m loop like the park-loop scenario, with a PDR carrying the given errors."""
-    truth = polyline_truth([[0, 0], [0, 28], [20, 36], [33, 14], [19, -4], [0, 0]])
+PARK_LOOP_M = [[0, 0], [0, 28], [20, 36], [33, 14], [19, -4], [0, 0]]
+
+
+def park_like_walk(*, gain=1.0, drift_dps=0.0, seed=0, tower=(2000.0, 2200.0, 150.0), other_towers=(), laps=1,
+                   pauses=()) -> SyntheticWalk:
+    """An asymmetric ~116 m loop like the park-loop scenario (``laps`` times), with a PDR carrying the given errors.
+
+    ``other_towers`` (x, y, height) make a single-frequency network; ``pauses`` as :func:`polyline_truth`.
+    """
+    loop = np.asarray(PARK_LOOP_M, dtype=float)
+    truth = polyline_truth(np.concatenate([loop] + [loop[1:]] * (laps - 1)), pauses=pauses)
     pdr, initial = make_pdr(truth, 10.0, gain=gain, drift_radps=np.deg2rad(drift_dps),
                             heading_noise_rad=np.deg2rad(2.0), length_noise=0.03, seed=seed)
-    return SyntheticWalk(truth, pdr, Geometry(0.0, 0.0, *tower), initial)
+    return SyntheticWalk(truth, pdr, Geometry(0.0, 0.0, *tower, other_towers=tuple(other_towers)), initial)
 
 
 def foot_imu_straight(n_strides=12, stride_m=1.4, stride_s=1.1, stance_s=0.45, heading_rad=0.0, rate_hz=200.0,
@@ -108,12 +130,49 @@ def foot_imu_straight(n_strides=12, stride_m=1.4, stride_s=1.1, stance_s=0.45, h
     return t, acc, gyro, pos
 
 
-def exact_ranges(walk: SyntheticWalk, rate_hz: float = 50.0) -> RangeSeries:
-    """Noise-free receiver range change along the truth at ``rate_hz``, every frame valid at 20 dB."""
+def true_ranges(walk: SyntheticWalk, rate_hz: float = 50.0, tower: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Frame times and the true range change to a tower along the truth at ``rate_hz``."""
     t = np.arange(walk.truth.t_s[0], walk.truth.t_s[-1], 1.0 / rate_hz)
     g = walk.geometry
-    r = g.range_m(np.interp(t, walk.truth.t_s, walk.truth.x_m), np.interp(t, walk.truth.t_s, walk.truth.y_m))
-    return RangeSeries(t, r - g.start_range_m(), np.full(len(t), 20.0), np.ones(len(t), bool))
+    r = g.range_m(np.interp(t, walk.truth.t_s, walk.truth.x_m), np.interp(t, walk.truth.t_s, walk.truth.y_m), tower)
+    return t, r - g.start_range_m(tower)
+
+
+def exact_ranges(walk: SyntheticWalk, rate_hz: float = 50.0) -> RangeSeries:
+    """Noise-free receiver range change along the truth at ``rate_hz``, every frame valid at 20 dB."""
+    t, r = true_ranges(walk, rate_hz)
+    return RangeSeries(t, r, np.full(len(t), 20.0), np.ones(len(t), bool))
+
+
+def path_series(t_s: np.ndarray, range_change_m: np.ndarray, snr_db: float = 20.0) -> PathRangeSeries:
+    """A path channel tracked from the start without a slip."""
+    n = len(t_s)
+    return PathRangeSeries(t_s, range_change_m, np.full(n, snr_db), np.ones(n, bool), np.zeros(n, bool),
+                           t_s - t_s[0] + 10.0)
+
+
+def exact_paths(walk: SyntheticWalk, rate_hz: float = 50.0, first_path: bool = True) -> PathRanges:
+    """Noise-free first-path ranges of every tower (if ``first_path``) and the tower differences."""
+    ranges = [true_ranges(walk, rate_hz, k) for k in range(walk.geometry.n_towers)]
+    t = ranges[0][0]
+    return PathRanges(first_path={k: path_series(t, r) for k, (_, r) in enumerate(ranges)} if first_path else {},
+                      differences={k: path_series(t, ranges[k][1] - ranges[0][1])
+                                   for k in range(1, walk.geometry.n_towers)})
+
+
+def clock_range_m(t_s: np.ndarray, allan_deviation: float, allan_tau_s: float, seed: int, calibration_s: float = 8.0
+                  ) -> np.ndarray:
+    """Range (m) a free-running clock adds to a single-tower carrier phase: random-walk FM of the given Allan deviation.
+
+    The rate's random walk has ``q = c^2 3 adev^2 / tau`` (fusion.model.ClockModel); the receiver
+    measured f_s over the first ``calibration_s`` (docs/method.md §2), so the mean rate there is removed.
+    """
+    rng = np.random.default_rng(seed)
+    dt = np.diff(t_s, prepend=t_s[0])
+    q = SPEED_OF_LIGHT_MPS**2 * 3.0 * allan_deviation**2 / allan_tau_s
+    rate = np.cumsum(rng.standard_normal(len(t_s)) * np.sqrt(q * dt))
+    rate -= rate[t_s - t_s[0] <= calibration_s].mean()
+    return np.cumsum(rate * dt)
 
 
 def ranges_with_blockage(walk: SyntheticWalk, start_s: float, end_s: float, jump_m: float) -> RangeSeries:

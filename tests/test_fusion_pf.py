@@ -34,21 +34,30 @@ def test_propagate_kernel_matches_reference():
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("range_obs", [3.2, np.nan])
-def test_log_likelihood_kernel_matches_reference(range_obs):
+@pytest.mark.parametrize("subtracted", [-1, 1])
+def test_range_likelihood_kernel_matches_reference(subtracted):
+    """A single-tower range (with the clock's range in the linear state) and a tower difference."""
     p, rng = random_particles(500, 2)
-    start = 2900.0 + rng.normal(0, 1, 500)
-    tower = np.array([2000.0, 2200.0, 150.0])
-    obs = np.array([range_obs, 3.1, 1.2])  # heading near +pi exercises the wrap
-    sigma = np.array([1.0, 0.3, 0.2])
+    linear = np.column_stack([2900.0 + rng.normal(0, 1, 500), rng.normal(0, 0.3, 500), rng.normal(0, 0.1, 500)])
+    towers = np.array([[2000.0, 2200.0, 150.0], [-1500.0, 900.0, 80.0]])
+    h = np.array([-1.0, 1.0, 0.0])
+    gain = np.array([0.4, -0.1, 0.02])
     outlier = np.array([np.log(0.99 / np.sqrt(2 * np.pi)), np.log(0.01 / 100.0)])
     a, b = np.zeros(500), np.zeros(500)
-    start_b = start.copy()
-    inlier_a = pf.log_likelihood_kernel(p, start, tower, obs, sigma, outlier, 0.4, a)
-    inlier_b = pf.log_likelihood_reference(p, start_b, tower, obs, sigma, outlier, 0.4, b)
+    linear_b = linear.copy()
+    inlier_a = pf.range_likelihood_kernel(p, linear, towers, 0, subtracted, h, gain, 3.2, 1.0, outlier, a)
+    inlier_b = pf.range_likelihood_reference(p, linear_b, towers, 0, subtracted, h, gain, 3.2, 1.0, outlier, b)
     np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-9)
-    np.testing.assert_allclose(start, start_b, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(linear, linear_b, rtol=0, atol=1e-9)
     assert inlier_a == pytest.approx(inlier_b, abs=1e-12)
+
+
+def test_pdr_likelihood_kernel_matches_reference():
+    p, _ = random_particles(500, 3)
+    a, b = np.zeros(500), np.zeros(500)
+    pf.pdr_likelihood_kernel(p, 3.1, 1.2, 0.3, 0.2, a)  # heading near +pi exercises the wrap
+    pf.pdr_likelihood_reference(p, 3.1, 1.2, 0.3, 0.2, b)
+    np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-9)
 
 
 @given(st.lists(st.floats(-1e6, 10.0), min_size=2, max_size=60))

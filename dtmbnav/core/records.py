@@ -111,6 +111,43 @@ class RangeSeries(ColumnRecord):
 
 
 @dataclass
+class PathRangeSeries(ColumnRecord):
+    """Integrated carrier-phase range of one resolved path, or of a difference of two towers' paths.
+
+    The first-path (direct-path candidate) range change to one tower, or the
+    change of the difference of two towers' first-path ranges, which cancels
+    the receiver clock (docs/paths.md, "Single-frequency networks"). Which
+    tower or pair a series belongs to is said by whoever hands it on
+    (``fusion.observations.PathRanges``).
+
+    Attributes
+    ----------
+    t_s : ndarray
+        Time, s.
+    range_change_m : ndarray
+        Range (or range difference) minus its value at the reference time, m.
+    snr_db : ndarray
+        SNR of the path, dB (of the weaker path for a difference).
+    valid : ndarray of bool
+        False where the path was not tracked or its phase is unusable.
+    slip : ndarray of bool
+        True at a frame where the receiver detected a cycle slip (a jump of
+        whole wavelengths) or restarted the path's phase: the range continues
+        from an unknown new origin.
+    path_age_s : ndarray
+        How long the path has been tracked without a break, s (of the younger
+        path for a difference).
+    """
+
+    t_s: np.ndarray
+    range_change_m: np.ndarray
+    snr_db: np.ndarray
+    valid: np.ndarray
+    slip: np.ndarray
+    path_age_s: np.ndarray
+
+
+@dataclass
 class ImuLog(ColumnRecord):
     """Inertial and magnetic samples of one IMU.
 

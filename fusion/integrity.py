@@ -1,0 +1,248 @@
+"""Range integrity: fall back on the PDR where a range channel stops agreeing with the motion.
+
+A reflection with its own Doppler, a clock that drifts off, or a path tracker
+locked on the wrong path bends an integrated range by a steady 0.5-1 m/s
+(docs/paths.md). The particle filter's outlier mixture rejects single wild
+values, but a steady bend is followed: a filter explains it by turning and
+speeding up its track, each epoch's innovation stays small, and the track is
+dragged away. A test on the filter's own innovations cannot see this (the
+filter has already moved to agree). What the bend cannot move is the PDR:
+this monitor, used alike by every filter (:mod:`fusion.particle_filter`,
+:mod:`fusion.kalman`), compares each range channel
+(:class:`fusion.model.ObservationLayout`) with the PDR.
+
+**Open-loop prediction.** The monitor keeps, for each of the last
+``window`` epochs m, the filter's posterior state and covariance ``(x_m,
+P_m)`` (:meth:`IntegrityMonitor.posterior`), and carries them forward
+through the process model with the PDR's steps alone
+(:func:`fusion.model.propagate`, linearised with
+:func:`fusion.model.transition_jacobian`): ``x_n|m``, ``P_n|m = Phi P_m
+Phi^T + Q_acc`` and ``C = Phi P_m``, where no range has pulled them.
+
+**Consistency test.** At epoch n, a channel with observation ``z_n`` (sigma
+``s_n``) is set against the oldest kept epoch m of its window that has one
+(``z_m``, ``s_m``):
+
+    d = (z_n - z_m) - (g(x_n|m) - g(x_m))
+    Var(d) = s_n^2 + s_m^2 + J_n P_n|m J_n^T + J_m P_m J_m^T - 2 J_n C J_m^T
+
+with ``g`` the channel's range, range difference or clock range
+(:func:`fusion.model.observe`; the origin cancels) and ``J`` its Jacobian,
+plus ``range_offset_m^2`` (:class:`fusion.model.ModelNoise`) for each epoch
+in between without the channel's data: across a gap the range may have
+jumped, as the filters themselves allow.
+The channel agrees with the PDR while ``d^2 <= chi2_1(1 - false_alarm)
+Var(d)`` (``chi2_1(p)``: the p quantile of the chi-square distribution
+with one degree of freedom). When it does not, the channel is dropped (its epochs count as
+having no such range), and the filter **falls back**: its state is replaced
+by the open-loop prediction from epoch m (the oldest one the channel was
+tested against), discarding what the channel did to the track since.
+
+**Return.** A dropped channel is tested in the same way from its first
+observation after the drop onwards, once ``readmit_window`` observations are
+in, but against a far stricter bound, the chi-square's ``return_quantile``
+(its median by default): taking a biased channel back drags the track
+again, while keeping a good one out a little longer only leaves the filter
+on the PDR, and with the PDR alone the filter's own heading uncertainty
+widens until a bend of half a metre per second fits inside a loose bound.
+When it agrees, the channel comes back as a new origin: the offset it
+gathered meanwhile says nothing about the position, so the filter
+re-anchors the channel on that observation and takes only changes from
+there.
+
+A channel whose data restart from a new origin (a cycle slip, a re-acquired
+path; or a Kalman filter's re-anchoring after a long gap) is re-anchored by
+the filter, and its window starts afresh.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+from fusion.model import (ClockModel, Geometry, ModelNoise, ObservationLayout, StepControl, observation_jacobian,
+                          observe, process_covariance, propagate, transition_jacobian)
+
+
+@dataclass(frozen=True)
+class IntegrityConfig:
+    """Settings of the range integrity monitor (module docstring).
+
+    Attributes
+    ----------
+    enabled : bool
+        Off: every present range is used (the filters' own outlier handling only).
+    window : int
+        Epochs over which a channel's change is set against the PDR's
+        (about two per second while walking).
+    false_alarm : float
+        Probability that a test of a consistent channel fails.
+    readmit_window : int
+        Observations a dropped channel needs after the drop before it may come back.
+    return_quantile : float
+        The return test passes below this quantile of the consistency
+        statistic's chi-square distribution: a consistent channel passes it
+        this often, a biased one far less (module docstring).
+    """
+
+    enabled: bool = True
+    window: int = 20
+    false_alarm: float = 1e-3
+    readmit_window: int = 10
+    return_quantile: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.window < 2 or not 2 <= self.readmit_window <= self.window:
+            raise ValueError(f"integrity windows: need 2 <= readmit_window <= window, got {self.readmit_window}, "
+                             f"{self.window}")
+        if not 0.0 < self.false_alarm < 1.0 or not 0.0 < self.return_quantile < 1.0:
+            raise ValueError(f"integrity false_alarm and return_quantile must be in (0, 1), got {self.false_alarm}, "
+                             f"{self.return_quantile}")
+
+
+class IntegrityMonitor:
+    """Decides per epoch which range channels a filter uses (module docstring).
+
+    The filter calls :meth:`predict` with each control, :meth:`assess`
+    before it weighs the epoch's ranges, and :meth:`posterior` with its
+    state after the update.
+
+    Parameters
+    ----------
+    geometry : Geometry
+    noise : ModelNoise
+        The process noise of the open-loop prediction.
+    clock : ClockModel
+        With a free-running clock the states carry the clock (7 columns).
+    config : IntegrityConfig
+
+    Attributes
+    ----------
+    dropped_epochs : ndarray of int
+        Per channel, how many of its observations were not used.
+    fallbacks : int
+        How often the filter was sent back to an open-loop prediction.
+    """
+
+    def __init__(self, geometry: Geometry, noise: ModelNoise, clock: ClockModel = ClockModel(),
+                 config: IntegrityConfig = IntegrityConfig()) -> None:
+        self.geometry = geometry
+        self.noise = noise
+        self.clock = clock
+        self.config = config
+        self.layout = ObservationLayout(geometry.n_towers)
+        n = self.layout.n_channels
+        self._rows = self.layout.rows()
+        self._in_use = np.ones(n, dtype=bool)
+        self._since = np.full(n, -1)  # a channel's tests start after this epoch (a drop or a new origin)
+        self._drop_limit = float(chi2.ppf(1.0 - config.false_alarm, 1))
+        self._return_limit = float(chi2.ppf(config.return_quantile, 1))
+        self._index = -1
+        self._z = np.full(n, np.nan)
+        self._sigma = np.full(n, np.nan)
+        # The kept epochs, oldest first: index, observations, posterior, open-loop prediction since.
+        self._kept_index = np.empty(0, dtype=np.int64)
+        self._kept_z = np.empty((0, n))
+        self._kept_sigma = np.empty((0, n))
+        self._x = self._x_open = self._P = self._P_open = self._cross = None
+        self.dropped_epochs = np.zeros(n, dtype=np.int64)
+        self.fallbacks = 0
+
+    def predict(self, control: StepControl) -> None:
+        """Carry every kept epoch's open-loop prediction over one more control."""
+        self._index += 1
+        if not self.config.enabled or not len(self._kept_index):
+            return
+        f = transition_jacobian(self._x_open, control)
+        self._x_open = propagate(self._x_open, control)
+        self._P_open = f @ self._P_open @ np.swapaxes(f, -1, -2) + process_covariance(self.noise, control, self.clock)
+        self._cross = f @ self._cross
+
+    def assess(self, z: np.ndarray, sigma: np.ndarray, new_origin: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
+        """Which channels to use this epoch, which come back as a new origin, and any fallback state.
+
+        Parameters
+        ----------
+        z, sigma : ndarray
+            Observation and its standard deviation per range channel (NaN: none this epoch).
+        new_origin : ndarray of bool
+            Channels whose data restart from a new origin this epoch: the
+            filter re-anchors them when they are in use, and their windows
+            start afresh.
+
+        Returns
+        -------
+        use : ndarray of bool
+            Observations the filter may use.
+        reanchor : ndarray of bool
+            Channels coming back after being dropped, to be re-anchored on
+            this observation rather than weighed.
+        fallback : (x, P) or None
+            Where a channel was dropped: the open-loop state and covariance
+            the filter is to take instead of its own.
+        """
+        present = np.isfinite(z)
+        self._z, self._sigma = z.copy(), sigma.copy()
+        use = present.copy()
+        reanchor = np.zeros(len(z), dtype=bool)
+        if not self.config.enabled:
+            return use, reanchor, None
+        fallback = None
+        for j in np.flatnonzero(present):
+            if new_origin[j]:
+                self._since[j] = self._index
+                continue
+            candidates = np.flatnonzero((self._kept_index > self._since[j]) & np.isfinite(self._kept_z[:, j]))
+            if self._in_use[j]:
+                if len(candidates) and not self._agrees(candidates[0], j, z[j], sigma[j], self._drop_limit):
+                    self._in_use[j] = False
+                    self._since[j] = self._index
+                    fallback = candidates[0] if fallback is None else min(fallback, candidates[0])
+            elif (len(candidates) + 1 >= self.config.readmit_window
+                  and self._agrees(candidates[0], j, z[j], sigma[j], self._return_limit)):
+                self._in_use[j] = True
+                self._since[j] = self._index
+                reanchor[j] = True
+            if not self._in_use[j]:
+                use[j] = False
+                self.dropped_epochs[j] += 1
+        if fallback is None:
+            return use, reanchor, None
+        self.fallbacks += 1
+        return use, reanchor, (self._x_open[fallback].copy(), self._P_open[fallback].copy())
+
+    def posterior(self, x: np.ndarray, P: np.ndarray) -> None:
+        """Keep the filter's state after this epoch's update as a start of later tests."""
+        if not self.config.enabled:
+            return
+        x = np.array(x, dtype=np.float64)[None]
+        P = np.array(P, dtype=np.float64)[None]
+        keep = -(self.config.window - 1)
+        if not len(self._kept_index):
+            self._x, self._x_open, self._P, self._P_open, self._cross = x, x.copy(), P, P.copy(), P.copy()
+        else:
+            self._x = np.concatenate([self._x[keep:], x])
+            self._x_open = np.concatenate([self._x_open[keep:], x])
+            self._P = np.concatenate([self._P[keep:], P])
+            self._P_open = np.concatenate([self._P_open[keep:], P])
+            self._cross = np.concatenate([self._cross[keep:], P])
+        self._kept_index = np.concatenate([self._kept_index[keep:], [self._index]])
+        self._kept_z = np.concatenate([self._kept_z[keep:], self._z[None]])
+        self._kept_sigma = np.concatenate([self._kept_sigma[keep:], self._sigma[None]])
+
+    def _agrees(self, start: int, channel: int, z: float, sigma: float, limit: float) -> bool:
+        """Consistency test of ``channel`` from kept epoch ``start`` to now (module docstring): ``d^2 <= limit Var(d)``."""
+        row = self._rows[channel]
+        x_then, x_now = self._x[start], self._x_open[start]
+        g = observe(np.stack([x_then, x_now]), self.geometry, 0.0)[:, row]
+        j_then = observation_jacobian(x_then, self.geometry)[row]
+        j_now = observation_jacobian(x_now, self.geometry)[row]
+        d = (z - self._kept_z[start, channel]) - (g[1] - g[0])
+        gaps = np.count_nonzero(~np.isfinite(self._kept_z[start + 1:, channel]))
+        variance = (sigma**2 + self._kept_sigma[start, channel] ** 2 + j_now @ self._P_open[start] @ j_now
+                    + j_then @ self._P[start] @ j_then - 2.0 * j_now @ self._cross[start] @ j_then
+                    + gaps * self.noise.range_offset_m**2)
+        return d * d <= limit * variance

@@ -1,0 +1,100 @@
+"""The range integrity monitor: a bent range is dropped and the filters fall back on the PDR, a good one is kept."""
+
+import numpy as np
+import pytest
+from fusion_synth import exact_ranges, park_like_walk, ranges_with_blockage
+
+from dtmbnav.core.records import RangeSeries
+from fusion import particle_filter as pf
+from fusion.integrity import IntegrityConfig
+from fusion.metrics import error_stats, place_pdr, position_errors_m
+from fusion.model import ModelNoise
+from fusion.observations import aggregate_ranges, build_epochs
+from fusion.run import FILTERS, FusionConfig
+from fusion.ukf import RangePdrUkf
+
+BEND_START_S, BEND_S = 60.0, 60.0
+
+
+def bent_walk(rate_mps):
+    """Two laps with a drifting PDR; from 60 s on, for 60 s, the range bends at ``rate_mps`` (a reflection's Doppler)
+    and keeps what it gathered afterwards."""
+    walk = park_like_walk(gain=1.1, drift_dps=0.2, seed=0, laps=2)
+    ranges = exact_ranges(walk)
+    bend = rate_mps * np.clip(ranges.t_s - BEND_START_S, 0.0, BEND_S)
+    epochs = build_epochs(walk.pdr, aggregate_ranges(RangeSeries(ranges.t_s, ranges.range_change_m + bend,
+                                                                 ranges.snr_db, ranges.valid), walk.pdr.t_s),
+                          walk.initial_heading_rad)
+    pdr_at_fix95 = error_stats(position_errors_m(place_pdr(walk.pdr, 0.0, 0.0, walk.initial_heading_rad),
+                                                 walk.truth)).p95_m
+    return walk, epochs, pdr_at_fix95
+
+
+@pytest.fixture(scope="module", params=[0.5, 1.0])
+def bent(request):
+    return bent_walk(request.param)
+
+
+@pytest.mark.parametrize("name", list(FILTERS))
+def test_no_filter_is_dragged_beyond_the_pdr_by_a_bent_range(bent, name):
+    """The start fix is the true start here, so the PDR at the fix is the PDR placed at the truth."""
+    walk, epochs, pdr_at_fix95 = bent
+    fused95 = error_stats(position_errors_m(FILTERS[name](epochs, walk.geometry, FusionConfig(n_particles=1000)),
+                                            walk.truth)).p95_m
+    assert fused95 <= 1.05 * pdr_at_fix95, (fused95, pdr_at_fix95)
+
+
+@pytest.mark.parametrize("name", ["pf", "ukf"])
+def test_without_the_monitor_the_bent_range_drags_the_track(name):
+    walk, epochs, pdr_at_fix95 = bent_walk(0.5)
+    config = FusionConfig(n_particles=1000, integrity=IntegrityConfig(enabled=False))
+    fused95 = error_stats(position_errors_m(FILTERS[name](epochs, walk.geometry, config), walk.truth)).p95_m
+    assert fused95 > 1.5 * pdr_at_fix95, (fused95, pdr_at_fix95)
+
+
+def run_epochs(f, epochs, start_s, end_s):
+    """Predict and update over the epochs with start_s <= t < end_s."""
+    for n in range(*np.searchsorted(epochs.t_s, [start_s, end_s])):
+        f.predict(epochs.control(n))
+        f.update(epochs.observation(n))
+
+
+def test_the_bend_is_dropped_within_seconds_and_the_range_returns_as_a_new_origin():
+    walk, epochs, _ = bent_walk(1.0)
+    f = RangePdrUkf(walk.geometry, ModelNoise(), *epochs.initial_heading_speed())
+    run_epochs(f, epochs, 0.0, BEND_START_S)
+    assert f.monitor.dropped_epochs[0] == 0 and f.monitor.fallbacks == 0
+    run_epochs(f, epochs, BEND_START_S, BEND_START_S + 5.0)
+    assert f.monitor.fallbacks == 1 and f.monitor.dropped_epochs[0] > 0
+    origin = f.start_range_m
+    run_epochs(f, epochs, BEND_START_S + 5.0, np.inf)
+    assert f.monitor._in_use[0]                               # back after the bend ended
+    assert abs(f.start_range_m - origin) > 20.0               # re-anchored: the bend left 60 m in the range
+
+
+@pytest.mark.parametrize("runner", [lambda e, g: pf.run_particle_filter(e, g, n_particles=500, seed=1),
+                                    lambda e, g: FILTERS["rank-kf"](e, g, FusionConfig())])
+def test_a_good_range_is_never_dropped_and_a_gap_may_end_off(runner, monkeypatch):
+    """Exact ranges, and a 20 s gap the range comes back from 8 m off (the filters allow a jump across a gap)."""
+    dropped = []
+    original = pf.IntegrityMonitor.assess
+
+    def spy(self, z, sigma, new_origin):
+        use, reanchor, fallback = original(self, z, sigma, new_origin)
+        dropped.append(bool(np.any(np.isfinite(z) & ~use)) or fallback is not None)
+        return use, reanchor, fallback
+
+    monkeypatch.setattr(pf.IntegrityMonitor, "assess", spy)
+    for seed, ranges in ((4, None), (4, (40.0, 60.0, 8.0))):
+        walk = park_like_walk(gain=1.15, seed=seed)
+        series = exact_ranges(walk) if ranges is None else ranges_with_blockage(walk, *ranges)
+        runner(build_epochs(walk.pdr, aggregate_ranges(series, walk.pdr.t_s), walk.initial_heading_rad),
+               walk.geometry)
+    assert dropped and not any(dropped)
+
+
+def test_integrity_config_is_checked():
+    with pytest.raises(ValueError, match="readmit_window"):
+        IntegrityConfig(window=5, readmit_window=10)
+    with pytest.raises(ValueError, match="false_alarm"):
+        IntegrityConfig(false_alarm=0.0)

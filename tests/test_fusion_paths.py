@@ -1,0 +1,202 @@
+"""Path observations (first-path ranges, tower differences): model, aggregation, standstill epochs, filters."""
+
+import numpy as np
+import pytest
+from fusion_synth import clock_range_m, exact_paths, exact_ranges, park_like_walk, path_series
+
+from dtmbnav.core.records import PathRangeSeries, RangeSeries
+from fusion.metrics import error_stats, place_pdr, position_errors_m
+from fusion.model import (CLOCK_STATE_SIZE, ClockModel, EpochObservation, Geometry, ModelNoise, ObservationLayout,
+                          StepControl, observation_jacobian, observe, propagate, transition_jacobian)
+from fusion.observations import (FilterEpochs, PathAggregationConfig, PathRanges, StandstillConfig, aggregate_path,
+                                 aggregate_paths, aggregate_ranges, build_epochs, epoch_times, standstill_times)
+from fusion.run import FILTERS, FusionConfig, fuse
+
+SFN = Geometry(3.0, -2.0, 2000.0, 2200.0, 150.0, other_towers=((-1800.0, 1500.0, 100.0), (500.0, -2500.0, 60.0)))
+SECOND_TOWER = ((-1800.0, 1500.0, 100.0),)
+FREE_TCXO = {"clock_model": "free-running", "clock_allan_deviation": 1.6e-9, "clock_allan_tau_s": 100.0}
+
+
+# --- the model --------------------------------------------------------------------------------
+
+def test_observation_model_of_every_channel():
+    layout = ObservationLayout(SFN.n_towers)
+    x, y = 40.0, 25.0
+    state = np.array([x, y, 0.0, 1.0, 1.3, 2.5, 0.1])  # with the clock: 2.5 m integrated, 0.1 m/s
+    z = observe(state, SFN, SFN.start_range_m())  # a scalar origin: the SI range's; the others at P0
+    ranges = [SFN.range_m(x, y, k) - SFN.range_m(SFN.start_x_m, SFN.start_y_m, k) for k in range(3)]
+    rows = layout.rows()
+    np.testing.assert_allclose(z[rows[0]], ranges[0] + 2.5)                       # SI carriers: range + clock
+    np.testing.assert_allclose(z[rows[1:4]], np.array(ranges) + 2.5)              # first paths: range + clock
+    np.testing.assert_allclose(z[rows[4:]], [ranges[1] - ranges[0], ranges[2] - ranges[0]])  # differences: no clock
+    np.testing.assert_allclose(z[[1, 2]], [1.0, 1.3])
+
+
+@pytest.mark.parametrize("size", [5, CLOCK_STATE_SIZE])
+def test_jacobians_match_finite_differences(size):
+    x = np.array([40.0, 25.0, 0.01, 1.0, 1.3, 2.5, 0.1])[:size]
+    control = StepControl(0.55, 0.1, 1.05, interval_s=0.8)
+    eps = 1e-6
+    numeric_f = np.column_stack([(propagate(x + eps * e, control) - propagate(x - eps * e, control)) / (2 * eps)
+                                 for e in np.eye(size)])
+    np.testing.assert_allclose(transition_jacobian(x, control), numeric_f, atol=1e-6)
+    np.testing.assert_allclose(transition_jacobian(np.stack([x, x]), control)[1], numeric_f, atol=1e-6)
+    numeric_h = np.column_stack([(observe(x + eps * e, SFN, 0.0) - observe(x - eps * e, SFN, 0.0)) / (2 * eps)
+                                 for e in np.eye(size)])
+    np.testing.assert_allclose(observation_jacobian(x, SFN), numeric_h, atol=1e-6)
+
+
+def test_epoch_observation_orders_and_pads_the_channels():
+    obs = EpochObservation(0, 1.0, 0.2, 0.5, 1.3, first_path_range_m=np.array([2.0, np.nan]),
+                           first_path_sigma_m=np.array([0.1, 0.1]), first_path_new_origin=np.array([True, True]),
+                           range_difference_m=np.array([4.0]), range_difference_sigma_m=np.array([0.3]),
+                           range_difference_new_origin=np.array([False]))
+    z, sigma, new_origin = obs.range_channels(3)
+    np.testing.assert_array_equal(z, [1.0, 2.0, np.nan, np.nan, 4.0, np.nan])
+    np.testing.assert_array_equal(sigma, [0.2, 0.1, np.nan, np.nan, 0.3, np.nan])
+    assert new_origin.tolist() == [False, True, False, False, False, False]  # no data: no new origin
+    kalman = obs.kalman(ModelNoise(), 3, use=np.array([True, False, True, True, True, True]))
+    assert kalman.rows.tolist() == [0, 1, 2, 6]  # the first path to tower 0 left out; difference 1 is row 6
+    with pytest.raises(ValueError, match="the geometry has 1"):
+        obs.range_channels(1)
+    with pytest.raises(ValueError, match="height_m"):
+        Geometry(0.0, 0.0, 1.0, 1.0, 0.0, other_towers=((1.0, 2.0),))
+
+
+# --- aggregation of the path channels ---------------------------------------------------------
+
+def ramp_path(duration_s=20.0, rate_hz=200.0):
+    t = np.arange(0.0, duration_s, 1.0 / rate_hz)
+    return path_series(t, -1.0 * t)
+
+
+def test_a_slip_drops_its_epoch_and_makes_the_next_a_new_origin():
+    series = ramp_path()
+    slip = series.slip.copy()
+    slip[np.argmin(np.abs(series.t_s - 5.0))] = True
+    jumped = np.where(series.t_s >= 5.0, series.range_change_m + 0.45, series.range_change_m)
+    series = PathRangeSeries(series.t_s, jumped, series.snr_db, series.valid, slip, series.path_age_s)
+    value, sigma, new_origin = aggregate_path(series, np.array([4.0, 5.0, 6.0, 7.0]))
+    assert np.isnan(value[1]) and np.isnan(sigma[1])
+    assert new_origin.tolist() == [False, False, True, False]
+    assert value[2] == pytest.approx(-6.0 + 0.45, abs=1.0 / 200.0)  # the window mean of a sampled ramp: to a frame
+
+
+def test_a_reacquired_path_is_a_new_origin_and_a_young_path_is_held_back():
+    series = ramp_path()
+    age = np.where(series.t_s < 8.0, series.path_age_s, series.t_s - 8.0)  # path lost and found at 8 s
+    series = PathRangeSeries(series.t_s, series.range_change_m, series.snr_db, series.valid, series.slip, age)
+    config = PathAggregationConfig()
+    _, sigma, new_origin = aggregate_path(series, np.array([7.0, 8.2, 9.0, 18.0]), config)
+    assert np.isnan(sigma[1])                                 # younger than min_path_age_s
+    assert new_origin.tolist() == [False, False, True, False]
+    young = config.base_sigma_m * np.sqrt(1.0 + config.path_settle_s / 1.0)
+    assert sigma[2] == pytest.approx(young, rel=0.01)         # one second old
+    assert sigma[3] == pytest.approx(config.base_sigma_m * np.sqrt(1.0 + config.path_settle_s / 10.0), rel=0.01)
+
+
+def test_path_sigma_grows_like_one_over_snr():
+    series = ramp_path()
+    weak = PathRangeSeries(series.t_s, series.range_change_m, np.full(len(series), 0.0), series.valid, series.slip,
+                           series.path_age_s)
+    config = PathAggregationConfig(good_snr_db=10.0)
+    ratio = aggregate_path(weak, np.array([15.0]), config)[1] / aggregate_path(series, np.array([15.0]), config)[1]
+    assert ratio[0] == pytest.approx(np.sqrt(10.0), rel=1e-6)
+
+
+def test_aggregate_paths_rejects_a_tower_outside_the_geometry():
+    with pytest.raises(ValueError, match="differences: tower 0"):
+        aggregate_paths(PathRanges(differences={0: ramp_path()}), np.array([5.0]), 2)
+
+
+# --- standstill epochs ------------------------------------------------------------------------
+
+def test_standstill_epochs_fill_the_pauses_and_give_no_track_rows():
+    walk = park_like_walk(pauses=((30.0, 10.0),))
+    config = StandstillConfig()
+    still = standstill_times(walk.pdr.t_s, 0.0, config)
+    gaps = np.diff(np.concatenate([[0.0], walk.pdr.t_s]))
+    assert np.count_nonzero(gaps > config.min_gap_s) == 2    # before the first step, and the pause
+    assert np.all(np.min(np.abs(still[:, None] - walk.pdr.t_s[None]), axis=1) >= config.margin_s - 1e-9)
+    t = epoch_times(walk.pdr.t_s, 0.0, config)
+    epochs = build_epochs(walk.pdr, aggregate_ranges(exact_ranges(walk), t), walk.initial_heading_rad)
+    assert len(epochs) == len(walk.pdr) + len(still)
+    np.testing.assert_array_equal(epochs.t_s[epochs.is_step], walk.pdr.t_s)
+    n = int(np.flatnonzero(~epochs.is_step)[-1])
+    assert epochs.control(n).dt_s == 0.0 and epochs.control(n).interval_s > 0.0
+    assert np.isnan(epochs.observation(n).pdr_heading_rad)
+    assert epochs.initial_heading_speed() == (walk.pdr.heading_rad[0] + walk.initial_heading_rad, walk.pdr.speed_mps[0])
+    for name, runner in FILTERS.items():
+        track = runner(epochs, walk.geometry, FusionConfig(n_particles=300, **FREE_TCXO))
+        np.testing.assert_array_equal(track.t_s, walk.pdr.t_s)
+        assert np.isfinite(track.x_m).all(), name
+
+
+def test_build_epochs_rejects_ranges_off_the_step_times():
+    walk = park_like_walk()
+    with pytest.raises(ValueError, match="not aggregated at the PDR step times"):
+        build_epochs(walk.pdr, aggregate_ranges(exact_ranges(walk), walk.pdr.t_s[1:]), 0.0)
+
+
+# --- the filters on path observations -------------------------------------------------------
+
+def fused_p95(walk, epochs, name, config):
+    return error_stats(position_errors_m(FILTERS[name](epochs, walk.geometry, config), walk.truth)).p95_m
+
+
+@pytest.mark.parametrize("noise_m", [0.0, 0.05])
+def test_every_filter_converges_on_first_path_ranges_to_two_towers(noise_m):
+    """No SI-carrier range at all: exact or noisy first-path ranges of two towers correct a drifting PDR."""
+    walk = park_like_walk(gain=1.1, drift_dps=0.2, seed=1, other_towers=SECOND_TOWER)
+    paths = exact_paths(walk)
+    rng = np.random.default_rng(3)
+    for series in paths.first_path.values():
+        series.range_change_m = series.range_change_m + noise_m * rng.standard_normal(len(series))
+    no_si = exact_ranges(walk)
+    no_si = RangeSeries(no_si.t_s, no_si.range_change_m, no_si.snr_db, np.zeros(len(no_si), bool))
+    epochs = build_epochs(walk.pdr, aggregate_ranges(no_si, walk.pdr.t_s), walk.initial_heading_rad,
+                          aggregate_paths(paths, walk.pdr.t_s, walk.geometry.n_towers))
+    assert np.isnan(epochs.range_change_m).all()
+    pdr95 = error_stats(position_errors_m(place_pdr(walk.pdr, 0.0, 0.0, walk.initial_heading_rad), walk.truth)).p95_m
+    for name in FILTERS:
+        assert fused_p95(walk, epochs, name, FusionConfig(n_particles=1000)) < 0.5 * pdr95, name
+
+
+def test_a_range_difference_corrects_a_heading_error_under_a_free_running_clock():
+    """The SI-carrier range drifts with a TCXO; the clock-free tower difference still fixes an 8 deg heading error."""
+    walk = park_like_walk(gain=1.1, drift_dps=0.2, seed=0, laps=2, other_towers=SECOND_TOWER)
+    ranges = exact_ranges(walk)
+    drifting = RangeSeries(ranges.t_s, ranges.range_change_m + clock_range_m(ranges.t_s, 1.6e-9, 100.0, seed=0),
+                           ranges.snr_db, ranges.valid)
+    heading = walk.initial_heading_rad + np.deg2rad(8.0)
+    pdr_at_fix95 = error_stats(position_errors_m(place_pdr(walk.pdr, 0.0, 0.0, heading), walk.truth)).p95_m
+    config = FusionConfig(n_particles=1000, **FREE_TCXO)
+    t = epoch_times(walk.pdr.t_s, 0.0, config.standstills)
+    with_difference = aggregate_paths(exact_paths(walk, first_path=False), t, walk.geometry.n_towers)
+    for name in ("pf", "ukf"):
+        si_only = fused_p95(walk, build_epochs(walk.pdr, aggregate_ranges(drifting, t), heading), name, config)
+        both = fused_p95(walk, build_epochs(walk.pdr, aggregate_ranges(drifting, t), heading, with_difference), name,
+                         config)
+        assert both < 0.4 * pdr_at_fix95, (name, both, pdr_at_fix95)
+        assert si_only > 0.6 * pdr_at_fix95, (name, si_only, pdr_at_fix95)
+
+
+def test_fuse_takes_the_towers_and_the_paths():
+    walk = park_like_walk(gain=1.1, seed=5, other_towers=SECOND_TOWER)
+    result = fuse(walk.pdr, exact_ranges(walk), (0.0, 0.0), (walk.geometry.tower_x_m, walk.geometry.tower_y_m),
+                  ("pf", "rank-kf"), tower_height_m=walk.geometry.tower_height_m, other_towers=SECOND_TOWER,
+                  paths=exact_paths(walk), config=FusionConfig(n_particles=500))
+    assert result.epochs.first_path_range_m.shape == (len(walk.pdr), 2)
+    assert result.epochs.range_difference_m.shape == (len(walk.pdr), 1)
+    with pytest.raises(ValueError, match="clock_model"):
+        FusionConfig(clock_model="rubidium")
+    with pytest.raises(ValueError, match="Allan deviation"):
+        ClockModel("free-running", allan_deviation=-1.0)
+
+
+def test_default_epochs_have_no_path_columns():
+    walk = park_like_walk()
+    epochs = build_epochs(walk.pdr, aggregate_ranges(exact_ranges(walk), walk.pdr.t_s), 0.0)
+    assert epochs.first_path_range_m.shape == (len(walk.pdr), 0)
+    copy = FilterEpochs(**epochs.columns())
+    np.testing.assert_array_equal(copy.interval_s, epochs.interval_s)
