@@ -20,7 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize
+from scipy.optimize import minimize, minimize_scalar
 
 from fusion.model import Geometry
 
@@ -197,15 +197,19 @@ def _solve_window(x: np.ndarray, y: np.ndarray, rc: np.ndarray, geometry: Geomet
 
     found = []
     for i in np.nonzero(is_min)[0]:
+        bracket = (grid[i] - COARSE_STEP_RAD, grid[i] + COARSE_STEP_RAD)
         if scale_bounds is None:
-            res = minimize(lambda h: cost(np.array([h[0], 1.0])), x0=[grid[i]], method="Nelder-Mead",
-                           bounds=[(grid[i] - COARSE_STEP_RAD, grid[i] + COARSE_STEP_RAD)],
-                           options={"xatol": 1e-4, "fatol": 1e-6})
-            heading, scale = res.x[0], 1.0
+            # A bounded scalar search over the grid cell: Nelder-Mead's default first step (5 % of x0) is
+            # clipped at the cell's edge and can stall at the grid point on this piecewise-linear cost.
+            res = minimize_scalar(lambda h: cost(np.array([h, 1.0])), bounds=bracket, method="bounded",
+                                  options={"xatol": 1e-6})
+            heading, scale = res.x, 1.0
         else:
-            res = minimize(cost, x0=[grid[i], best_scale[i]], method="Nelder-Mead",
-                           bounds=[(grid[i] - COARSE_STEP_RAD, grid[i] + COARSE_STEP_RAD), scale_bounds],
-                           options={"xatol": 1e-4, "fatol": 1e-6})
+            # An explicit first simplex inside the cell, for the same reason.
+            start = np.array([grid[i], best_scale[i]])
+            simplex = np.array([start, start + [0.5 * COARSE_STEP_RAD, 0.0], start + [0.0, 0.01]])
+            res = minimize(cost, x0=start, method="Nelder-Mead", bounds=[bracket, scale_bounds],
+                           options={"xatol": 1e-5, "fatol": 1e-7, "initial_simplex": simplex})
             heading, scale = res.x
         found.append((float(res.fun), float(heading % (2.0 * np.pi)), float(scale)))
     if not found:
