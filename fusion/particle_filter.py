@@ -463,7 +463,8 @@ class ParticleFilter:
             self.log_w[:] = -np.log(self.n_particles)
             self.weights[:] = 1.0 / self.n_particles
             self.resample_count += 1
-        self.monitor.posterior(*self.summary())
+        if self.monitor.config.enabled:
+            self.monitor.posterior(*self.summary())
 
     def _weigh_range(self, channel: int, z: float, sigma: float) -> None:
         """One range channel's likelihood and Kalman step of the linear state (module docstring)."""

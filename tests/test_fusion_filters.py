@@ -6,8 +6,8 @@ from fusion_synth import exact_ranges, foot_imu_straight, park_like_walk, ranges
 from scipy.stats import norm
 
 from fusion import foot_ins, rank_kf
-from fusion.integrity import IntegrityConfig
 from fusion.adaptive_kf import GnssFixes, quality_grade_factors, run_adaptive_kf, transition_jacobian
+from fusion.integrity import IntegrityConfig
 from fusion.metrics import error_stats, place_pdr, position_errors_m
 from fusion.model import ModelNoise, StepControl, propagate
 from fusion.observations import aggregate_ranges, build_epochs
