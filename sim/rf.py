@@ -56,7 +56,7 @@ from sim.frames import FrameConfig, FrameSource
 from sim.frontend import FrontEnd, mean_signal_power
 from sim.oscillator import scenario_oscillator
 from sim.scenario import Scenario
-from sim.transmitter import multipath_kernel, pulse_table, symbol_range
+from sim.transmitter import multipath_kernel, symbol_range
 
 #: Random stream ids (second element of every seed sequence of this package).
 STREAM_CLOCK = 0xC10C
@@ -172,13 +172,13 @@ class CaptureGenerator:
         self.grid_step_s = float(grid_step_s)
         self.signal_power = mean_signal_power(self.frame_config)
         self.frontend = FrontEnd(scenario.receiver, self.signal_power, self.sample_rate_hz, self.sample_format,
-                                 self.seed, STREAM_NOISE)
+                                 self.seed, STREAM_NOISE, pulse_span)
         self.frames = FrameSource(self.frame_config)
-        self.pulse = pulse_table(pulse_span)
+        self.pulse = self.frontend.pulse
         self._grid_block = lru_cache(maxsize=4)(self._build_grid_block)
 
         first_u = self._grid(self.first_sample, 1)[0].min()
-        if first_u < pulse_span:
+        if first_u < self.pulse.span:
             raise ValueError(f"receiver.start_offset_s={self.start_offset_s} s is too small: the capture would need "
                              "symbols sent before frame 0 (raise start_offset_s above the propagation delay)")
 
