@@ -104,7 +104,8 @@ def _receiver_config(args: argparse.Namespace):
     from receiver.pipeline import ReceiverConfig
 
     return ReceiverConfig(pn_mode=args.pn_mode, static_window_s=args.static_window,
-                          clock_offset_hz=args.clock_offset, conjugate_iq=args.conjugate)
+                          clock_offset_hz=args.clock_offset,
+                          iq_orientation="conjugate" if args.conjugate else "auto")
 
 
 def _pdr_config(args: argparse.Namespace):
