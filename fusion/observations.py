@@ -36,9 +36,18 @@ noise. The rule, applied per step time ``t_n``:
    reflection with the direct path's Doppler (walking along a wall) does not
    fade and does not bend the range, so it is rightly kept.
 
+7. **Segments.** The receiver restarts its range at each re-acquisition
+   (``segment_id``; the range is held flat across the gap, docs/schema.md):
+   how far the walker moved during the gap is unknown. An epoch whose window
+   reaches into a new segment, or which follows a change of segment since the
+   previous epoch, has no range observation, and the range returns after
+   rule 5's ``settle_s``: what follows is a range from a new origin.
+
 Where an epoch has no range observation, the integrated range may have
-jumped or drifted (a gap, a fade, a multipath stretch): the particle filter
-lets its range offset wander there (:mod:`fusion.particle_filter`).
+jumped or drifted (a gap, a fade, a multipath stretch, a new segment): the
+particle filter lets its range offset wander there
+(:mod:`fusion.particle_filter`) and the Kalman-type filters re-anchor their
+range origin (:func:`fusion.model.run_filter`).
 """
 
 from __future__ import annotations
@@ -229,6 +238,20 @@ def settled(t_s: np.ndarray, passing: np.ndarray, settle_s: float) -> np.ndarray
     return passing & (since >= settle_s)
 
 
+def segment_changes(ranges: RangeSeries, epoch_t_s: np.ndarray, window_s: float) -> np.ndarray:
+    """Epochs whose window reaches into a new segment, or that follow a change of segment (module rule 7).
+
+    The segment at the end of each epoch's window (of the last frame at or
+    before it) is compared with the one at its start and with the previous
+    epoch's.
+    """
+    segment = np.asarray(ranges.segment_id, dtype=np.int64)
+    last = len(segment) - 1
+    at_start = segment[np.clip(np.searchsorted(ranges.t_s, epoch_t_s - window_s / 2.0, side="left"), 0, last)]
+    at_end = segment[np.clip(np.searchsorted(ranges.t_s, epoch_t_s + window_s / 2.0, side="right") - 1, 0, last)]
+    return (at_start != at_end) | (at_end != np.concatenate([at_end[:1], at_end[:-1]]))
+
+
 def aggregate_ranges(ranges: RangeSeries, epoch_t_s: np.ndarray,
                      config: AggregationConfig = AggregationConfig()) -> RangeEpochs:
     """Apply the module's aggregation rule at each epoch time.
@@ -255,7 +278,7 @@ def aggregate_ranges(ranges: RangeSeries, epoch_t_s: np.ndarray,
     expected = config.window_s / np.median(np.diff(ranges.t_s))
     fraction = np.minimum(n_valid / expected, 1.0)
     k_db = rician_k_db(ranges.t_s, ranges.snr_db, valid, epoch_t_s, config.fading_window_s)
-    keep = (fraction >= config.min_valid_fraction) & (n_valid > 0)
+    keep = (fraction >= config.min_valid_fraction) & (n_valid > 0) & ~segment_changes(ranges, epoch_t_s, config.window_s)
     if config.min_rician_k_db is not None:
         keep &= ~(k_db < config.min_rician_k_db)
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -101,8 +101,8 @@ IQ_ORIENTATIONS = ("auto", "normal", "conjugate")
 ORIENTATION_FRAMES = 64
 #: A frame whose SI phase scatter exceeds this many times the thermal-noise expectation at its SI SNR
 #: is flagged LOW_QUALITY (receiver.cfo). For a clean frame the ratio is a chi-square of about 35
-#: degrees of freedom over its mean, so 3 leaves essentially no false flags.
-CFO_SCATTER_LIMIT = 3.0
+#: degrees of freedom over its mean, widened by the noise of the SI SNR estimate: 4 leaves both far behind.
+CFO_SCATTER_LIMIT = 4.0
 
 
 @dataclass
@@ -344,6 +344,9 @@ class Receiver:
     def finish(self) -> list[FrameBatch]:
         """End of stream: process the frames still complete, release the rest."""
         out = self._run(final=True)
+        if self._orientation_pending and self._held:   # the stream ended before the orientation was decided
+            out.extend(self._decide_orientation())
+            out.extend(self._run(final=True))
         out.extend(self.ranging.flush())
         return out
 
@@ -597,7 +600,10 @@ class Receiver:
                                 lock.acq.coarse_cfo_hz)
         si_snr = si_snr_db(si, ch.noise_power * self._carrier_noise_scale)
         # Eq. 5-8's noise is known from the SI SNR; a frame whose terms scatter more carries something else.
-        expected = expected_phase_variance(np.minimum(si_snr, SCATTER_SNR_CEILING_DB))
+        # A frame's own SI SNR estimate scatters too; one that reads above the batch's median would make
+        # the expectation too strict, so the lower of the two is used (a real fade lowers both).
+        reference_snr = np.minimum(np.minimum(si_snr, np.median(si_snr)), SCATTER_SNR_CEILING_DB)
+        expected = expected_phase_variance(reference_snr)
         scattered = phase_var > self.config.cfo_scatter_limit * expected
         self.scatter_flagged += int(np.count_nonzero(scattered))
         weak = (ch.peak_metric < self.config.track_threshold) | scattered
