@@ -123,6 +123,8 @@ def cmd_receive(args: argparse.Namespace) -> int:
     summary = receive_capture(source, args.output, _receiver_config(args), csv_path=args.csv,
                               progress=not args.quiet)
     print(summary.describe(), file=sys.stderr)
+    for note in filter(None, str(summary.attrs.get("notes", "")).split("\n")):
+        print(f"warning: {note}", file=sys.stderr)
     return EXIT_OK if summary.frames else EXIT_NO_RESULT
 
 
