@@ -148,12 +148,16 @@ def ranges_from_frames(columns: dict[str, np.ndarray], time_offset_s: float = 0.
     onto the IMU's time base. The SNR handed on is the SI-carrier SNR (the
     slice of the band the range is measured on, whose fading the fusion
     watches for multipath); files from receivers that did not write it give
-    the header SNR instead.
+    the header SNR instead. The lock segment goes with them (the fusion takes
+    a new segment as a new range origin); files from receivers that did not
+    write it are one segment.
     """
     rng = columns["range_change_m"]
     valid = np.isfinite(rng) & ((columns["flags"].astype(np.int64) & int(UNUSABLE_FLAGS)) == 0)
+    segment = columns.get("segment_id", np.zeros(len(rng), dtype=np.int32)).astype(np.int32)
     return RangeSeries(t_s=columns["t_s"] + time_offset_s, range_change_m=np.where(np.isfinite(rng), rng, 0.0),
-                       snr_db=columns.get("si_snr_db", columns["snr_db"]).astype(np.float64), valid=valid)
+                       snr_db=columns.get("si_snr_db", columns["snr_db"]).astype(np.float64), valid=valid,
+                       segment_id=segment)
 
 
 def resolve_pdr_config(config: PdrConfig, sensors_path: str | os.PathLike) -> PdrConfig:

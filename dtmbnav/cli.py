@@ -274,7 +274,8 @@ def _receiver_config(args: argparse.Namespace):
     from receiver.pipeline import ReceiverConfig
 
     return ReceiverConfig(pn_mode=args.pn_mode, static_window_s=args.static_window,
-                          clock_offset_hz=args.clock_offset, conjugate_iq=args.conjugate, jobs=args.jobs)
+                          clock_offset_hz=args.clock_offset,
+                          iq_orientation="conjugate" if args.conjugate else "auto", jobs=args.jobs)
 
 
 def _pdr_config(args: argparse.Namespace):
@@ -297,6 +298,8 @@ def cmd_receive(args: argparse.Namespace) -> int:
     summary = receive_capture(source, args.output, _receiver_config(args), csv_path=args.csv,
                               progress=not args.quiet)
     print(summary.describe(), file=sys.stderr)
+    for note in filter(None, str(summary.attrs.get("notes", "")).split("\n")):
+        _warn(args, note)
     if summary.ended_early:
         _warn(args, f"the input ended early ({summary.ended_early}); {args.output} holds the {summary.frames} "
                     "frame(s) received before it and says so (attribute ended_early)")

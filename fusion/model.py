@@ -608,6 +608,9 @@ class EpochObservation:
         re-acquired path, :mod:`fusion.observations`).
     range_difference_m, range_difference_sigma_m, range_difference_new_origin : ndarray
         The same for the difference of tower k and tower 0 (index k - 1).
+    range_new_origin : bool
+        Whether the SI-carrier range restarts from an unknown origin (a new
+        lock segment, :mod:`fusion.observations`).
     """
 
     index: int
@@ -621,6 +624,7 @@ class EpochObservation:
     range_difference_m: np.ndarray = field(default_factory=_empty)
     range_difference_sigma_m: np.ndarray = field(default_factory=_empty)
     range_difference_new_origin: np.ndarray = field(default_factory=_empty)
+    range_new_origin: bool = False
 
     @property
     def has_range(self) -> bool:
@@ -646,7 +650,7 @@ class EpochObservation:
                             padded(self.range_difference_m, n_towers - 1, np.nan)]).astype(np.float64)
         sigma = np.concatenate([[self.range_sigma_m], padded(self.first_path_sigma_m, n_towers, np.nan),
                                 padded(self.range_difference_sigma_m, n_towers - 1, np.nan)]).astype(np.float64)
-        new_origin = np.concatenate([[False], padded(self.first_path_new_origin, n_towers, False),
+        new_origin = np.concatenate([[self.range_new_origin], padded(self.first_path_new_origin, n_towers, False),
                                      padded(self.range_difference_new_origin, n_towers - 1, False)]).astype(bool)
         present = np.isfinite(z) & np.isfinite(sigma)
         return np.where(present, z, np.nan), np.where(present, sigma, np.nan), new_origin & present

@@ -36,20 +36,31 @@ noise. The rule, applied per step time ``t_n``:
    reflection with the direct path's Doppler (walking along a wall) does not
    fade and does not bend the range, so it is rightly kept.
 
+7. **Segments.** The receiver restarts its range at each re-acquisition
+   (``segment_id``; the range is held flat across the gap, docs/schema.md):
+   how far the walker moved during the gap is unknown. An epoch whose window
+   reaches into a new segment, or which follows a change of segment since the
+   previous epoch, has no range observation, and the range returns after
+   rule 5's ``settle_s``: what follows is a range from a new origin.
+
 Where an epoch has no range observation, the integrated range may have
-jumped or drifted (a gap, a fade, a multipath stretch): the particle filter
-lets its range offset wander there (:mod:`fusion.particle_filter`).
+jumped or drifted (a gap, a fade, a multipath stretch, a new segment): the
+particle filter lets its range offset wander there
+(:mod:`fusion.particle_filter`). The first kept epoch after a change of
+segment is marked as a new origin, as a path channel's after an origin break
+(rule 8): the filters re-anchor the range there (:mod:`fusion.kalman`,
+:mod:`fusion.particle_filter`).
 
 **Path channels** (:class:`PathRanges`: the first-path range to each tower,
 and the difference of tower k's and tower 0's first-path ranges; docs/paths.md)
 follow rules 1-5 per channel with :class:`PathAggregationConfig`, and these
-instead of rule 6 (a resolved path does not beat against the others):
+instead of rules 6 and 7 (a resolved path does not beat against the others):
 
-7. A frame flagged as a slip, and a frame where the path's age drops (the
+8. A frame flagged as a slip, and a frame where the path's age drops (the
    path was lost and found again), is an origin break: an epoch whose
    window holds one has no observation, and the next epoch that has one is
    marked as a new origin (the filters re-anchor the channel there).
-8. An epoch whose path is younger than ``min_path_age_s`` (mean over the
+9. An epoch whose path is younger than ``min_path_age_s`` (mean over the
    window) has no observation, and the sigma of rule 5 grows by a further
    ``sqrt(1 + path_settle_s / age)``: a freshly found path may be a sidelobe
    or a passing reflection, and a path that has held for a while is the
@@ -126,7 +137,7 @@ class AggregationConfig:
 
 @dataclass(frozen=True)
 class PathAggregationConfig:
-    """Parameters of the path channels' rule (module docstring, rules 1-5, 7, 8).
+    """Parameters of the path channels' rule (module docstring, rules 1-5, 8, 9).
 
     Attributes
     ----------
@@ -212,6 +223,9 @@ class RangeEpochs(ColumnRecord):
     rician_k_db : ndarray
         Rician K-factor of the link around the epoch, dB (module rule 6);
         NaN where too few valid frames.
+    new_origin : ndarray of bool
+        Epochs whose observation starts from a new origin (the first kept
+        one after a change of segment, module rule 7).
     """
 
     t_s: np.ndarray
@@ -219,6 +233,7 @@ class RangeEpochs(ColumnRecord):
     sigma_m: np.ndarray
     snr_db: np.ndarray
     rician_k_db: np.ndarray
+    new_origin: np.ndarray
 
 
 @dataclass
@@ -259,6 +274,9 @@ class FilterEpochs(ColumnRecord):
         Where column k restarts from a new origin.
     range_difference_m, range_difference_sigma_m, range_difference_new_origin : ndarray, shape (N, T - 1) or None
         The same for the difference of tower k and tower 0 (column k - 1).
+    range_new_origin : ndarray of bool or None
+        Where the range observation restarts from a new origin (a new
+        segment, module rule 7); None: nowhere.
     """
 
     t_s: np.ndarray
@@ -277,11 +295,14 @@ class FilterEpochs(ColumnRecord):
     range_difference_m: np.ndarray | None = None
     range_difference_sigma_m: np.ndarray | None = None
     range_difference_new_origin: np.ndarray | None = None
+    range_new_origin: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.t_s)
         if self.interval_s is None:
             self.interval_s = np.concatenate([np.asarray(self.dt_s[:1], dtype=np.float64), np.diff(self.t_s)])
+        if self.range_new_origin is None:
+            self.range_new_origin = np.zeros(n, dtype=bool)
         for name, fill in (("first_path_range_m", np.nan), ("first_path_sigma_m", np.nan),
                            ("first_path_new_origin", False), ("range_difference_m", np.nan),
                            ("range_difference_sigma_m", np.nan), ("range_difference_new_origin", False)):
@@ -316,7 +337,8 @@ class FilterEpochs(ColumnRecord):
                                 first_path_new_origin=self.first_path_new_origin[n],
                                 range_difference_m=self.range_difference_m[n],
                                 range_difference_sigma_m=self.range_difference_sigma_m[n],
-                                range_difference_new_origin=self.range_difference_new_origin[n])
+                                range_difference_new_origin=self.range_difference_new_origin[n],
+                                range_new_origin=bool(self.range_new_origin[n]))
 
 
 def _check_ranges(ranges: RangeSeries) -> None:
@@ -385,6 +407,47 @@ def settled(t_s: np.ndarray, passing: np.ndarray, settle_s: float) -> np.ndarray
     return passing & (since >= settle_s)
 
 
+def segment_breaks(ranges: RangeSeries) -> np.ndarray:
+    """Frames that start a new segment: origin breaks of the range (module rule 7)."""
+    segment = np.asarray(ranges.segment_id, dtype=np.int64)
+    return np.concatenate([[False], np.diff(segment) != 0])
+
+
+def segment_changes(ranges: RangeSeries, epoch_t_s: np.ndarray, window_s: float) -> np.ndarray:
+    """Epochs whose window reaches into a new segment, or that follow a change of segment (module rule 7).
+
+    The segment at the end of each epoch's window (of the last frame at or
+    before it) is compared with the one at its start and with the previous
+    epoch's.
+    """
+    segment = np.asarray(ranges.segment_id, dtype=np.int64)
+    last = len(segment) - 1
+    at_start = segment[np.clip(np.searchsorted(ranges.t_s, epoch_t_s - window_s / 2.0, side="left"), 0, last)]
+    at_end = segment[np.clip(np.searchsorted(ranges.t_s, epoch_t_s + window_s / 2.0, side="right") - 1, 0, last)]
+    return (at_start != at_end) | (at_end != np.concatenate([at_end[:1], at_end[:-1]]))
+
+
+def new_origins(t_s: np.ndarray, breaks: np.ndarray, epoch_t_s: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Kept epochs with an origin break since the previous kept epoch (or since the start) (module rules 7, 8).
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Frame times, s.
+    breaks : ndarray of bool
+        Frames at which the series restarts from a new origin.
+    epoch_t_s : ndarray
+        Epoch times, s.
+    keep : ndarray of bool
+        Epochs that have an observation.
+    """
+    breaks_before = np.cumsum(breaks)[np.clip(np.searchsorted(t_s, epoch_t_s, side="right") - 1, 0, None)]
+    breaks_before = np.where(epoch_t_s < t_s[0], 0, breaks_before)
+    new_origin = np.zeros(len(epoch_t_s), dtype=bool)
+    new_origin[keep] = np.diff(breaks_before[keep], prepend=0) > 0
+    return new_origin
+
+
 def aggregate_ranges(ranges: RangeSeries, epoch_t_s: np.ndarray,
                      config: AggregationConfig = AggregationConfig()) -> RangeEpochs:
     """Apply the module's aggregation rule at each epoch time.
@@ -411,7 +474,8 @@ def aggregate_ranges(ranges: RangeSeries, epoch_t_s: np.ndarray,
     expected = config.window_s / np.median(np.diff(ranges.t_s))
     fraction = np.minimum(n_valid / expected, 1.0)
     k_db = rician_k_db(ranges.t_s, ranges.snr_db, valid, epoch_t_s, config.fading_window_s)
-    keep = (fraction >= config.min_valid_fraction) & (n_valid > 0)
+    keep = ((fraction >= config.min_valid_fraction) & (n_valid > 0)
+            & ~segment_changes(ranges, epoch_t_s, config.window_s))
     if config.min_rician_k_db is not None:
         keep &= ~(k_db < config.min_rician_k_db)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -429,12 +493,13 @@ def aggregate_ranges(ranges: RangeSeries, epoch_t_s: np.ndarray,
         sigma_m=np.where(keep, sigma, nan),
         snr_db=np.where(n_valid > 0, snr_db, nan),
         rician_k_db=k_db,
+        new_origin=new_origins(ranges.t_s, segment_breaks(ranges), epoch_t_s, keep),
     )
 
 
 def aggregate_path(series: PathRangeSeries, epoch_t_s: np.ndarray,
                    config: PathAggregationConfig = PathAggregationConfig()) -> tuple[np.ndarray, ...]:
-    """One path channel at the epoch times (module docstring, rules 1-5, 7, 8).
+    """One path channel at the epoch times (module docstring, rules 1-5, 8, 9).
 
     Returns
     -------
@@ -461,14 +526,9 @@ def aggregate_path(series: PathRangeSeries, epoch_t_s: np.ndarray,
                                               / fraction * (1.0 + config.path_settle_s / mean_age))
     keep = ((fraction >= config.min_valid_fraction) & (n_valid > 0) & (n_breaks == 0)
             & (mean_age >= config.min_path_age_s))
-    # Rule 7: a kept epoch after an origin break since the previous kept epoch (or since the start) is a new origin.
-    breaks_before = np.cumsum(breaks)[np.clip(np.searchsorted(series.t_s, epoch_t_s, side="right") - 1, 0, None)]
-    breaks_before = np.where(epoch_t_s < series.t_s[0], 0, breaks_before)
-    kept_breaks = breaks_before[keep]
-    new_origin = np.zeros(len(epoch_t_s), dtype=bool)
-    new_origin[keep] = np.diff(kept_breaks, prepend=0) > 0
     nan = np.full(len(epoch_t_s), np.nan)
-    return np.where(keep, mean_range, nan), np.where(keep, sigma, nan), new_origin
+    return (np.where(keep, mean_range, nan), np.where(keep, sigma, nan),
+            new_origins(series.t_s, breaks, epoch_t_s, keep))
 
 
 def aggregate_paths(paths: PathRanges, epoch_t_s: np.ndarray, n_towers: int,
@@ -581,6 +641,7 @@ def build_epochs(pdr: PdrSteps, range_epochs: RangeEpochs, initial_heading_rad: 
         dt_s=at_steps(step_durations_s(pdr), 0.0),
         range_change_m=range_epochs.range_change_m,
         range_sigma_m=range_epochs.sigma_m,
+        range_new_origin=range_epochs.new_origin,
         snr_db=range_epochs.snr_db,
         pdr_heading_rad=heading[latest] + initial_heading_rad,
         pdr_heading_increment_rad=at_steps(np.asarray(wrap_angle(np.diff(heading, prepend=heading[0]))), 0.0),

@@ -8,3 +8,7 @@ command line's parser uses them).
 #: Seconds at the start of a capture during which the receiver stands still; the oscillator
 #: offset f_s is measured there (eq. 9-10) unless the user gives it.
 DEFAULT_STATIC_WINDOW_S = 10.0
+
+#: Half-width of the acquisition's carrier-offset search, Hz: cheap SDR crystals are off by +-20-25 ppm,
+#: up to about 20 kHz at UHF (docs/paths.md, "Oscillators of common SDRs"), with margin.
+DEFAULT_CFO_SEARCH_HZ = 60e3

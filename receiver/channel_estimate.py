@@ -70,7 +70,7 @@ class ChannelEstimator:
     phase-correct m-sequence (a fast Walsh-Hadamard transform,
     :func:`m_sequence_correlation_kernel`; the reference path uses FFTs),
     corrected for the m-sequence's -1/P sidelobes (exact deconvolution); the
-    lags outside the tap span measure the noise floor. PN595: least squares over
+    lags outside the tap span (and its guard) measure the noise floor. PN595: least squares over
     the header rows that only header chips reach (a precomputed
     pseudo-inverse; an aperiodic correlation would leave -28 dB sidelobes per
     path), the residual measures the noise.
@@ -85,10 +85,13 @@ class ChannelEstimator:
         Delay span of the estimate around the frame's window start, samples.
     threshold : float
         Keep taps whose power exceeds ``threshold`` times the noise floor.
+    noise_guard : int
+        PN420/PN945: lags on each side of the tap span left out of the noise
+        floor (a band-limited capture's paths ring beyond the span).
     """
 
     def __init__(self, mode: PnMode, batch: int, taps_before: int = TAPS_BEFORE, taps_after: int = TAPS_AFTER,
-                 threshold: float = TAP_THRESHOLD) -> None:
+                 threshold: float = TAP_THRESHOLD, noise_guard: int = 0) -> None:
         m = mode.value
         self.mode = mode
         self.taps_before, self.taps_after, self.threshold = taps_before, taps_after, threshold
@@ -103,7 +106,8 @@ class ChannelEstimator:
             self.window_offset, self.window_length = m.preamble, m.period
             lags = np.arange(-taps_before, taps_after)
             self.tap_bins = lags % m.period
-            self.noise_bins = np.setdiff1d(np.arange(m.period), self.tap_bins)
+            guard = np.arange(-taps_before - noise_guard, taps_after + noise_guard) % m.period
+            self.noise_bins = np.setdiff1d(np.arange(m.period), guard)
             self._sample_slot, self._shift_slot = hadamard_slots(gb20600.pn_core(mode))
             # Every header phase's core window is alpha * (1 - 2 c[(n + preamble + phase) mod P]):
             # the correlation is conj(alpha) / energy times the +-1 m-sequence correlation.

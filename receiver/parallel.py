@@ -103,13 +103,17 @@ class FrameWorkers:
         Channel-estimate delay span, samples.
     tap_threshold : float
         Tap power over noise floor needed to keep a tap.
+    noise_guard : int
+        Lags on each side of the tap span left out of the noise floor
+        (:class:`receiver.channel_estimate.ChannelEstimator`).
     """
 
-    def __init__(self, jobs: int, taps_before: int, taps_after: int, tap_threshold: float) -> None:
+    def __init__(self, jobs: int, taps_before: int, taps_after: int, tap_threshold: float,
+                 noise_guard: int = 0) -> None:
         if jobs < 1:
             raise ValueError(f"jobs must be >= 1, got {jobs}")
         self.jobs = jobs
-        self._taps = (taps_before, taps_after, tap_threshold)
+        self._taps = (taps_before, taps_after, tap_threshold, noise_guard)
         self._pool = ThreadPoolExecutor(jobs - 1, thread_name_prefix="frames") if jobs > 1 else None
         self._local = threading.local()     # per thread: its estimators (one per mode) and demodulator
 

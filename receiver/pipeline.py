@@ -13,8 +13,30 @@ The receiver works on the 7.56 Msps stream in fixed batches of
 ``batch_frames`` frames, processed only when all their samples have arrived,
 and starts acquisition attempts at fixed stream positions: the output is
 identical whatever the input chunk size, and memory stays flat (the buffer
-holds about one batch). ``ReceiverConfig.inspect`` receives each stage's
-intermediate output per batch, for debugging and plots.
+holds about one batch). A batch reads only buffered samples (the buffer
+refuses any other range), so no result depends on memory that was never
+written. ``ReceiverConfig.inspect`` receives each stage's intermediate output
+per batch, for debugging and plots.
+
+**Narrowband captures.** A capture below 7.56 Msps (an RTL-SDR at 2.048-3.2
+Msps) holds only the band-limited centre of the channel; it is resampled to
+7.56 Msps like any other and received the same way: the 36 SI carriers lie
+within +-36 kHz of DC, and the band-limited PN headers still give the frame
+grid. The SI SNR is measured against the noise per carrier (the noise the
+resampler lets through, scaled by its noise bandwidth); what such a capture
+cannot give (the header SNR and the channel taps cover only the recorded
+band, so paths closer than a few chips merge) is stated in the attributes
+(``narrowband``, ``bandwidth_hz``) and in :meth:`Receiver.notes`.
+
+**I/Q orientation.** With ``iq_orientation = "auto"`` the rows of the first
+lock are held until the SI word has been scored in both orientations
+(:class:`receiver.cfo.SiWordDetector`); if it decodes only conjugated, the
+buffered samples are conjugated and the lock is made again from its
+acquisition window, so the output is what ``"conjugate"`` gives.
+
+**Segments.** Each lock is a segment (``segment_id``: 0 for the first lock,
++1 at each re-acquisition); the range is held flat across the gap between
+segments (:mod:`receiver.ranging`).
 """
 
 from __future__ import annotations
@@ -32,10 +54,10 @@ from tqdm import tqdm
 from dtmbnav.core import gb20600
 from dtmbnav.core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
 from dtmbnav.core.records import FrameBatch, FrameFlag
-from receiver import DEFAULT_STATIC_WINDOW_S
-from receiver.acquisition import Acquisition, acquire, window_length
+from receiver import DEFAULT_CFO_SEARCH_HZ, DEFAULT_STATIC_WINDOW_S
+from receiver.acquisition import CFO_OUTSIDE_SEARCH, Acquisition, search_window, window_length
 from receiver.capture import CaptureSource
-from receiver.cfo import SiWordDetector, cfo_from_theta, pn_theta_kernel, si_theta_kernel
+from receiver.cfo import SiWordDetector, cfo_from_theta, expected_phase_variance, pn_theta_kernel, si_theta_kernel
 from receiver.channel_estimate import TAP_THRESHOLD, TAPS_AFTER, TAPS_BEFORE, ChannelEstimates
 from receiver.derotate import rotation_table
 from receiver.ofdm import si_carrier_numbers, si_snr_db
@@ -51,6 +73,22 @@ END_OF_STREAM = np.iinfo(np.int64).max // 4
 #: Stage names of :attr:`Receiver.stage_seconds`: acquisition (searches and lock set-up, a one-off
 #: cost per lock) and, per batch, sync (timing loop), channel estimate, body recovery, SI DFT, estimators.
 STAGES = ("resample", "acquisition", "sync", "channel", "body", "fft", "estimators")
+#: Lags on each side of the channel-estimate span kept out of the noise floor for a narrowband
+#: capture: its paths' spectrum ends at the capture's band edge, so each path rings for tens of
+#: samples, which would otherwise read as noise (and lower the SNRs).
+NARROWBAND_NOISE_GUARD = 32
+#: Per-carrier SNR above which the SI phase scatter is compared with its value here, dB: far above the
+#: noise, residues other than thermal noise (the channel's change over a frame, leakage) set the
+#: scatter, and the CFO is far better than needed.
+SCATTER_SNR_CEILING_DB = 30.0
+#: Values of ``ReceiverConfig.iq_orientation``.
+IQ_ORIENTATIONS = ("auto", "normal", "conjugate")
+#: Frames of SI (at least; whole batches) on which ``iq_orientation = "auto"`` decides.
+ORIENTATION_FRAMES = 64
+#: A frame whose SI phase scatter exceeds this many times the thermal-noise expectation at its SI SNR
+#: is flagged LOW_QUALITY (receiver.cfo). For a clean frame the ratio is a chi-square of about 35
+#: degrees of freedom over its mean, widened by the noise of the SI SNR estimate: 4 leaves both far behind.
+CFO_SCATTER_LIMIT = 4.0
 
 
 @dataclass
@@ -81,8 +119,15 @@ class ReceiverConfig:
         Static window for the f_s estimate, s.
     clock_offset_hz : float or None
         f_s given by the user (skips the static window).
-    conjugate_iq : bool
-        Conjugate the input (front ends that swap I and Q).
+    iq_orientation : {"auto", "normal", "conjugate"}
+        ``"conjugate"``: the front end swaps I and Q, conjugate the input;
+        ``"normal"``: take the input as it is; ``"auto"``: decide from the
+        SI word of the first lock (module docstring).
+    cfo_search_hz : float
+        Half-width of the acquisition's carrier-offset search, Hz.
+    cfo_scatter_limit : float
+        SI phase scatter over its thermal-noise expectation above which a
+        frame is flagged LOW_QUALITY.
     si_polarity : int
         SI chip polarity convention for the SI word detector.
     si_frames : int
@@ -108,7 +153,9 @@ class ReceiverConfig:
     tap_threshold: float = TAP_THRESHOLD
     static_window_s: float = DEFAULT_STATIC_WINDOW_S
     clock_offset_hz: float | None = None
-    conjugate_iq: bool = False
+    iq_orientation: str = "auto"
+    cfo_search_hz: float = DEFAULT_CFO_SEARCH_HZ
+    cfo_scatter_limit: float = CFO_SCATTER_LIMIT
     si_polarity: int = 1
     si_frames: int = 256
     loop_alpha: float = 0.05
@@ -124,6 +171,13 @@ class ReceiverConfig:
                 raise ValueError(f"ReceiverConfig.{name} must be >= 1, got {getattr(self, name)!r}")
         if self.taps_before < 0:
             raise ValueError("ReceiverConfig.taps_before must be >= 0")
+        if self.iq_orientation not in IQ_ORIENTATIONS:
+            raise ValueError(f"ReceiverConfig.iq_orientation must be one of {', '.join(IQ_ORIENTATIONS)}, "
+                             f"got {self.iq_orientation!r}")
+        for name in ("cfo_search_hz", "cfo_scatter_limit"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"ReceiverConfig.{name} must be a positive number, got {value!r}")
 
 
 class SampleQueue:
@@ -154,10 +208,23 @@ class SampleQueue:
         return self.start <= start and stop <= self.end
 
     def view(self, start: int, stop: int) -> np.ndarray:
-        """Samples ``[start, stop)`` as one contiguous complex64 array."""
+        """Samples ``[start, stop)`` as one contiguous complex64 array.
+
+        Raises
+        ------
+        RuntimeError
+            If the range is not buffered: a short array would make the
+            kernels read past its end.
+        """
+        if not self.holds(start, stop):
+            raise RuntimeError(f"receiver: samples [{start}, {stop}) requested, [{self.start}, {self.end}) buffered")
         parts = [seg[max(start - s0, 0): stop - s0] for s0, seg in self._segments
                  if s0 < stop and s0 + len(seg) > start]
         return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    def conjugate(self) -> None:
+        """Conjugate the buffered samples (into new arrays: the chunks handed over stay as they are)."""
+        self._segments = [(s0, np.conj(seg)) for s0, seg in self._segments]
 
     def drop_before(self, index: int) -> None:
         """Forget samples before stream index ``index``."""
@@ -220,19 +287,36 @@ class Receiver:
         self.carrier_hz = float(carrier_hz)
         self.resampler = StreamResampler(sample_rate_hz)
         self.ranging = RangeIntegrator(carrier_hz, self.config.clock_offset_hz, self.config.static_window_s)
+        #: The capture holds only the centre of the channel (module docstring).
+        self.narrowband = self.sample_rate_hz < SYMBOL_RATE_HZ
+        #: Width of the recorded part of the channel, Hz.
+        self.bandwidth_hz = min(self.sample_rate_hz, SYMBOL_RATE_HZ)
+        # Noise per received sample -> noise per carrier (in per-sample units): white noise fills the
+        # 7.56 Msps band only up to the resampler's noise bandwidth.
+        self._carrier_noise_scale = SYMBOL_RATE_HZ / self.resampler.noise_bandwidth_hz
         self._modes = (self.config.pn_mode,) if self.config.pn_mode else tuple(PnMode)
         self._acq_window = window_length(self.config.acquisition_frames)
         self._queue = SampleQueue()
         self._search_from = 0
         self._lock: _Lock | None = None
         self._workers = FrameWorkers(self.config.jobs, self.config.taps_before, self.config.taps_after,
-                                     self.config.tap_threshold)
+                                     self.config.tap_threshold, NARROWBAND_NOISE_GUARD if self.narrowband else 0)
         self._k_si = si_carrier_numbers().astype(np.float64)
         self._si_detector: SiWordDetector | None = None
         self._frame_counter: int | None = None   # frame_index of the next frame, across locks
         self._last_start: int | None = None       # stream index of the last emitted frame
         self._lock_starts_gap = False               # the current lock follows a loss of lock
+        #: The input is conjugated (given, or decided by ``iq_orientation = "auto"``).
+        self.conjugated = self.config.iq_orientation == "conjugate"
+        self._orientation_pending = self.config.iq_orientation == "auto"
+        self._held: list[FrameBatch] = []           # rows of the lock the orientation is decided on
+        self._restart: tuple | None = None          # state before that lock's acquisition
         self.acquisitions: list[Acquisition] = []
+        #: Acquisition windows by outcome (receiver.acquisition).
+        self.search_outcomes: dict[str, int] = {}
+        #: Frames flagged LOW_QUALITY for an SI phase scatter above the noise expectation.
+        self.scatter_flagged = 0
+        self.frames_out = 0
         self.stage_seconds = dict.fromkeys(STAGES, 0.0)
 
     # ---- public API -------------------------------------------------------------------
@@ -243,7 +327,9 @@ class Receiver:
         if chunk.ndim != 1 or not np.iscomplexobj(chunk):
             raise ValueError(f"chunk must be a 1-D complex array, got {chunk.dtype} shape {chunk.shape}")
         t0 = time.perf_counter()
-        samples = self.resampler.process(np.conj(chunk) if self.config.conjugate_iq else chunk)
+        samples = self.resampler.process(chunk)
+        # The resampler's filter is real, so conjugating its output is conjugating its input.
+        samples = np.conj(samples) if self.conjugated else samples
         self.stage_seconds["resample"] += time.perf_counter() - t0
         self._queue.append(samples)
         return self._run(final=False)
@@ -251,6 +337,9 @@ class Receiver:
     def finish(self) -> list[FrameBatch]:
         """End of stream: process the frames still complete, release the rest."""
         out = self._run(final=True)
+        if self._orientation_pending and self._held:   # the stream ended before the orientation was decided
+            out.extend(self._decide_orientation())
+            out.extend(self._run(final=True))
         out.extend(self.ranging.flush())
         self._workers.close()
         return out
@@ -265,6 +354,27 @@ class Receiver:
         """SI word identified (0 before any lock)."""
         return self._si_detector.best() if self._si_detector else 0
 
+    def notes(self) -> list[str]:
+        """What the user should know about this capture's output, one line each (the CLI prints them)."""
+        out = []
+        if self.narrowband:
+            out.append(f"narrowband capture: {self.sample_rate_hz / 1e6:g} Msps records the central "
+                       f"{self.bandwidth_hz / 1e6:g} MHz of the {SYMBOL_RATE_HZ / 1e6:g} MHz channel; the SI-carrier "
+                       f"CFO, velocity and range are unaffected, but snr_db covers the recorded band only and "
+                       f"the channel taps merge paths closer than {SYMBOL_RATE_HZ / self.bandwidth_hz:.1f} chips "
+                       f"(no delay resolution for path separation)")
+        if self.config.iq_orientation == "auto" and self.conjugated:
+            out.append("I and Q are swapped in this capture (its SI word decodes only conjugated): "
+                       "received conjugated, as --conjugate would")
+        if not self.acquisitions and self.search_outcomes.get(CFO_OUTSIDE_SEARCH):
+            out.append(f"a DTMB frame grid was found but its headers show at no carrier offset within "
+                       f"+-{self.config.cfo_search_hz / 1e3:g} kHz: the offset lies outside the search "
+                       f"(ReceiverConfig.cfo_search_hz)")
+        if self.frames_out and self.scatter_flagged > 0.01 * self.frames_out:
+            out.append(f"{self.scatter_flagged} of {self.frames_out} frames flagged LOW_QUALITY: their CFO "
+                       f"scatters more than their SI SNR explains (interference or aliasing in the front end)")
+        return out
+
     def attributes(self) -> dict[str, Any]:
         """Parameters for the ``/receiver/frames`` attributes."""
         acq = self.acquisitions[0] if self.acquisitions else None
@@ -276,11 +386,16 @@ class Receiver:
             "carrier_hz": self.carrier_hz,
             "clock_offset_hz": np.nan if self.ranging.clock_offset_hz is None else self.ranging.clock_offset_hz,
             "coarse_cfo_hz": acq.coarse_cfo_hz if acq else np.nan,
+            "cfo_search_hz": self.config.cfo_search_hz,
             "resample_up": self.resampler.up,
             "resample_down": self.resampler.down,
+            "narrowband": self.narrowband,
+            "bandwidth_hz": self.bandwidth_hz,
             "acquisitions": len(self.acquisitions),
-            "conjugate_iq": self.config.conjugate_iq,
+            "iq_orientation": self.config.iq_orientation,
+            "conjugate_iq": self.conjugated,
             "static_window_s": self.config.static_window_s,
+            "notes": "\n".join(self.notes()),
         }
 
     # ---- driver -----------------------------------------------------------------------
@@ -298,21 +413,54 @@ class Receiver:
             batch = self._next_batch(final)
             if batch is None:
                 break
-            out.extend(self.ranging.push(batch))
+            if self._orientation_pending:
+                self._held.append(batch)
+                assert self._si_detector is not None
+                if self._si_detector.frames and (self._si_detector.frames >= ORIENTATION_FRAMES or self._lock is None):
+                    out.extend(self._decide_orientation())
+                continue
+            out.extend(self._emit(batch))
         self._trim()
         return out
+
+    def _emit(self, batch: FrameBatch) -> list[FrameBatch]:
+        self.frames_out += len(batch)
+        return self.ranging.push(batch)
+
+    def _decide_orientation(self) -> list[FrameBatch]:
+        """Release the held rows, or conjugate the buffer and lock again from the held lock's window."""
+        assert self._si_detector is not None and self._restart is not None
+        self._orientation_pending = False
+        held, self._held = self._held, []
+        if not self._si_detector.conjugated():
+            return [row for batch in held for row in self._emit(batch)]
+        self.conjugated = not self.conjugated
+        self._queue.conjugate()
+        (self._search_from, self._frame_counter, self._last_start, self._lock_starts_gap,
+         acquisitions, self.search_outcomes) = self._restart
+        del self.acquisitions[acquisitions:]
+        self._lock = None
+        self._si_detector = None
+        return []
 
     def _try_acquire(self) -> bool:
         start, stop = self._search_from, self._search_from + self._acq_window
         if not self._queue.holds(start, stop):
             return False
-        acq = acquire(self._queue.view(start, stop), start,
-                      acquisition_frames=self.config.acquisition_frames,
-                      lock_threshold=self.config.acquisition_threshold, modes=self._modes,
-                      constant_phase=self.config.constant_phase)
+        cfg = self.config
+        result = search_window(self._queue.view(start, stop), start, acquisition_frames=cfg.acquisition_frames,
+                               lock_threshold=cfg.acquisition_threshold, modes=self._modes,
+                               constant_phase=cfg.constant_phase, cfo_search_hz=cfg.cfo_search_hz,
+                               lead=cfg.taps_before)
+        acq = result.acquisition
         if acq is None:
+            self.search_outcomes[result.outcome] = self.search_outcomes.get(result.outcome, 0) + 1
             self._search_from += self._acq_window // 2
             return True
+        if self._orientation_pending:
+            self._restart = (start, self._frame_counter, self._last_start, self._lock_starts_gap,
+                             len(self.acquisitions), dict(self.search_outcomes))
+        self.search_outcomes[result.outcome] = self.search_outcomes.get(result.outcome, 0) + 1
         self.acquisitions.append(acq)
         m = acq.mode.value
         if self._frame_counter is None:
@@ -336,6 +484,8 @@ class Receiver:
             keep = self._search_from
         else:
             keep = int(np.floor(self._lock.tracker.tau)) - self.config.taps_before - 64
+        if self._orientation_pending and self._restart is not None:
+            keep = min(keep, self._restart[0])   # the held lock may have to be made again
         self._queue.drop_before(keep)
 
     # ---- one batch --------------------------------------------------------------------
@@ -399,14 +549,23 @@ class Receiver:
         prev_taps = ch.raw_taps[0] if first_of_lock else lock.prev_taps
         prev_start = starts[0] if first_of_lock else lock.prev_start
         prev_delta = float(delta[0]) if first_of_lock else lock.prev_delta
-        theta = si_theta_kernel(prev_si, si, self._k_si, prev_delta, delta)
+        theta, phase_var = si_theta_kernel(prev_si, si, self._k_si, prev_delta, delta)
         step = np.diff(np.concatenate([[prev_start], starts]))
         eta = periods / lock.tracker.nominal_period - 1.0
         cfo = cfo_from_theta(theta, np.maximum(step, 1), eta, lock.acq.coarse_cfo_hz)
         shift = step - np.rint(periods).astype(np.int64)
         cfo_pn = cfo_from_theta(pn_theta_kernel(prev_taps, ch.raw_taps, shift), np.maximum(step, 1), eta,
                                 lock.acq.coarse_cfo_hz)
-        flags = np.where(ch.peak_metric < self.config.track_threshold, FrameFlag.LOW_QUALITY, 0).astype(np.uint8)
+        si_snr = si_snr_db(si, ch.noise_power * self._carrier_noise_scale)
+        # Eq. 5-8's noise is known from the SI SNR; a frame whose terms scatter more carries something else.
+        # A frame's own SI SNR estimate scatters too; one that reads above the batch's median would make
+        # the expectation too strict, so the lower of the two is used (a real fade lowers both).
+        reference_snr = np.minimum(np.minimum(si_snr, np.median(si_snr)), SCATTER_SNR_CEILING_DB)
+        expected = expected_phase_variance(reference_snr)
+        scattered = phase_var > self.config.cfo_scatter_limit * expected
+        self.scatter_flagged += int(np.count_nonzero(scattered))
+        weak = (ch.peak_metric < self.config.track_threshold) | scattered
+        flags = np.where(weak, FrameFlag.LOW_QUALITY, 0).astype(np.uint8)
         if first_of_lock:
             cfo[0] = cfo_pn[0] = np.nan
             flags[0] |= FrameFlag.LOCK_START | (FrameFlag.GAP if self._lock_starts_gap else 0)
@@ -421,8 +580,8 @@ class Receiver:
         return FrameBatch(
             t_s=starts / SYMBOL_RATE_HZ, sample_index=self.resampler.input_index(starts), frame_index=frame_index,
             pn_phase=phases.astype(np.int32), cfo_hz=cfo, cfo_pn_hz=cfo_pn, doppler_hz=nan, velocity_mps=nan.copy(),
-            range_change_m=nan.copy(), snr_db=ch.snr_db, si_snr_db=si_snr_db(si, ch.noise_power),
-            peak_metric=ch.peak_metric, flags=flags)
+            range_change_m=nan.copy(), snr_db=ch.snr_db, si_snr_db=si_snr, peak_metric=ch.peak_metric, flags=flags,
+            segment_id=np.full(count, len(self.acquisitions) - 1, dtype=np.int32))
 
 
 def receive_stream(chunks: Iterable[np.ndarray], sample_rate_hz: float, carrier_hz: float,

@@ -14,9 +14,14 @@ given by the user. Then per frame
 The f_s of the static window is the time-weighted mean of the CFO over it,
 i.e. the total SI phase advance over the window divided by its duration (the
 per-frame phase differences telescope). The sum is kept in float64 and is
-continuous across batches; across a gap (no CFO pair for the first frame of
-a new lock) it continues with the last measured Doppler, and that frame is
-flagged by the receiver.
+continuous across batches. The first frame of a lock has no CFO pair and
+adds nothing, so across a gap (a loss of lock and a re-acquisition) the range
+is held flat: nothing is known of the motion during the gap, and inventing
+some (the last velocity times the gap) would put a jump in the range. After a
+gap ``range_change_m`` is therefore the range change since the first frame of
+the new segment (``segment_id``) plus the last value of the segment before
+it; the receiver flags that frame GAP, and the fusion takes the new segment as
+a new range origin.
 """
 
 from __future__ import annotations
@@ -56,7 +61,6 @@ class RangeIntegrator:
         self._pending: list[FrameBatch] = []
         self._t_first: float | None = None
         self._range_m = 0.0
-        self._last_doppler_hz = 0.0
         self._last_t_s: float | None = None
 
     def push(self, batch: FrameBatch) -> list[FrameBatch]:
@@ -92,17 +96,10 @@ class RangeIntegrator:
     def _integrate(self, batch: FrameBatch) -> FrameBatch:
         assert self.clock_offset_hz is not None
         doppler = batch.cfo_hz - self.clock_offset_hz
-        held = doppler.copy()
-        # Frames without a CFO pair (lock start) continue with the last Doppler.
-        missing = ~np.isfinite(held)
-        if missing.any():
-            idx = np.where(~missing, np.arange(len(held)), -1)
-            np.maximum.accumulate(idx, out=idx)
-            held = np.where(idx >= 0, held[np.maximum(idx, 0)], self._last_doppler_hz)
         t_prev = np.concatenate([[self._last_t_s if self._last_t_s is not None else batch.t_s[0]], batch.t_s[:-1]])
-        cycles = np.cumsum(held * (batch.t_s - t_prev))
+        # A frame without a CFO pair (a lock's first) adds nothing: the range is held across a gap.
+        cycles = np.cumsum(np.where(np.isfinite(doppler), doppler * (batch.t_s - t_prev), 0.0))
         range_m = self._range_m - self.wavelength_m * cycles
         self._range_m = float(range_m[-1])
-        self._last_doppler_hz = float(held[-1])
         self._last_t_s = float(batch.t_s[-1])
         return replace(batch, doppler_hz=doppler, velocity_mps=doppler * self.wavelength_m, range_change_m=range_m)

@@ -88,7 +88,7 @@ def receive_reference(r: np.ndarray, acq: Acquisition, n_frames: int, *, taps_be
             prev_si, prev_taps, prev_start, prev_delta = prev
             step = np.array([start - prev_start])
             eta = periods[0] / m.frame_length - 1.0
-            theta = si_theta_reference(prev_si, si[None, :], k, prev_delta, np.array([delta]))
+            theta, _ = si_theta_reference(prev_si, si[None, :], k, prev_delta, np.array([delta]))
             out.cfo_hz[i] = cfo_from_theta(theta, step, eta, acq.coarse_cfo_hz)[0]
             shift = step - np.rint(periods).astype(np.int64)
             out.cfo_pn_hz[i] = cfo_from_theta(pn_theta_reference(prev_taps, ch.raw_taps, shift), step, eta,

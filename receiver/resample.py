@@ -132,6 +132,7 @@ class StreamResampler:
 
     def __init__(self, input_rate_hz: float, output_rate_hz: float = SYMBOL_RATE_HZ) -> None:
         self.up, self.down = resampling_ratio(input_rate_hz, output_rate_hz)
+        self.input_rate_hz = float(input_rate_hz)
         self.passthrough = self.up == 1 and self.down == 1
         self._h = design_filter(self.up, self.down) if not self.passthrough else np.ones(1, np.float32)
         self._bank = polyphase_bank(self._h, self.up)
@@ -140,6 +141,18 @@ class StreamResampler:
         self._x = np.zeros(0, dtype=np.complex64)
         self._x_start = 0
         self._n_next = 0
+
+    @property
+    def noise_bandwidth_hz(self) -> float:
+        """Equivalent noise bandwidth, Hz: white input noise of density N0 (per Hz) comes out at N0 times this per sample.
+
+        Output sample n sums ``x[i - t]`` weighted by one phase of the filter;
+        averaged over the ``up`` phases, white noise of variance ``sigma^2``
+        comes out at ``sigma^2 sum(h^2) / up``, and its density (the filter's
+        passband gain is 1) is ``sigma^2 / input_rate``. The pass-through has
+        the whole 7.56 MHz band.
+        """
+        return self.input_rate_hz * float(np.sum(self._h.astype(np.float64) ** 2)) / self.up
 
     def input_index(self, n: np.ndarray) -> np.ndarray:
         """Input sample at or before output sample ``n`` (int64)."""

@@ -32,6 +32,7 @@ COLUMN_UNITS = {
     "t_s": "s", "sample_index": "input sample", "frame_index": "frame", "pn_phase": "chip", "cfo_hz": "Hz",
     "cfo_pn_hz": "Hz", "doppler_hz": "Hz", "velocity_mps": "m/s (positive closing)",
     "range_change_m": "m since first frame", "snr_db": "dB", "si_snr_db": "dB", "peak_metric": "0..1", "flags": "FrameFlag bits",
+    "segment_id": "lock segment",
 }
 #: Rows gathered before they are appended to the HDF5 columns. Growing the resizable datasets has a
 #: fixed cost per call that is large next to a receiver batch's rows, so rows go in blocks of this

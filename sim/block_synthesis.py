@@ -37,7 +37,8 @@ tests hold the synthesis to.
 ``layout.spread_symbols`` of each other share a window of N symbols
 ``a[n0 .. n0 + N)``; ``A = DFT_N(a)``. On the window's period the shaped
 signal is ``s(n0 + x) = (1/N) sum_k A[k mod N] P(k / N) exp(j 2 pi k x / N)``
-(``P`` the pulse spectrum, :func:`sim.transmitter.pulse_spectrum`), exact
+(``P`` the pulse spectrum, :func:`sim.transmitter.pulse_spectrum`, through
+the front end's anti-alias filter below the symbol rate), exact
 where the pulse does not wrap, ``span <= x <= N - span``. At
 ``x = E_p + rho j`` the factor ``exp(j 2 pi k rho j / N)`` is
 ``exp(j 2 pi k j / M)``, so

@@ -1,7 +1,22 @@
-"""Receiver front end: tuner CFO, thermal noise, IQ swap, AGC and quantisation.
+"""Receiver front end: anti-alias filter, tuner CFO, thermal noise, IQ swap, AGC and quantisation.
 
 Order (sim.rf applies it to the noise-free multipath signal):
 
+0. **Anti-alias filter.** An SDR low-pass filters the channel before it
+   samples it at ``fs``: a capture below the symbol rate (an RTL-SDR at 2.4
+   Msps) records the band-limited centre of the channel, not the whole
+   7.56 MHz band folded onto itself. The filter passes
+   ``|f| <= ANTI_ALIAS_PASSBAND * fs / 2`` and stops ``|f| >= fs / 2`` (by
+   ``ANTI_ALIAS_STOPBAND_DB``), a Kaiser-windowed sinc. It is linear and
+   time-invariant and the channel changes slowly, so it is applied to the
+   transmit pulse (:meth:`FrontEnd.pulse`): every path's shaped signal then
+   comes out filtered, at the cost of a longer pulse. The tuner CFO and
+   Doppler (tens of kHz at most) shift the signal against the filter by a
+   small fraction of its passband, which this leaves out. At the symbol rate
+   and above the filter passes the whole channel and the pulse is used as it
+   is (at exactly 7.56 Msps the SRRC's 5 % excess band folds onto the band
+   edges, which the receiver's model of the body, the whole Nyquist band,
+   takes in).
 1. **Tuner CFO** ``exp(j 2 pi bulk_cfo_hz t)`` (t true time), a constant
    scenario option separate from the reference-oscillator offset (it is folded
    into the common phase of ``transmitter.multipath_kernel``, see
@@ -15,8 +30,9 @@ Order (sim.rf applies it to the noise-free multipath signal):
 3. **IQ conjugation** (``receiver.iq_conjugate``), which flips the sign of
    every frequency.
 4. **AGC**: one fixed gain for the whole capture, putting the expected per-rail
-   RMS of (direct-path signal + noise) ``receiver.agc_backoff_db`` below the
-   quantiser's full scale (+-1 after ``dtmbnav.core.iqformat.decode``).
+   RMS of (direct-path signal after the anti-alias filter + noise)
+   ``receiver.agc_backoff_db`` below the quantiser's full scale (+-1 after
+   ``dtmbnav.core.iqformat.decode``).
 5. **Quantisation** with clipping to ``cu8``/``ci8``/``ci16``/``cf32``
    (``dtmbnav.core.iqformat.encode``).
 """
@@ -24,14 +40,51 @@ Order (sim.rf applies it to the noise-free multipath signal):
 from __future__ import annotations
 
 import numpy as np
+from scipy.signal import kaiserord
 
 from dtmbnav.core import gb20600
 from dtmbnav.core.iqformat import encode, get_format
 from sim.frames import FrameConfig
 from sim.scenario import FrontEndConfig
+from sim.transmitter import PULSE_SPAN, PulseTable, pulse_table
 
 #: Samples per independently seeded noise block.
 NOISE_BLOCK = 1 << 16
+#: Passband edge of the anti-alias filter, fraction of the output Nyquist frequency fs / 2.
+ANTI_ALIAS_PASSBAND = 0.8
+#: Attenuation of the anti-alias filter from fs / 2 on, dB.
+ANTI_ALIAS_STOPBAND_DB = 60.0
+
+
+def anti_alias_pulse(table: PulseTable, sample_rate_hz: float) -> PulseTable:
+    """The transmit pulse seen through the front end's anti-alias filter at ``sample_rate_hz`` (module step 0).
+
+    Returns ``table`` itself at the symbol rate and above. Below, the pulse
+    convolved with a Kaiser-windowed sinc low-pass (cutoff midway between
+    the passband edge and fs / 2, length for the stopband attenuation over
+    that transition), tabulated by :func:`sim.transmitter.pulse_table` over a
+    span longer by half the filter (its ``lowpass``, which
+    :func:`sim.transmitter.pulse_spectrum` also applies, so the block
+    synthesis and its exact twin shape with the same filtered pulse).
+    """
+    rs = gb20600.SYMBOL_RATE_HZ
+    if sample_rate_hz >= rs:
+        return table
+    osr = table.oversampling
+    nyquist = sample_rate_hz / 2.0
+    cutoff = 0.5 * (1.0 + ANTI_ALIAS_PASSBAND) * nyquist / rs          # cycles per symbol
+    # Transition width as a fraction of the table grid's Nyquist frequency (osr / 2 cycles per symbol).
+    numtaps, beta = kaiserord(ANTI_ALIAS_STOPBAND_DB, (1.0 - ANTI_ALIAS_PASSBAND) * nyquist / rs / (osr / 2.0))
+    half = -(-numtaps // (2 * osr))                                      # half length, whole symbols
+    x = np.arange(-half * osr, half * osr + 1) / osr
+    h = 2.0 * cutoff * np.sinc(2.0 * cutoff * x) * np.kaiser(len(x), beta)
+    h /= np.sum(h) / osr                                                 # unit gain at DC
+    return pulse_table(table.span, osr, table.rolloff, table.taper, lowpass=h)
+
+
+def pulse_energy(table: PulseTable) -> float:
+    """Energy of a tabulated pulse (symbols as the time unit); 1 for :func:`sim.transmitter.pulse_table`."""
+    return float(np.sum(table.polyphase[:-1] ** 2) / table.oversampling)
 
 
 def mean_signal_power(config: FrameConfig) -> float:
@@ -63,18 +116,23 @@ class FrontEnd:
         Quantiser format.
     seed, stream_id : int
         Noise seed (module docstring).
+    pulse_span : int
+        Half-length of the transmit pulse before the anti-alias filter, symbols.
     """
 
     def __init__(self, receiver: FrontEndConfig, signal_power: float, sample_rate_hz: float, sample_format: str,
-                 seed: int, stream_id: int) -> None:
+                 seed: int, stream_id: int, pulse_span: int = PULSE_SPAN) -> None:
         self.receiver = receiver
         self.format = get_format(sample_format)
         self.seed = seed
         self.stream_id = stream_id
+        #: The transmit pulse through the anti-alias filter (module step 0).
+        self.pulse = anti_alias_pulse(pulse_table(pulse_span), sample_rate_hz)
         band_noise = signal_power / 10.0 ** (receiver.cn_db / 10.0)
         #: Complex noise power per output sample (total over fs).
         self.noise_power = band_noise * sample_rate_hz / gb20600.SYMBOL_RATE_HZ
-        per_rail_rms = np.sqrt((signal_power + self.noise_power) / 2.0)
+        # The filter passes a share of the signal power: the pulse energy (1 unfiltered).
+        per_rail_rms = np.sqrt((signal_power * pulse_energy(self.pulse) + self.noise_power) / 2.0)
         #: Fixed AGC gain (normalised full scale 1).
         self.agc_gain = 10.0 ** (-receiver.agc_backoff_db / 20.0) / per_rail_rms
         # Last noise block drawn: consecutive small chunks share a block.

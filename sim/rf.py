@@ -47,6 +47,12 @@ Two syntheses compute the samples of that model (``synthesis``):
 - ``"exact"`` (:func:`sim.transmitter.multipath_kernel`, the reference twin):
   the pulse is evaluated at every sample's time for every path.
 
+Below the symbol rate both shape with the same pulse, the transmit pulse
+through the front end's anti-alias filter (:func:`sim.frontend.anti_alias_pulse`):
+the exact twin tabulates the filtered pulse, the block synthesis multiplies
+the pulse spectrum at its bins by the filter's response
+(:func:`sim.transmitter.pulse_spectrum`).
+
 The tests bound their difference (below -50 dB of the signal power on a
 walking, multipath, free-running-clock capture). Everything is a pure
 function of absolute indices, so the output does not depend on the chunking
@@ -78,7 +84,7 @@ from sim.frames import FrameConfig, FrameSource
 from sim.frontend import FrontEnd, mean_signal_power
 from sim.oscillator import scenario_oscillator
 from sim.scenario import Scenario
-from sim.transmitter import PULSE_SPAN, multipath_kernel, pulse_table, symbol_range
+from sim.transmitter import PULSE_SPAN, multipath_kernel, symbol_range
 
 #: Random stream ids (second element of every seed sequence of this package).
 STREAM_CLOCK = 0xC10C
@@ -203,16 +209,17 @@ class CaptureGenerator:
             grid_step_s = MAX_GRID_STEP_S
             if max_doppler_hz > 0:
                 grid_step_s = min(grid_step_s, MAX_GRID_PHASE_STEP_RAD / (2.0 * np.pi * max_doppler_hz))
-        self.pulse = pulse_table(pulse_span)
+        self.signal_power = mean_signal_power(self.frame_config)
+        self.frontend = FrontEnd(scenario.receiver, self.signal_power, self.sample_rate_hz, self.sample_format,
+                                 self.seed, STREAM_NOISE, pulse_span)
+        # The transmit pulse through the front end's anti-alias filter: both syntheses shape with it.
+        self.pulse = self.frontend.pulse
         self.layout = None
         if synthesis == "block":
             max_rate_error = np.abs(self.oscillator.y_grid).max() + max_doppler_hz / self.carrier_hz
             self.layout = choose_layout(self.sample_rate_hz, grid_step_s, max_rate_error, self.pulse)
             grid_step_s = self.layout.block_samples / self.sample_rate_hz
         self.grid_step_s = float(grid_step_s)
-        self.signal_power = mean_signal_power(self.frame_config)
-        self.frontend = FrontEnd(scenario.receiver, self.signal_power, self.sample_rate_hz, self.sample_format,
-                                 self.seed, STREAM_NOISE)
         self.frames = FrameSource(self.frame_config)
         self._grid_block = lru_cache(maxsize=8)(self._build_grid_block)
         self._local = threading.local()
@@ -222,7 +229,7 @@ class CaptureGenerator:
         if self.layout is not None:
             first_computed -= self.first_sample % self.layout.batch_samples
         first_u = self._grid_columns(*self._grid_span(first_computed, 1))[0].min()
-        if first_u < pulse_span + 1:
+        if first_u < self.pulse.span + 1:
             raise ValueError(f"receiver.start_offset_s={self.start_offset_s} s is too small: the capture would need "
                              "symbols sent before frame 0 (raise start_offset_s above the propagation delay)")
 

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
+from scipy.signal import fftconvolve
 
 from dtmbnav.core import gb20600
 
@@ -106,6 +107,13 @@ class PulseTable:
         Symbols of raised-cosine taper at each end (:func:`shaping_pulse`).
     scale : float
         Factor from :func:`shaping_pulse` to the unit-energy pulse of the table.
+    lowpass : ndarray or None
+        Impulse response (per symbol) of a low-pass filter that the tabulated
+        pulse is the shaping pulse filtered by (the receiver front end's
+        anti-alias filter, ``sim.frontend``), sampled on the table's grid of
+        ``1 / oversampling`` symbols, odd length centred on 0, unit gain at DC
+        (``sum(lowpass) / oversampling = 1``); None for the shaping pulse
+        itself. ``span`` then includes the filter's half-length.
     """
 
     polyphase: np.ndarray
@@ -114,11 +122,25 @@ class PulseTable:
     rolloff: float
     taper: int
     scale: float
+    lowpass: np.ndarray | None = None
+
+    @property
+    def shaping_span(self) -> int:
+        """Half-length of the shaping pulse before the low-pass filter, symbols."""
+        if self.lowpass is None:
+            return self.span
+        return self.span - (len(self.lowpass) - 1) // (2 * self.oversampling)
 
 
 def pulse_table(span: int = PULSE_SPAN, oversampling: int = 512, rolloff: float = gb20600.SRRC_ROLLOFF,
-                taper: int = PULSE_TAPER) -> PulseTable:
-    """Tabulate the pulse over ``[-span, span]`` symbols with ``oversampling`` points per symbol."""
+                taper: int = PULSE_TAPER, lowpass: np.ndarray | None = None) -> PulseTable:
+    """Tabulate the pulse over ``[-span, span]`` symbols with ``oversampling`` points per symbol.
+
+    With ``lowpass`` (:attr:`PulseTable.lowpass`, odd length
+    ``2 h oversampling + 1`` for a whole number ``h`` of symbols) the table holds the
+    shaping pulse convolved with that filter, over ``[-(span + h), span + h]``;
+    its energy is what the filter lets through (no renormalisation).
+    """
     if span < 2 or oversampling < 2 or not 0 <= taper <= span:
         raise ValueError(f"pulse table needs span >= 2, oversampling >= 2 and 0 <= taper <= span, "
                          f"got {span}, {oversampling}, {taper}")
@@ -128,8 +150,22 @@ def pulse_table(span: int = PULSE_SPAN, oversampling: int = 512, rolloff: float 
     # The window removes a little energy; restore unit energy so the signal power is exact.
     scale = 1.0 / np.sqrt(np.sum(polyphase[:-1] ** 2) / oversampling)
     polyphase *= scale
+    if lowpass is not None:
+        lowpass = np.asarray(lowpass, dtype=np.float64)
+        half = (len(lowpass) - 1) // (2 * oversampling)
+        if len(lowpass) != 2 * half * oversampling + 1:
+            raise ValueError(f"pulse table: a low-pass of {len(lowpass)} taps is not 2 h {oversampling} + 1 long")
+        fine = shaping_pulse(np.arange(-span * oversampling, span * oversampling + 1) / oversampling,
+                             span, taper, rolloff) * scale
+        filtered = fftconvolve(fine, lowpass) / oversampling          # x from -(span + half) symbols on
+        span += half
+        # polyphase[i, j] = q(i / oversampling + span - 1 - j), q[0] at x = -span.
+        polyphase = filtered[np.arange(oversampling + 1)[:, None]
+                             + (2 * span - 1 - np.arange(2 * span)[None, :]) * oversampling]
+        lowpass = lowpass.copy()
+        lowpass.flags.writeable = False
     polyphase.flags.writeable = False
-    return PulseTable(polyphase, oversampling, span, rolloff, taper, float(scale))
+    return PulseTable(polyphase, oversampling, span, rolloff, taper, float(scale), lowpass)
 
 
 def pulse_spectrum(table: PulseTable, bins: np.ndarray, period_symbols: int,
@@ -151,15 +187,29 @@ def pulse_spectrum(table: PulseTable, bins: np.ndarray, period_symbols: int,
         vanishes at its ends, so the sum over its samples converges like a
         trapezoid rule on a periodic function (spectrally); its error is the
         pulse's spectrum beyond ``points_per_symbol / 2`` cycles per symbol.
+
+    With a low-pass (:attr:`PulseTable.lowpass`) the shaping pulse's spectrum
+    is multiplied by the filter's response at the same frequencies, the
+    transform of the convolution that the table holds.
     """
-    length = period_symbols * points_per_symbol
-    half = table.span * points_per_symbol
-    if 2 * half >= length:
+    if 2 * table.span >= period_symbols:
         raise ValueError(f"pulse spectrum: a {period_symbols}-symbol period is shorter than the pulse")
+    bins = np.asarray(bins)
+    length = period_symbols * points_per_symbol
+    half = table.shaping_span * points_per_symbol
     samples = np.zeros(length)
     x = np.arange(-half, half + 1)
-    samples[x % length] = shaping_pulse(x / points_per_symbol, table.span, table.taper, table.rolloff) * table.scale
-    return np.fft.fft(samples)[np.asarray(bins) % length].real / points_per_symbol
+    samples[x % length] = (shaping_pulse(x / points_per_symbol, table.shaping_span, table.taper, table.rolloff)
+                           * table.scale)
+    spectrum = np.fft.fft(samples)[bins % length].real / points_per_symbol
+    if table.lowpass is not None:
+        # The filter's DTFT on its grid of 1 / oversampling symbols, at the harmonics of the period.
+        length = period_symbols * table.oversampling
+        taps = np.zeros(length)
+        x = np.arange(len(table.lowpass)) - (len(table.lowpass) - 1) // 2
+        taps[x % length] = table.lowpass
+        spectrum *= np.fft.rfft(taps)[np.abs(bins)].real / table.oversampling
+    return spectrum
 
 
 def symbol_range(u_min: float, u_max: float, span: int) -> tuple[int, int]:

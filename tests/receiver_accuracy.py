@@ -7,7 +7,9 @@ per-frame truth; :func:`accuracy` scores them over the walking part.
 
 Run ``python tests/receiver_accuracy.py`` (from the repository root) to print
 the 60 s figures of the brief: park-loop with the GNSS-disciplined and the
-free-running clock, and street.
+free-running clock, and street. ``python tests/receiver_accuracy.py narrowband``
+prints the narrowband figures: park-loop, GNSS-disciplined clock, 40 s of
+walking recorded at 2.048, 2.4 and 3.2 Msps (an RTL-SDR's rates).
 """
 
 from __future__ import annotations
@@ -124,20 +126,30 @@ def accuracy(run: CaptureRun, t_from_s: float, t_to_s: float) -> Accuracy:
                     float(t_to_s - t_from_s))
 
 
-def main() -> None:
-    """Print the brief's 60 s figures (about 3 minutes of simulation per case on one core)."""
-    cases = [("park-loop-cw", {}, "park-loop, GNSS-disciplined clock"),
-             ("park-loop-cw", {"clock": {"preset": "free-running"}}, "park-loop, free-running clock"),
-             ("street-out", {}, "street (out), GNSS-disciplined clock")]
-    for name, overrides, label in cases:
+#: Narrowband case: rates (an RTL-SDR's) and seconds of walking.
+NARROWBAND_RATES_HZ = (2.048e6, 2.4e6, 3.2e6)
+NARROWBAND_WALK_S = 40.0
+
+
+def main(which: str = "wideband") -> None:
+    """Print the brief's 60 s figures (about 3 minutes of simulation per case on one core), or the narrowband ones."""
+    if which == "narrowband":
+        cases = [("park-loop-cw", {"sample_rate_hz": rate}, f"park-loop at {rate / 1e6:g} Msps, GNSS-disciplined clock",
+                  NARROWBAND_WALK_S) for rate in NARROWBAND_RATES_HZ]
+    else:
+        cases = [("park-loop-cw", {}, "park-loop, GNSS-disciplined clock", 60.0),
+                 ("park-loop-cw", {"clock": {"preset": "free-running"}}, "park-loop, free-running clock", 60.0),
+                 ("street-out", {}, "street (out), GNSS-disciplined clock", 60.0)]
+    for name, overrides, label, walk_s in cases:
         scn = load_scenario(name)
         still = scn.walk.start_still_s
         # Static window: the whole still period but the last 0.5 s (the walker may lean off).
         config = ReceiverConfig(static_window_s=still - 0.5)
-        run = run_capture(scn, start_s=0.0, seconds=still + 60.0, config=config, **overrides)
-        print(f"{label}: {accuracy(run, still, still + 60.0)}; receiver at "
+        rate = overrides.pop("sample_rate_hz", None)
+        run = run_capture(scn, start_s=0.0, seconds=still + walk_s, config=config, sample_rate_hz=rate, **overrides)
+        print(f"{label}: {accuracy(run, still, still + walk_s)}; receiver at "
               f"{1 / run.seconds_per_second:.1f}x real time incl. simulation wait", flush=True)
 
 
 if __name__ == "__main__":
-    main()
+    main(*sys.argv[1:2])

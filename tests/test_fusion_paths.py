@@ -55,6 +55,9 @@ def test_epoch_observation_orders_and_pads_the_channels():
     np.testing.assert_array_equal(z, [1.0, 2.0, np.nan, np.nan, 4.0, np.nan])
     np.testing.assert_array_equal(sigma, [0.2, 0.1, np.nan, np.nan, 0.3, np.nan])
     assert new_origin.tolist() == [False, True, False, False, False, False]  # no data: no new origin
+    # A new lock segment makes the SI range channel (0) a new origin, only where it has a range.
+    assert EpochObservation(0, 1.0, 0.2, 0.5, 1.3, range_new_origin=True).range_channels(1)[2].tolist() == [True, False]
+    assert not EpochObservation(0, np.nan, np.nan, 0.5, 1.3, range_new_origin=True).range_channels(1)[2].any()
     kalman = obs.kalman(ModelNoise(), 3, use=np.array([True, False, True, True, True, True]))
     assert kalman.rows.tolist() == [0, 1, 2, 6]  # the first path to tower 0 left out; difference 1 is row 6
     with pytest.raises(ValueError, match="the geometry has 1"):

@@ -230,8 +230,10 @@ def test_si_theta_kernel_and_cfo_sign():
     frames = np.array([x * np.exp(2j * np.pi * f * i * step / SYMBOL_RATE_HZ) for i in range(5)], np.complex64)
     delta = RNG.uniform(-0.5, 0.5, 4)
     shifted = frames[1:] * np.exp(2j * np.pi * k[None, :] * delta[:, None] / BODY_LENGTH)
-    theta = si_theta_kernel(frames[0], shifted.astype(np.complex64), k, 0.0, delta)
-    assert np.allclose(theta, si_theta_reference(frames[0], shifted, k, 0.0, delta), rtol=1e-5)
+    theta, phase_var = si_theta_kernel(frames[0], shifted.astype(np.complex64), k, 0.0, delta)
+    theta_ref, phase_var_ref = si_theta_reference(frames[0], shifted, k, 0.0, delta)
+    assert np.allclose(theta, theta_ref, rtol=1e-5)
+    assert np.all(phase_var < 1e-10) and np.allclose(phase_var, phase_var_ref, rtol=1e-3, atol=1e-14)
     # Received carrier above nominal -> positive CFO, whatever the window offsets.
     assert np.allclose(cfo_from_theta(theta, np.full(4, step), 0.0, 1000.0), 1000.0 + f, atol=0.05)
 

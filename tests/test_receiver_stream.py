@@ -82,7 +82,7 @@ def test_velocity_and_range_signs():
     expected = -v * (rows.t_s - rows.t_s[0])
     assert np.max(np.abs(rows.range_change_m - expected)) < 0.01
     # A front end that swaps I and Q flips every frequency; the option flips it back.
-    rows_c, _ = receive(np.conj(x), ReceiverConfig(clock_offset_hz=1000.0, conjugate_iq=True))
+    rows_c, _ = receive(np.conj(x), ReceiverConfig(clock_offset_hz=1000.0, iq_orientation="conjugate"))
     assert np.allclose(rows_c.cfo_hz[1:], rows.cfo_hz[1:], atol=1e-6)
 
 
@@ -209,7 +209,8 @@ def test_clear_errors():
                       pn_phase=np.zeros(n, np.int32), cfo_hz=np.full(n, 10.0), cfo_pn_hz=np.full(n, 10.0),
                       doppler_hz=np.full(n, np.nan), velocity_mps=np.full(n, np.nan),
                       range_change_m=np.full(n, np.nan), snr_db=np.zeros(n, np.float32), si_snr_db=np.zeros(n, np.float32),
-                      peak_metric=np.zeros(n, np.float32), flags=np.full(n, FrameFlag.LOW_QUALITY, np.uint8))
+                      peak_metric=np.zeros(n, np.float32), flags=np.full(n, FrameFlag.LOW_QUALITY, np.uint8),
+                      segment_id=np.zeros(n, np.int32))
     ranging = RangeIntegrator(CARRIER, None, static_window_s=1.0)
     assert ranging.push(weak) == []
     with pytest.raises(ValueError, match="static window"):

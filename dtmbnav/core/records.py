@@ -102,12 +102,22 @@ class RangeSeries(ColumnRecord):
         Receiver SNR estimate, dB.
     valid : ndarray of bool
         False where the receiver flagged a gap, loss of lock or bad quality.
+    segment_id : ndarray of int32, optional
+        Lock segment of each row (``/receiver/frames`` column ``segment_id``):
+        the range is continuous inside a segment only, so a change of segment
+        is a new range origin for the fusion. Zeros (one segment) when omitted.
     """
 
     t_s: np.ndarray
     range_change_m: np.ndarray
     snr_db: np.ndarray
     valid: np.ndarray
+    segment_id: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.segment_id is None:
+            self.segment_id = np.zeros(len(self.t_s), dtype=np.int32)
+        super().__post_init__()
 
 
 @dataclass
@@ -247,7 +257,8 @@ class FrameFlag(IntFlag):
     LOCK_START = 1
     #: First frame after a loss of lock: the samples before it were not tracked.
     GAP = 2
-    #: Header correlation below the lock threshold (frame kept, not trusted).
+    #: Header correlation below the lock threshold, or a CFO scatter across the SI carriers above what
+    #: the frame's SI SNR explains (frame kept, not trusted).
     LOW_QUALITY = 4
     #: Frame inside the static window used to estimate the clock offset f_s.
     CALIBRATION = 8
@@ -258,7 +269,7 @@ FRAME_COLUMN_DTYPES: dict[str, type] = {
     "t_s": np.float64, "sample_index": np.int64, "frame_index": np.int64, "pn_phase": np.int32,
     "cfo_hz": np.float64, "cfo_pn_hz": np.float64, "doppler_hz": np.float64, "velocity_mps": np.float64,
     "range_change_m": np.float64, "snr_db": np.float32, "si_snr_db": np.float32,
-    "peak_metric": np.float32, "flags": np.uint8,
+    "peak_metric": np.float32, "flags": np.uint8, "segment_id": np.int32,
 }
 
 
@@ -289,14 +300,20 @@ class FrameBatch(ColumnRecord):
     - ``cfo_pn_hz``: the independent estimate from the PN headers, same pair.
     - ``doppler_hz``: ``cfo_hz - f_s`` (eq. 9); ``velocity_mps``: eq. 10,
       positive when closing on the tower.
-    - ``range_change_m``: eq. 11, range since the first frame, m (shrinks when
-      closing); continued across a gap with the last velocity (flagged).
+    - ``range_change_m``: eq. 11, m (shrinks when closing): the range change
+      since the first frame of the frame's segment plus the last value of the
+      segment before it, i.e. held flat across a gap (the first frame of a
+      lock has no CFO pair and adds nothing); 0 at the very first frame.
     - ``snr_db``: header-based SNR (over the whole band); ``si_snr_db``: SNR on
       the 36 SI carriers (a 72 kHz slice at the band centre), which fades where
       paths with different delays cancel there, and which the CFO estimate
       (eq. 5-8) lives on; ``peak_metric``: share of the header-window power
       captured by the channel taps (0 on noise, ~1 on a clean signal).
     - ``flags``: :class:`FrameFlag` bits.
+    - ``segment_id``: lock segment, 0 for the first lock, +1 at each
+      re-acquisition: the range carries no motion across a change of
+      segment (whatever moved during the gap is unknown), so it is a new
+      origin for the fusion.
     """
 
     t_s: np.ndarray
@@ -312,6 +329,7 @@ class FrameBatch(ColumnRecord):
     si_snr_db: np.ndarray
     peak_metric: np.ndarray
     flags: np.ndarray
+    segment_id: np.ndarray
 
     @classmethod
     def empty(cls) -> "FrameBatch":
