@@ -8,6 +8,8 @@ Data path (each stage its own module)::
       -> header-tail removal + cyclic reconstruction (body.py)
       -> 3780-point FFT, SI carriers (ofdm.py)
       -> SI and PN CFO estimates (cfo.py) -> f_s, Doppler, range (ranging.py)
+      beside them: the paths in the header CIR, their delays and carrier phases,
+      the first path's range and the towers' range differences (paths.py)
 
 The receiver works on the 7.56 Msps stream in fixed batches of
 ``batch_frames`` frames, processed only when all their samples have arrived,
@@ -23,7 +25,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -31,7 +33,7 @@ from tqdm import tqdm
 
 from dtmbnav.core import gb20600
 from dtmbnav.core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
-from dtmbnav.core.records import FrameBatch, FrameFlag
+from dtmbnav.core.records import FrameBatch, FrameFlag, PathBatch
 from receiver import DEFAULT_STATIC_WINDOW_S
 from receiver.acquisition import Acquisition, acquire, window_length
 from receiver.body import body_phases, recover_bodies
@@ -51,7 +53,8 @@ from receiver.channel_estimate import (
 )
 from receiver.derotate import derotate_segments, rotation_table
 from receiver.ofdm import OfdmDemodulator, si_carrier_numbers, si_snr_db
-from receiver.ranging import RangeIntegrator
+from receiver.paths import PathConfig, PathTracker
+from receiver.ranging import FIRST_PATH_COLUMNS, PathRanging, RangeIntegrator
 from receiver.resample import StreamResampler
 from receiver.tracking import FrameTracker, LockMonitor
 from receiver.writer import FrameSink
@@ -62,8 +65,9 @@ END_OF_STREAM = np.iinfo(np.int64).max // 4
 #: in the cache when the DFT reads them, and the per-call overhead is amortised (16 measured fastest of 4..32).
 DEMODULATION_BLOCK_FRAMES = 16
 #: Stage names of :attr:`Receiver.stage_seconds`: acquisition (searches and lock set-up, a one-off
-#: cost per lock) and, per batch, sync (timing loop), channel estimate, body recovery, SI DFT, estimators.
-STAGES = ("resample", "acquisition", "sync", "channel", "body", "fft", "estimators")
+#: cost per lock) and, per batch, sync (timing loop), channel estimate, body recovery, SI DFT, estimators,
+#: path tracking.
+STAGES = ("resample", "acquisition", "sync", "channel", "body", "fft", "estimators", "paths")
 
 
 @dataclass
@@ -102,6 +106,11 @@ class ReceiverConfig:
         Frames after each lock used to identify the SI word.
     loop_alpha, loop_beta : float
         Timing-loop gains.
+    track_paths : bool
+        Run the path tracker (``receiver.paths``: ``/receiver/paths`` and the
+        first-path columns); PN420 and PN945 only.
+    paths : PathConfig
+        Path-tracker settings.
     inspect : callable or None
         ``inspect(stage, arrays)`` called per batch with intermediate outputs.
     """
@@ -123,6 +132,8 @@ class ReceiverConfig:
     si_frames: int = 256
     loop_alpha: float = 0.05
     loop_beta: float = 0.001
+    track_paths: bool = True
+    paths: PathConfig = field(default_factory=PathConfig)
     inspect: Callable[[str, Mapping[str, np.ndarray]], None] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
@@ -226,6 +237,12 @@ class Receiver:
         self.carrier_hz = float(carrier_hz)
         self.resampler = StreamResampler(sample_rate_hz)
         self.ranging = RangeIntegrator(carrier_hz, self.config.clock_offset_hz, self.config.static_window_s)
+        # The first path's eq. 9-11 (its own f_s from the same window; the SI f_s if it had no frame there).
+        self.first_path_ranging = RangeIntegrator(carrier_hz, self.config.clock_offset_hz, self.config.static_window_s,
+                                                  FIRST_PATH_COLUMNS, fallback=self.ranging)
+        self.path_ranging = PathRanging(carrier_hz)
+        self._path_tracker: PathTracker | None = None
+        self._paths_out: list[PathBatch] = []
         self._modes = (self.config.pn_mode,) if self.config.pn_mode else tuple(PnMode)
         self._acq_window = window_length(self.config.acquisition_frames)
         self._queue = SampleQueue()
@@ -257,8 +274,16 @@ class Receiver:
     def finish(self) -> list[FrameBatch]:
         """End of stream: process the frames still complete, release the rest."""
         out = self._run(final=True)
-        out.extend(self.ranging.flush())
+        out.extend(self._range_paths(self.ranging.flush()))
+        out.extend(self._range_paths(self.first_path_ranging.flush()))
+        self._release_paths(np.inf)
         return out
+
+    def pop_paths(self) -> PathBatch:
+        """The ``/receiver/paths`` rows ranged since the last call (frame order)."""
+        rows = PathBatch.concatenate(self._paths_out)
+        self._paths_out = []
+        return rows
 
     @property
     def pn_mode(self) -> PnMode | None:
@@ -286,7 +311,21 @@ class Receiver:
             "acquisitions": len(self.acquisitions),
             "conjugate_iq": self.config.conjugate_iq,
             "static_window_s": self.config.static_window_s,
+            "path_tracking": self._path_tracker is not None,
+            "first_path_clock_offset_hz": (np.nan if self.first_path_ranging.clock_offset_hz is None
+                                           else self.first_path_ranging.clock_offset_hz),
         }
+
+    def path_attributes(self) -> dict[str, Any]:
+        """Parameters for the ``/receiver/paths`` attributes (the tracker's settings and span)."""
+        tracker = self._path_tracker
+        attrs: dict[str, Any] = {"carrier_hz": self.carrier_hz, "clock_offset_hz": np.nan if
+                                 self.first_path_ranging.clock_offset_hz is None else
+                                 self.first_path_ranging.clock_offset_hz}
+        if tracker is not None:
+            attrs.update(taps_before=tracker.taps_before, taps_after=tracker.taps_after,
+                         **{k: v for k, v in vars(tracker.config).items() if v is not None})
+        return attrs
 
     # ---- driver -----------------------------------------------------------------------
 
@@ -303,9 +342,23 @@ class Receiver:
             batch = self._next_batch(final)
             if batch is None:
                 break
-            out.extend(self.ranging.push(batch))
+            out.extend(self._range_paths(self.ranging.push(batch)))
         self._trim()
         return out
+
+    def _range_paths(self, batches: list[FrameBatch]) -> list[FrameBatch]:
+        """Eq. 9-11 on the first path of SI-ranged batches; the path rows up to them leave with their range."""
+        if self._path_tracker is None:
+            return batches
+        out = [b for batch in batches for b in self.first_path_ranging.push(batch)]
+        if out:
+            self._release_paths(float(out[-1].t_s[-1]))
+        return out
+
+    def _release_paths(self, until_t_s: float) -> None:
+        rows = self.path_ranging.release(self.first_path_ranging.clock_offset_hz, until_t_s)
+        if len(rows):
+            self._paths_out.append(rows)
 
     def _try_acquire(self) -> bool:
         start, stop = self._search_from, self._search_from + self._acq_window
@@ -333,6 +386,12 @@ class Receiver:
         if acq.mode not in self._estimators:
             self._estimators[acq.mode] = ChannelEstimator(acq.mode, self.config.batch_frames, self.config.taps_before,
                                                           self.config.taps_after, self.config.tap_threshold)
+        if self.config.track_paths and acq.mode.value.cyclic_length > 0:
+            if self._path_tracker is None:
+                self._path_tracker = PathTracker(acq.mode, self.carrier_hz, self.config.paths,
+                                                 (self.resampler.up, self.resampler.down))
+            else:
+                self._path_tracker.new_lock(acq.mode)
         if self._si_detector is None:
             self._si_detector = SiWordDetector(self.config.taps_before, self.config.taps_before + self.config.taps_after,
                                                self.config.si_polarity)
@@ -385,7 +444,17 @@ class Receiver:
         si = self._demodulate(lock, buf, buf_start, starts, ch.taps, phases)   # inspects "body"
         t3 = time.perf_counter()
         rows = self._estimate(lock, starts, smoothed, periods, si, ch, frame_index, phases[:-1])
-        self.stage_seconds["estimators"] += time.perf_counter() - t3
+        t4 = time.perf_counter()
+        self.stage_seconds["estimators"] += t4 - t3
+        if self._path_tracker is not None and lock.mode == self._path_tracker.mode:
+            tracker = self._path_tracker
+            taps, noise_tap = est.span_taps(count, tracker.taps_before, tracker.taps_after)
+            found = tracker.update(taps, noise_tap, starts, frame_index, periods,
+                                   periods / lock.tracker.nominal_period - 1.0, rows.t_s, lock.acq.coarse_cfo_hz)
+            rows = replace(rows, **found.first_path)
+            keep = len(rows) if lost_at is None else lost_at
+            self.path_ranging.push(found.rows.select(found.rows.frame_index < frame_index[0] + keep))
+            self.stage_seconds["paths"] += time.perf_counter() - t4
         if cfg.inspect is not None:
             cfg.inspect("ofdm", {"si_carriers": si})
         lock.next_frame_index += count
@@ -540,12 +609,14 @@ def receive_into_sink(rx: Receiver, chunks: Iterable[np.ndarray], sink: FrameSin
             for chunk in chunks:
                 for batch in rx.process(chunk):
                     sink.append(batch)
+                sink.append_paths(rx.pop_paths())
                 bar.update(len(chunk))
             for batch in rx.finish():
                 sink.append(batch)
+            sink.append_paths(rx.pop_paths())
     except BaseException as exc:
         sink.abort(exc)
         raise
     attrs = {**rx.attributes(), "source": source}
-    sink.close(attrs)
+    sink.close(attrs, {**rx.path_attributes(), "source": source} if rx.config.track_paths else None)
     return attrs
