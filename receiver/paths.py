@@ -68,6 +68,8 @@ from receiver.resample import design_filter
 
 #: Points per chip of the pulse tables (linear interpolation between them).
 PULSE_OVERSAMPLING = 32
+#: Lags (from, to) on either side of a residual peak whose median is its local background (detect_paths).
+RING = (3, 10)
 #: Towers whose clock-free range differences go to ``/receiver/frames`` (towers 1 and 2 against tower 0).
 RANGE_DIFFERENCE_TOWERS = 2
 
@@ -478,9 +480,15 @@ def detect_paths(power: np.ndarray, lag0: int, limit: float, existing: np.ndarra
                  min_separation: float, settle_guard: float, max_births: int) -> list[float]:
     """New paths in the residual power of a batch: its strongest peaks above ``limit``.
 
-    A peak next to a path that is still settling (its delay not yet
-    converged) is that path's fitting error, not a path: no birth within
-    ``settle_guard`` of one. Peaks are taken strongest first, one chip apart.
+    A path is a pulse about a chip wide: its peak must stand above the
+    residual around it (the median over ``RING`` lags on either side) by the
+    factor the threshold stands above the noise floor. Interference spread
+    over the lags (a tone, a DC offset: their header correlation is a smooth
+    function of the lag) raises the floor and the ring alike and is never
+    taken for a path. A peak next to a path that is still settling (its
+    delay not yet converged) is that path's fitting error, not a path: no
+    birth within ``settle_guard`` of one. Peaks are taken strongest first,
+    one chip apart.
 
     Parameters
     ----------
@@ -511,6 +519,9 @@ def detect_paths(power: np.ndarray, lag0: int, limit: float, existing: np.ndarra
     peaks = inner[(p[inner] > limit) & (p[inner] >= p[inner - 1]) & (p[inner] >= p[inner + 1])]
     found: list[float] = []
     for peak in peaks[np.argsort(p[peaks])[::-1]]:
+        ring = np.concatenate([p[max(peak - RING[1], 0): max(peak - RING[0] + 1, 0)], p[peak + RING[0]: peak + RING[1] + 1]])
+        if len(ring) and p[peak] <= limit * np.median(ring):
+            continue
         left, centre, right = p[peak - 1: peak + 2]
         curvature = left - 2.0 * centre + right
         lag = lag0 + peak + (float(np.clip(0.5 * (left - right) / curvature, -0.5, 0.5)) if curvature < 0 else 0.0)
@@ -601,6 +612,10 @@ class PathTracker:
             raise ValueError(f"{mode.name}: path tracking needs a cyclic header (PN420 or PN945)")
         self.mode = mode
         self.taps_before, self.taps_after = self.config.span(mode)
+        if not (0 <= self.taps_before <= m.postamble and 0 <= self.taps_after <= m.preamble
+                and self.taps_before + self.taps_after > 0):
+            raise ValueError(f"{mode.name}: a path span of -{self.taps_before}..{self.taps_after} samples must lie "
+                             f"within the header's cyclic extension (-{m.postamble}..{m.preamble})")
         self.header_gain = m.header_power_ratio * m.period
         self.table, self.dtable = _pulse_tables_cached(m.period, *self._resample)
         self.paths: list[_Path] = []
