@@ -11,8 +11,10 @@ is limited to one thread so that "one core" means one core):
 - receiver: the streaming receiver on an 8 s cf32 capture at 7.56 Msps (best
   of 3 runs): end to end including acquisition, steady state (acquisition
   left out) and per stage (acquisition, sync, channel estimate, body
-  recovery, SI DFT, estimators), against the per-frame numpy pipeline
-  (:mod:`receiver.reference`), which starts from a finished acquisition;
+  recovery, SI DFT, estimators, path tracking), against the per-frame numpy
+  pipeline (:mod:`receiver.reference`), which starts from a finished
+  acquisition; and end to end once more with the path tracker switched off
+  (``ReceiverConfig.track_paths``), the rate it is measured against;
 - particle filter: particle-updates/s at Np = 1k, 10k, 100k.
 """
 
@@ -23,7 +25,7 @@ import os
 import platform
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numba
 import numpy as np
@@ -116,17 +118,21 @@ def bench_receiver(seconds: float, reference_frames: int, repeats: int) -> list[
     # Warm-up on a separate receiver: numba cache loads and FFTW planning are not part of the rate.
     for _ in receive_stream([x[: int(0.2 * SYMBOL_RATE_HZ)]], SYMBOL_RATE_HZ, generator.carrier_hz, config):
         pass
-    best: tuple[float, Receiver, int] | None = None
-    for _ in range(repeats):
-        rx = Receiver(SYMBOL_RATE_HZ, generator.carrier_hz, config)
-        t0 = time.perf_counter()
-        frames = sum(len(b) for b in receive_stream((x[i:i + (1 << 20)] for i in range(0, len(x), 1 << 20)),
-                                                     SYMBOL_RATE_HZ, generator.carrier_hz, receiver=rx))
-        elapsed = time.perf_counter() - t0
-        if best is None or elapsed < best[0]:
-            best = (elapsed, rx, frames)
-    assert best is not None
-    elapsed, rx, frames = best
+    def fastest(cfg: ReceiverConfig) -> tuple[float, Receiver, int]:
+        best: tuple[float, Receiver, int] | None = None
+        for _ in range(repeats):
+            rx = Receiver(SYMBOL_RATE_HZ, generator.carrier_hz, cfg)
+            t0 = time.perf_counter()
+            frames = sum(len(b) for b in receive_stream((x[i:i + (1 << 20)] for i in range(0, len(x), 1 << 20)),
+                                                         SYMBOL_RATE_HZ, generator.carrier_hz, receiver=rx))
+            elapsed = time.perf_counter() - t0
+            if best is None or elapsed < best[0]:
+                best = (elapsed, rx, frames)
+        assert best is not None
+        return best
+
+    elapsed, rx, frames = fastest(config)
+    elapsed_off, _, frames_off = fastest(replace(config, track_paths=False))
     if frames == 0:
         raise RuntimeError("benchmark receiver produced no frames")
     ref_stages: dict[str, float] = {}
@@ -139,6 +145,10 @@ def bench_receiver(seconds: float, reference_frames: int, repeats: int) -> list[
     rows = [BenchRow("receiver end to end incl. acquisition", "samples/s", len(x) / elapsed, None,
                      len(x) / elapsed / SYMBOL_RATE_HZ,
                      f"cf32 7.56 Msps, {seconds:g} s capture, {best_of}{frames / elapsed:.0f} frames/s"),
+            BenchRow("receiver end to end, path tracking off", "samples/s", len(x) / elapsed_off, None,
+                     len(x) / elapsed_off / SYMBOL_RATE_HZ,
+                     f"{frames_off / elapsed_off:.0f} frames/s; with tracking "
+                     f"{100 * elapsed_off / elapsed:.0f} % of this speed"),
             BenchRow("receiver steady state (after acquisition)", "samples/s", len(x) / locked,
                      samples_per_frame / ref_per_frame, len(x) / locked / SYMBOL_RATE_HZ,
                      f"{frames / locked:.0f} frames/s; reference {1 / ref_per_frame:.0f} frames/s")]

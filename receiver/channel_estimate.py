@@ -123,6 +123,7 @@ class ChannelEstimator:
             self._model = model
             self._windows = np.zeros((batch, self.window_length), dtype=np.complex64)
         self.reference_length = self.window_length
+        self._span_cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
     @cached_property
     def _references(self) -> np.ndarray:
@@ -185,16 +186,26 @@ class ChannelEstimator:
         noise_tap : ndarray, (count,)
             Mean tap power on the lags outside the span (the tap noise floor).
         """
+        tap_bins, noise_bins = self._span_bins(taps_before, taps_after)
+        raw = np.empty((count, len(tap_bins)), np.complex64)
+        noise_tap = np.empty(count)
+        deconvolve_kernel(self._corr[:count], tap_bins, noise_bins, raw, noise_tap)
+        return raw, noise_tap
+
+    def _span_bins(self, taps_before: int, taps_after: int) -> tuple[np.ndarray, np.ndarray]:
+        """Correlation lags of a span and the noise lags outside it (:meth:`span_taps`; made once per span)."""
+        key = (taps_before, taps_after)
+        if key not in self._span_cache:
+            self._span_cache[key] = self._make_span_bins(taps_before, taps_after)
+        return self._span_cache[key]
+
+    def _make_span_bins(self, taps_before: int, taps_after: int) -> tuple[np.ndarray, np.ndarray]:
         m = self.mode.value
         if not self.cyclic or taps_after > m.preamble or taps_before > m.postamble or taps_before + taps_after < 1:
             raise ValueError(f"{self.mode.name}: a path span of -{taps_before}..{taps_after} samples needs a cyclic "
                              f"header (span within -{m.postamble}..{m.preamble})")
         tap_bins = np.arange(-taps_before, taps_after) % m.period
-        noise_bins = np.setdiff1d(np.arange(m.period), tap_bins)
-        raw = np.empty((count, len(tap_bins)), np.complex64)
-        noise_tap = np.empty(count)
-        deconvolve_kernel(self._corr[:count], tap_bins, noise_bins, raw, noise_tap)
-        return raw, noise_tap
+        return tap_bins, np.setdiff1d(np.arange(m.period), tap_bins)
 
     def _deconvolve(self, corr: np.ndarray) -> np.ndarray:
         """Remove the m-sequence sidelobes from the correlation (exact for a channel inside the tap span).

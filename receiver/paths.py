@@ -553,6 +553,7 @@ class _Path:
     smooth_hz: float = np.nan
     run_cycles: float = 0.0
     power: float = 0.0
+    noise: float = 0.0
     born: bool = True
 
 
@@ -629,7 +630,7 @@ class PathTracker:
         return -self.taps_before
 
     def update(self, taps: np.ndarray, noise_tap: np.ndarray, starts: np.ndarray, frame_index: np.ndarray,
-               periods: np.ndarray, eta: np.ndarray, t_s: np.ndarray, coarse_cfo_hz: float) -> PathUpdate:
+               eta: np.ndarray, t_s: np.ndarray, coarse_cfo_hz: float) -> PathUpdate:
         """Fit, track and report the paths of a batch of frames.
 
         Parameters
@@ -642,8 +643,6 @@ class PathTracker:
             Window starts (stream samples at 7.56 Msps).
         frame_index : (F,) int64
             Frame counter.
-        periods : (F,) float64
-            The timing loop's frame period per frame, samples.
         eta : (F,) float64
             Normalised sampling offset per frame (``receiver.cfo.cfo_from_theta``).
         t_s : (F,) float64
@@ -674,36 +673,36 @@ class PathTracker:
         power = np.abs(amplitudes) ** 2
         step = np.diff(np.concatenate([[starts[0]], starts]))
 
-        cfo = np.full((count, n), np.nan)
-        bridged = np.full((count, n), np.nan)
+        # Each path's frequency from its phase step (as the PN CFO estimate) and the step's noise: each frame's
+        # phase has variance var / (2 |a|^2), the step twice that.
+        prev = np.vstack([[p.prev_amplitude for p in paths], amplitudes[:-1]]) if n else amplitudes
+        path_step = np.repeat(step[:, None], n, axis=1)
+        path_step[0] = starts[0] - np.array([p.prev_start for p in paths], dtype=np.int64)
+        cfo = cfo_from_theta(np.conj(amplitudes) * prev, np.maximum(path_step, 1), eta[:, None], coarse_cfo_hz)
+        sigma = np.sqrt(variance * noise[:, None] / np.maximum(power, 1e-30)) / (2.0 * np.pi)
+        bridged = np.empty((count, n))
         slips = np.zeros((count, n), dtype=bool)
+        mean_power = power.mean(axis=0)
+        mean_variance = variance.mean(axis=0)
         alpha = 1.0 / cfg.frequency_time_s
         survival = 10.0 ** (cfg.survival_snr_db / 10.0)
         for i, p in enumerate(paths):
             moved = delay[i] - (p.delay + p.rate * count)
             p.delay, p.rate = float(delay[i]), float(rate[i])
-            prev = np.concatenate([[p.prev_amplitude], amplitudes[:-1, i]])
-            path_step = step.copy()
-            path_step[0] = starts[0] - p.prev_start
-            theta = np.conj(amplitudes[:, i]) * prev
-            cfo[:, i] = cfo_from_theta(theta, np.maximum(path_step, 1), eta, coarse_cfo_hz)
-            # Phase-step noise: each frame's phase has variance var / (2 |a|^2); the step has twice that.
-            sigma = np.sqrt(variance[:, i] * noise / np.maximum(power[:, i], 1e-30)) / (2.0 * np.pi)
             column, flags = np.empty(count), np.zeros(count, dtype=np.bool_)
-            p.smooth_hz, p.run_cycles = slip_kernel(cfo[:, i], dt, sigma, p.smooth_hz, p.run_cycles, alpha,
+            p.smooth_hz, p.run_cycles = slip_kernel(cfo[:, i], dt, sigma[:, i], p.smooth_hz, p.run_cycles, alpha,
                                                     cfg.slip_sigmas, cfg.slip_min_cycles, column, flags)
             bridged[:, i], slips[:, i] = column, flags
             p.prev_amplitude, p.prev_start = complex(amplitudes[-1, i]), int(starts[-1])
-            p.power = float(np.mean(power[:, i]))
+            p.power, p.noise = float(mean_power[i]), noise_floor * float(mean_variance[i])
             # A path is confirmed once it has held still, above the survival SNR, for confirm_batches batches.
-            strong = p.power >= survival * noise_floor * float(np.mean(variance[:, i]))
-            p.steady = p.steady + 1 if abs(moved) < cfg.steady_move and strong else 0
+            p.steady = p.steady + 1 if abs(moved) < cfg.steady_move and p.power >= survival * p.noise else 0
             p.confirmed = p.confirmed or p.steady >= cfg.confirm_batches
 
         rows = self._rows(paths, amplitudes, lags, rate, bridged, slips, variance, noise, t_s, frame_index)
         first = self._first_paths(paths, lags, bridged, power, noise, t_s, dt)
         self._last_t_s = float(t_s[-1])
-        self._maintain(residual / (noise_floor * count), variance, noise_floor, offsets, periods, count)
+        self._maintain(residual / (noise_floor * count), noise_floor, offsets, count)
         return PathUpdate(rows, first)
 
     # ---- per-batch bookkeeping -------------------------------------------------------------
@@ -798,18 +797,16 @@ class PathTracker:
             out[f"range_difference_change_{tower}_m"] = column
         return out
 
-    def _maintain(self, residual: np.ndarray, variance: np.ndarray, noise_floor: float, offsets: np.ndarray,
-                  periods: np.ndarray, count: int) -> None:
+    def _maintain(self, residual: np.ndarray, noise_floor: float, offsets: np.ndarray, count: int) -> None:
         """Ages, fading and merging of the paths, then births from the residual (module docstring, step 3)."""
         cfg = self.config
         survival = 10.0 ** (cfg.survival_snr_db / 10.0)
         strongest = max((p.power for p in self.paths), default=0.0)
         relative = 10.0 ** (cfg.relative_floor_db / 10.0)
         keep: list[_Path] = []
-        for i, p in enumerate(self.paths):
+        for p in self.paths:
             p.age += 1
-            snr = p.power / (noise_floor * max(float(np.mean(variance[:, i])), 1e-12))
-            p.fading = p.fading + 1 if (snr < survival or p.power < relative * strongest) else 0
+            p.fading = p.fading + 1 if (p.power < survival * p.noise or p.power < relative * strongest) else 0
             if p.fading < cfg.lost_batches:
                 keep.append(p)
         # Merge paths that drifted together: the older one stays.
@@ -830,7 +827,10 @@ class PathTracker:
         limit = max(detection_threshold(count, cfg.false_alarm), relative * strongest / noise_floor)
         found = detect_paths(residual, self.lag0, limit, existing, settled, cfg.min_separation, cfg.settle_guard,
                              min(cfg.max_births, cfg.max_paths - len(self.paths)))
-        drift = float(periods[-1]) - self.mode.value.frame_length
+        # Every path's delay drifts with the receiver clock (the sampling offset): a new path starts with the
+        # drift the confirmed paths agree on (the timing loop's period is too noisy for it), else none.
+        rates = [p.rate for p in self.paths if p.confirmed]
+        drift = float(np.median(rates)) if rates else 0.0
         for lag in sorted(found):
             delay = lag + offset
             self.paths.append(_Path(self._next_id, self._tower_of(delay), delay, drift))

@@ -449,8 +449,8 @@ class Receiver:
         if self._path_tracker is not None and lock.mode == self._path_tracker.mode:
             tracker = self._path_tracker
             taps, noise_tap = est.span_taps(count, tracker.taps_before, tracker.taps_after)
-            found = tracker.update(taps, noise_tap, starts, frame_index, periods,
-                                   periods / lock.tracker.nominal_period - 1.0, rows.t_s, lock.acq.coarse_cfo_hz)
+            found = tracker.update(taps, noise_tap, starts, frame_index, periods / lock.tracker.nominal_period - 1.0,
+                                   rows.t_s, lock.acq.coarse_cfo_hz)
             rows = replace(rows, **found.first_path)
             keep = len(rows) if lost_at is None else lost_at
             self.path_ranging.push(found.rows.select(found.rows.frame_index < frame_index[0] + keep))
@@ -548,11 +548,17 @@ def receive_stream(chunks: Iterable[np.ndarray], sample_rate_hz: float, carrier_
     receiver : Receiver, optional
         A receiver to drive (to read its attributes afterwards); made from the
         other arguments when omitted.
+
+    Only the frames come out: the path tracker's rows are dropped as they
+    come (memory stays flat); :func:`receive_into_sink` writes them, or drive
+    :meth:`Receiver.process` and :meth:`Receiver.pop_paths` directly.
     """
     rx = receiver or Receiver(sample_rate_hz, carrier_hz, config)
     for chunk in chunks:
         yield from rx.process(chunk)
+        rx.pop_paths()
     yield from rx.finish()
+    rx.pop_paths()
 
 
 def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, config: ReceiverConfig | None = None, *,

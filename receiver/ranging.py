@@ -182,30 +182,42 @@ class PathRanging:
         """The queued rows up to ``until_t_s`` with their range, once ``clock_offset_hz`` is known."""
         if clock_offset_hz is None or not self._pending:
             return PathBatch.concatenate([])
-        rows = PathBatch.concatenate(self._pending)
+        rows = self._pending[0] if len(self._pending) == 1 else PathBatch.concatenate(self._pending)
         done = rows.t_s <= until_t_s
-        self._pending = [rows.select(~done)] if not done.all() else []
-        rows = rows.select(done)
+        if done.all():
+            self._pending = []
+        else:
+            self._pending = [rows.select(~done)]
+            rows = rows.select(done)
+        if len(rows) == 0:
+            return rows
         doppler = rows.cfo_hz - clock_offset_hz
-        range_m = np.empty(len(rows))
+        # Group the rows by path (in time order within each) and integrate every group at once.
         order = np.lexsort((rows.t_s, rows.path_id))
-        ids = rows.path_id[order]
-        starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
-        for lo, hi in zip(starts, np.r_[starts[1:], len(ids)]):
-            sel = order[lo:hi]
-            pid = int(ids[lo])
-            born = bool(rows.flags[sel[0]] & PathFlag.BORN) or pid not in self._state
-            range0, last_doppler, last_t = (0.0, 0.0, float(rows.t_s[sel[0]])) if born else self._state[pid]
-            held = held_doppler(doppler[sel], last_doppler)
-            t = rows.t_s[sel]
-            dt = np.diff(np.r_[last_t, t])
-            path_range = range0 - self.wavelength_m * np.cumsum(held * dt)
-            range_m[sel] = path_range
-            self._state[pid] = (float(path_range[-1]), float(held[-1]), float(t[-1]))
-        alive = set(rows.path_id[rows.t_s == rows.t_s.max()].tolist()) if len(rows) else set()
-        for pid in [p for p in self._state if p not in alive and p not in self._pending_ids()]:
-            del self._state[pid]
+        ids, t, dop = rows.path_id[order], rows.t_s[order], doppler[order]
+        first = np.r_[True, ids[1:] != ids[:-1]]
+        group = np.cumsum(first) - 1
+        starts = np.flatnonzero(first)
+        carried = [self._state.get(int(pid)) for pid in ids[starts]]
+        born = (rows.flags[order][starts] & PathFlag.BORN) > 0
+        fresh = np.array([c is None or b for c, b in zip(carried, born)])
+        range0 = np.array([0.0 if f else c[0] for f, c in zip(fresh, carried)])
+        last_doppler = np.array([0.0 if f else c[1] for f, c in zip(fresh, carried)])
+        last_t = np.array([t[s] if f else c[2] for f, c, s in zip(fresh, carried, starts)])
+        # Held Doppler: the last finite value in the group, else the path's last one.
+        finite = np.isfinite(dop)
+        idx = np.where(finite, np.arange(len(dop)), -1)
+        np.maximum.accumulate(idx, out=idx)
+        inside = idx >= starts[group]
+        held = np.where(inside, dop[np.maximum(idx, 0)], last_doppler[group])
+        dt = np.diff(np.r_[0.0, t])
+        dt[starts] = t[starts] - last_t
+        steps = held * dt
+        total = np.cumsum(steps)
+        before = np.r_[0.0, total][starts]            # cumulative sum before each group
+        path_range = range0[group] - self.wavelength_m * (total - before[group])
+        range_m = np.empty(len(rows))
+        range_m[order] = path_range
+        ends = np.r_[starts[1:], len(ids)] - 1
+        self._state = {int(ids[e]): (float(path_range[e]), float(held[e]), float(t[e])) for e in ends}
         return replace(rows, doppler_hz=doppler, range_change_m=range_m)
-
-    def _pending_ids(self) -> set[int]:
-        return {int(p) for batch in self._pending for p in np.unique(batch.path_id)}

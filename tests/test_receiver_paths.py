@@ -244,8 +244,8 @@ def feed_header_windows(tracker: PathTracker, windows: np.ndarray, batch: int = 
         est.windows[:count] = windows[lo: lo + count]
         est.estimate(count, np.asarray(gb20600.header_phase(mode, index), dtype=np.int64))
         taps, noise = est.span_taps(count, tracker.taps_before, tracker.taps_after)
-        out = tracker.update(taps, noise, index * m.frame_length, index, np.full(count, float(m.frame_length)),
-                             np.zeros(count), index * m.frame_duration_s, 0.0)
+        out = tracker.update(taps, noise, index * m.frame_length, index, np.zeros(count), index * m.frame_duration_s,
+                             0.0)
         rows += len(out.rows)
         firsts += int(np.count_nonzero(out.first_path["first_path_id"] >= 0))
     return rows, firsts
