@@ -56,19 +56,25 @@ class ReceiveSummary:
         Frames flagged as the first after a loss of lock.
     seconds : float
         Span of the frames, s.
+    path_rows : int
+        Rows written to ``/receiver/paths``.
     """
 
     frames: int
     attrs: dict
     gaps: int
     seconds: float
+    path_rows: int = 0
 
     def describe(self) -> str:
         if not self.frames:
             return "no lock: no DTMB signal found in the capture; no frames written"
         a = self.attrs
-        return (f"{self.frames} frames over {self.seconds:.1f} s, {a.get('pn_mode')}, SI word {a.get('si_index')}, "
+        text = (f"{self.frames} frames over {self.seconds:.1f} s, {a.get('pn_mode')}, SI word {a.get('si_index')}, "
                 f"f_s = {a.get('clock_offset_hz', float('nan')):.2f} Hz, {self.gaps} gap(s)")
+        if a.get("path_tracking"):
+            text += f", {self.path_rows} path rows"
+        return text
 
 
 def receive_capture(source: CaptureSource, out_path: str | os.PathLike, config: ReceiverConfig,
@@ -76,7 +82,7 @@ def receive_capture(source: CaptureSource, out_path: str | os.PathLike, config: 
     """Receive a capture into ``out_path`` (``/receiver/frames``) and summarise it."""
     sink, attrs = receive_file(source, out_path, config, csv_path=csv_path, progress=progress)
     span = sink.last_t_s - sink.first_t_s if sink.frames else 0.0
-    return ReceiveSummary(frames=sink.frames, attrs=attrs, gaps=sink.gaps, seconds=span)
+    return ReceiveSummary(frames=sink.frames, attrs=attrs, gaps=sink.gaps, seconds=span, path_rows=sink.paths)
 
 
 def ranges_from_frames(columns: dict[str, np.ndarray], time_offset_s: float = 0.0) -> RangeSeries:

@@ -323,8 +323,8 @@ class Receiver:
                                  self.first_path_ranging.clock_offset_hz is None else
                                  self.first_path_ranging.clock_offset_hz}
         if tracker is not None:
-            attrs.update(taps_before=tracker.taps_before, taps_after=tracker.taps_after,
-                         **{k: v for k, v in vars(tracker.config).items() if v is not None})
+            attrs.update({k: v for k, v in vars(tracker.config).items() if v is not None})
+            attrs.update(taps_before=tracker.taps_before, taps_after=tracker.taps_after)
         return attrs
 
     # ---- driver -----------------------------------------------------------------------
