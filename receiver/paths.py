@@ -21,9 +21,13 @@ needs removing); this module separates the paths in it and tracks each one:
    Gauss-Newton step on the delays, with the amplitudes projected out
    (variable projection), is averaged over the block and applied with a gain:
    a delay-locked loop per path, with a rate per path for the drift of the
-   receiver clock and the walker's motion.
-3. **Detection.** The residual power of each lag over a batch of F frames,
-   divided by the noise floor (the lags outside the span), is
+   receiver clock and the walker's motion. A confirmed path's correction is
+   held to ``steady_delay_step`` per block (paths move by hundredths of a chip
+   per second): a spurious neighbour cannot drag a path away.
+3. **Detection.** What the paths' pulses and their delay derivatives leave
+   unexplained (so a slightly mis-delayed strong path leaves nothing behind),
+   as power per lag over a batch of F frames, divided by the noise floor (the
+   lags outside the span), is
    ``Gamma(F, 1/F)`` distributed where there is only noise; a lag above the
    threshold with false-alarm probability ``false_alarm`` per lag and batch
    (and above ``relative_floor`` of the strongest path) is a new path: the
@@ -88,7 +92,9 @@ class PathConfig:
     delay_gain, rate_gain : float
         Gains of each path's delay loop (per block) and of its rate.
     max_delay_step : float
-        Largest delay correction per block, samples.
+        Largest delay correction per block of a path not yet confirmed, samples.
+    steady_delay_step : float
+        Largest delay correction per block of a confirmed path, samples.
     false_alarm : float
         Probability that noise alone crosses the detection threshold, per lag and batch.
     relative_floor_db : float
@@ -133,6 +139,7 @@ class PathConfig:
     delay_gain: float = 0.3
     rate_gain: float = 0.02
     max_delay_step: float = 0.2
+    steady_delay_step: float = 0.01
     false_alarm: float = 1e-7
     relative_floor_db: float = -35.0
     survival_snr_db: float = 6.0
@@ -228,11 +235,22 @@ def _table_at(table: np.ndarray, x: float, period: int, oversampling: int) -> fl
 
 
 @njit(cache=True)
+def _solve_small(matrix: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``matrix^-1 rhs`` for a small real matrix and a complex right-hand side (two real solves)."""
+    return np.linalg.solve(matrix, rhs.real) + 1j * np.linalg.solve(matrix, rhs.imag)
+
+
+@njit(cache=True)
 def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np.ndarray, rate: np.ndarray,
-                     table: np.ndarray, dtable: np.ndarray, oversampling: int, block_frames: int, gain: float,
-                     rate_gain: float, max_step: float, amplitudes: np.ndarray, lags: np.ndarray,
+                     max_step: np.ndarray, table: np.ndarray, dtable: np.ndarray, oversampling: int,
+                     block_frames: int, gain: float, rate_gain: float, amplitudes: np.ndarray, lags: np.ndarray,
                      variance: np.ndarray, residual_power: np.ndarray) -> None:
     """Least-squares path amplitudes and delay-loop updates over a batch (module docstring, step 2).
+
+    The frames are fitted in runs with one window offset (the lags of a
+    path do not move inside a run); the delay loops are updated every
+    ``block_frames`` frames whatever the runs, so their bandwidth per frame
+    does not depend on how often the receiver's timing moves the window.
 
     Parameters
     ----------
@@ -240,16 +258,18 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
         Raw CIR of each frame; column j is lag ``lag0 + j``.
     offsets : (F,) float64
         Each frame's window start on the path-delay grid: path i sits at lag
-        ``delay_i - offsets[k]``. A block ends where the offset changes.
+        ``delay_i - offsets[k]``.
     lag0 : int
         Lag of column 0 (``-taps_before``).
     delay, rate : (n,) float64
         Grid delay of each path at the batch's first frame and its drift per
         frame, samples; updated in place to the frame after the batch.
+    max_step : (n,) float64
+        Largest delay correction per update of each path, samples.
     table, dtable : float64
         :func:`pulse_tables` (period ``(len - 1) / oversampling`` chips).
-    block_frames, gain, rate_gain, max_step
-        Block length, loop gains and the largest delay step per block.
+    block_frames, gain, rate_gain
+        Frames per update and the loop gains.
     amplitudes : (F, n) complex128, out
         Fitted amplitude of each path in each frame.
     lags : (F, n) float64, out
@@ -257,18 +277,25 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
     variance : (F, n) float64, out
         Diagonal of ``(G^T G)^-1``: the amplitude's noise variance in units of the tap noise.
     residual_power : (L,) float64, in/out
-        Accumulates ``|y - G a|^2`` per lag over the frames.
+        Accumulates, per lag, the power of what neither the paths' pulses nor
+        their delay derivatives explain (``y`` minus its projection on
+        ``[G, G']``): a slightly mis-delayed strong path leaves no trace there
+        that detection could take for a path.
     """
     n_frames, n_lags = taps.shape
     n = delay.shape[0]
     period = (table.shape[0] - 1) // oversampling
     g = np.empty((n_lags, n))
     dg = np.empty((n_lags, n))
+    both = np.empty((n_lags, 2 * n))
     lam = np.empty(n)
+    hess = np.zeros((n, n))
+    grad = np.zeros(n)
+    pending = 0
     start = 0
     while start < n_frames:
         stop = start + 1
-        while stop < n_frames and stop - start < block_frames and offsets[stop] == offsets[start]:
+        while stop < n_frames and pending + stop - start < block_frames and offsets[stop] == offsets[start]:
             stop += 1
         count = stop - start
         mid = 0.5 * (count - 1)
@@ -278,6 +305,8 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
                 x = lag0 + j - lam[i]
                 g[j, i] = _table_at(table, x, period, oversampling)
                 dg[j, i] = _table_at(dtable, x, period, oversampling)
+                both[j, i] = g[j, i]
+                both[j, n + i] = dg[j, i]
         gram = g.T @ g
         ridge = 1e-6 * np.trace(gram) / max(n, 1)
         for i in range(n):
@@ -285,54 +314,64 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
         inverse = np.linalg.inv(gram)
         cross = dg.T @ g
         q = dg.T @ dg - cross @ inverse @ cross.T
-        hess = np.zeros((n, n))
-        grad = np.zeros(n)
+        gram2 = both.T @ both
+        for i in range(2 * n):
+            gram2[i, i] += ridge
         for k in range(start, stop):
             y = taps[k]
-            u = np.zeros(n, dtype=np.complex128)
-            v = np.zeros(n, dtype=np.complex128)
+            uv = np.zeros(2 * n, dtype=np.complex128)
             for j in range(n_lags):
                 yj = np.complex128(y[j])
                 for i in range(n):
-                    u[i] += g[j, i] * yj
-                    v[i] += dg[j, i] * yj
+                    uv[i] += g[j, i] * yj
+                    uv[n + i] += dg[j, i] * yj
             a = np.zeros(n, dtype=np.complex128)
             ca = np.zeros(n, dtype=np.complex128)
             for i in range(n):
                 for m in range(n):
-                    a[i] += inverse[i, m] * u[m]
+                    a[i] += inverse[i, m] * uv[m]
             for i in range(n):
                 for m in range(n):
                     ca[i] += cross[i, m] * a[m]
+            c = _solve_small(gram2, uv) if n > 0 else uv
             for j in range(n_lags):
                 r = np.complex128(y[j])
-                for i in range(n):
-                    r -= g[j, i] * a[i]
+                for i in range(2 * n):
+                    r -= both[j, i] * c[i]
                 residual_power[j] += r.real * r.real + r.imag * r.imag
             for i in range(n):
                 amplitudes[k, i] = a[i]
                 lags[k, i] = lam[i] + rate[i] * (k - start - mid)
                 variance[k, i] = inverse[i, i]
-                # d(model)/d(lambda_i) = -a_i g'_i: gradient term Re(J^H r), r orthogonal to G.
-                grad[i] += -(np.conj(a[i]) * (v[i] - ca[i])).real
+                # d(model)/d(lambda_i) = -a_i g'_i: gradient term Re(J^H r), r = y - G a orthogonal to G.
+                grad[i] += -(np.conj(a[i]) * (uv[n + i] - ca[i])).real
                 for m in range(n):
                     hess[i, m] += q[i, m] * (np.conj(a[i]) * a[m]).real
-        step = np.zeros(n)
-        if n > 0:
+        for i in range(n):
+            delay[i] += rate[i] * count
+        pending += count
+        if n > 0 and (pending >= block_frames or stop == n_frames):
             for i in range(n):
                 hess[i, i] += 1e-9 + 1e-6 * abs(hess[i, i])
             step = np.linalg.solve(hess, grad)
-        for i in range(n):
-            correction = min(max(step[i], -max_step), max_step)
-            delay[i] += rate[i] * count + gain * correction
-            rate[i] += rate_gain * correction / count
+            # A partial block (the batch's end) moves the loop in proportion to its frames.
+            weight = gain * pending / block_frames
+            for i in range(n):
+                correction = min(max(step[i], -max_step[i]), max_step[i])
+                delay[i] += weight * correction
+                rate[i] += rate_gain * correction / block_frames
+                for m in range(n):
+                    hess[i, m] = 0.0
+                grad[i] = 0.0
+            pending = 0
         start = stop
 
 
 def fit_paths_reference(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np.ndarray, rate: np.ndarray,
-                        table: np.ndarray, dtable: np.ndarray, oversampling: int, block_frames: int, gain: float,
-                        rate_gain: float, max_step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Plain-numpy :func:`fit_paths_kernel` (vectorised over each block's frames).
+                        max_step: np.ndarray, table: np.ndarray, dtable: np.ndarray, oversampling: int,
+                        block_frames: int, gain: float,
+                        rate_gain: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Plain-numpy :func:`fit_paths_kernel` (vectorised over the frames of each run).
 
     Returns ``amplitudes, lags, variance, residual_power``; ``delay`` and
     ``rate`` are updated in place.
@@ -346,32 +385,39 @@ def fit_paths_reference(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay:
     variance = np.zeros((n_frames, n))
     residual_power = np.zeros(n_lags)
     lag_axis = lag0 + np.arange(n_lags)
+    hess, grad, pending = np.zeros((n, n)), np.zeros(n), 0
     start = 0
     while start < n_frames:
-        same = np.flatnonzero(offsets[start:start + block_frames] != offsets[start])
-        stop = start + (same[0] if len(same) else min(block_frames, n_frames - start))
+        limit = min(block_frames - pending, n_frames - start)
+        same = np.flatnonzero(offsets[start:start + limit] != offsets[start])
+        stop = start + (same[0] if len(same) else limit)
         count, mid = stop - start, 0.5 * (stop - start - 1)
         lam = delay + rate * mid - offsets[start]
         x = np.mod(lag_axis[:, None] - lam[None, :], period)
         g = np.interp(x, grid, table[:-1], period=period)
         dg = np.interp(x, grid, dtable[:-1], period=period)
-        gram = g.T @ g + 1e-6 * np.trace(g.T @ g) / max(n, 1) * np.eye(n)
-        inverse = np.linalg.inv(gram)
+        ridge = 1e-6 * np.trace(g.T @ g) / max(n, 1)
+        inverse = np.linalg.inv(g.T @ g + ridge * np.eye(n))
         cross = dg.T @ g
         q = dg.T @ dg - cross @ inverse @ cross.T
+        both = np.hstack([g, dg])
         y = taps[start:stop].astype(np.complex128)
         a = (y @ g) @ inverse.T
-        residual_power += np.sum(np.abs(y - a @ g.T) ** 2, axis=0)
+        c = np.linalg.solve(both.T @ both + ridge * np.eye(2 * n), (y @ both).T).T if n else np.zeros((count, 0))
+        residual_power += np.sum(np.abs(y - c @ both.T) ** 2, axis=0)
         amplitudes[start:stop] = a
         lags[start:stop] = lam[None, :] + rate[None, :] * (np.arange(count) - mid)[:, None]
         variance[start:stop] = np.diag(inverse)[None, :]
-        if n:
-            grad = -np.real(np.conj(a) * (y @ dg - a @ cross.T)).sum(axis=0)
-            hess = q * np.real(np.conj(a).T @ a)
+        grad += -np.real(np.conj(a) * (y @ dg - a @ cross.T)).sum(axis=0)
+        hess += q * np.real(np.conj(a).T @ a)
+        delay += rate * count
+        pending += count
+        if n and (pending >= block_frames or stop == n_frames):
             hess += np.diag(1e-9 + 1e-6 * np.abs(np.diag(hess)))
             correction = np.clip(np.linalg.solve(hess, grad), -max_step, max_step)
-            delay += rate * count + gain * correction
-            rate += rate_gain * correction / count
+            delay += gain * pending / block_frames * correction
+            rate += rate_gain * correction / block_frames
+            hess, grad, pending = np.zeros((n, n)), np.zeros(n), 0
         start = stop
     return amplitudes, lags, variance, residual_power
 
@@ -664,8 +710,11 @@ class PathTracker:
         lags = np.zeros((count, n))
         variance = np.zeros((count, n))
         residual = np.zeros(taps.shape[1])
-        fit_paths_kernel(taps, offsets, self.lag0, delay, rate, self.table, self.dtable, PULSE_OVERSAMPLING,
-                         cfg.block_frames, cfg.delay_gain, cfg.rate_gain, cfg.max_delay_step, amplitudes, lags,
+        # A path that has held still moves no faster than a path can (walking: hundredths of a chip per
+        # second): a spurious neighbour cannot drag it away.
+        max_step = np.array([cfg.steady_delay_step if p.confirmed else cfg.max_delay_step for p in paths])
+        fit_paths_kernel(taps, offsets, self.lag0, delay, rate, max_step, self.table, self.dtable,
+                         PULSE_OVERSAMPLING, cfg.block_frames, cfg.delay_gain, cfg.rate_gain, amplitudes, lags,
                          variance, residual)
         noise = np.maximum(noise_tap.astype(np.float64), 1e-30)
         noise_floor = float(np.mean(noise))

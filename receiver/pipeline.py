@@ -275,8 +275,9 @@ class Receiver:
         """End of stream: process the frames still complete, release the rest."""
         out = self._run(final=True)
         out.extend(self._range_paths(self.ranging.flush()))
-        out.extend(self._range_paths(self.first_path_ranging.flush()))
-        self._release_paths(np.inf)
+        if self._path_tracker is not None:
+            out.extend(self.first_path_ranging.flush())
+            self._release_paths(np.inf)
         return out
 
     def pop_paths(self) -> PathBatch:

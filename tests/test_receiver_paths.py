@@ -105,10 +105,11 @@ def test_fit_kernel_equals_its_numpy_reference():
     d1, r1 = start_delay.copy(), rate.copy()
     amps, lags, var = (np.zeros((len(taps), 3), complex), np.zeros((len(taps), 3)), np.zeros((len(taps), 3)))
     resid = np.zeros(taps.shape[1])
-    fit_paths_kernel(taps, offsets, -83, d1, r1, g, dg, PULSE_OVERSAMPLING, 16, 0.3, 0.02, 0.2, amps, lags, var,
+    steps = np.array([0.2, 0.2, 0.01])
+    fit_paths_kernel(taps, offsets, -83, d1, r1, steps, g, dg, PULSE_OVERSAMPLING, 16, 0.3, 0.02, amps, lags, var,
                      resid)
     d2, r2 = start_delay.copy(), rate.copy()
-    ref = fit_paths_reference(taps, offsets, -83, d2, r2, g, dg, PULSE_OVERSAMPLING, 16, 0.3, 0.02, 0.2)
+    ref = fit_paths_reference(taps, offsets, -83, d2, r2, steps, g, dg, PULSE_OVERSAMPLING, 16, 0.3, 0.02)
     for got, want in zip((amps, lags, var, resid), ref):
         np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-8)
     np.testing.assert_allclose(d1, d2, rtol=0, atol=1e-9)
@@ -120,8 +121,8 @@ def test_fit_kernel_converges_on_paths_half_a_chip_apart():
     delay = true_delay + np.array([0.15, -0.15])       # start 0.2 chip apart instead of 0.55
     rate = np.zeros(2)
     amps, lags, var = (np.zeros((400, 2), complex), np.zeros((400, 2)), np.zeros((400, 2)))
-    fit_paths_kernel(taps, offsets, -83, delay, rate, g, dg, PULSE_OVERSAMPLING, 16, 0.3, 0.0, 0.2, amps, lags, var,
-                     np.zeros(165))
+    fit_paths_kernel(taps, offsets, -83, delay, rate, np.full(2, 0.2), g, dg, PULSE_OVERSAMPLING, 16, 0.3, 0.0, amps,
+                     lags, var, np.zeros(165))
     np.testing.assert_allclose(delay, true_delay, atol=0.01)
 
 
@@ -310,3 +311,14 @@ def test_path_tracking_can_be_switched_off():
         PathTracker(PnMode.PN595, CARRIER)
     with pytest.raises(ValueError, match="cyclic"):
         PathTracker(PnMode.PN420, CARRIER, PathConfig(taps_after=100))
+
+
+def test_capture_shorter_than_the_static_window_is_ranged_once():
+    x = make_paths_signal(int(1.5 * SYMBOL_RATE_HZ), [SignalPath(0.3, 1.0, 1.0), SignalPath(2.6, 0.4, -1.0)],
+                          start_symbol=START)
+    frames, rows, rx = run_receiver(x, ReceiverConfig(static_window_s=10.0))
+    assert len(frames) > 2000 and np.all(np.diff(frames.frame_index) == 1)
+    assert np.all(np.isfinite(frames.first_path_range_change_m)) and len(rows) > 0
+    # Standing still with a 1 Hz Doppler: f_s absorbs it, and the path's own f_s too.
+    assert rx.first_path_ranging.clock_offset_hz == pytest.approx(1.0, abs=0.05)
+    assert np.max(np.abs(frames.first_path_range_change_m)) < 0.05
