@@ -274,7 +274,8 @@ def _receiver_config(args: argparse.Namespace):
     from receiver.pipeline import ReceiverConfig
 
     return ReceiverConfig(pn_mode=args.pn_mode, static_window_s=args.static_window,
-                          clock_offset_hz=args.clock_offset, conjugate_iq=args.conjugate, jobs=args.jobs)
+                          clock_offset_hz=args.clock_offset, conjugate_iq=args.conjugate, jobs=args.jobs,
+                          track_paths=not args.no_paths)
 
 
 def _pdr_config(args: argparse.Namespace):
@@ -424,6 +425,8 @@ def _add_receiver_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--clock-offset", type=_number, metavar="HZ",
                    help="oscillator offset f_s in Hz, if known (skips the static window)")
     g.add_argument("--conjugate", action="store_true", help="the front end swaps I and Q")
+    g.add_argument("--no-paths", action="store_true",
+                   help="skip the path tracker (/receiver/paths, first-path and range-difference columns)")
 
 
 def _add_pdr_options(p: argparse.ArgumentParser) -> None:
