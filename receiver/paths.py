@@ -234,13 +234,7 @@ def _table_at(table: np.ndarray, x: float, period: int, oversampling: int) -> fl
     return table[i0] * (1.0 - w) + table[i0 + 1] * w
 
 
-@njit(cache=True)
-def _solve_small(matrix: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """``matrix^-1 rhs`` for a small real matrix and a complex right-hand side (two real solves)."""
-    return np.linalg.solve(matrix, rhs.real) + 1j * np.linalg.solve(matrix, rhs.imag)
-
-
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np.ndarray, rate: np.ndarray,
                      max_step: np.ndarray, table: np.ndarray, dtable: np.ndarray, oversampling: int,
                      block_frames: int, gain: float, rate_gain: float, amplitudes: np.ndarray, lags: np.ndarray,
@@ -285,12 +279,17 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
     n_frames, n_lags = taps.shape
     n = delay.shape[0]
     period = (table.shape[0] - 1) // oversampling
-    g = np.empty((n_lags, n))
-    dg = np.empty((n_lags, n))
-    both = np.empty((n_lags, 2 * n))
+    # Pulses and their derivatives, one contiguous row per path: the per-frame sums run along the lags.
+    both = np.empty((2 * n, n_lags))
     lam = np.empty(n)
     hess = np.zeros((n, n))
     grad = np.zeros(n)
+    y_re = np.empty(n_lags)
+    y_im = np.empty(n_lags)
+    r_re = np.empty(n_lags)
+    r_im = np.empty(n_lags)
+    uv_re = np.empty(2 * n)
+    uv_im = np.empty(2 * n)
     pending = 0
     start = 0
     while start < n_frames:
@@ -303,50 +302,65 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
             lam[i] = delay[i] + rate[i] * mid - offsets[start]
             for j in range(n_lags):
                 x = lag0 + j - lam[i]
-                g[j, i] = _table_at(table, x, period, oversampling)
-                dg[j, i] = _table_at(dtable, x, period, oversampling)
-                both[j, i] = g[j, i]
-                both[j, n + i] = dg[j, i]
-        gram = g.T @ g
-        ridge = 1e-6 * np.trace(gram) / max(n, 1)
-        for i in range(n):
-            gram[i, i] += ridge
-        inverse = np.linalg.inv(gram)
-        cross = dg.T @ g
-        q = dg.T @ dg - cross @ inverse @ cross.T
-        gram2 = both.T @ both
+                both[i, j] = _table_at(table, x, period, oversampling)
+                both[n + i, j] = _table_at(dtable, x, period, oversampling)
+        gram2 = both @ both.T
+        ridge = 1e-6 * np.trace(gram2[:n, :n]) / max(n, 1)
         for i in range(2 * n):
             gram2[i, i] += ridge
+        inverse = np.linalg.inv(gram2[:n, :n].copy())
+        cross = gram2[n:, :n].copy()
+        q = gram2[n:, n:] - cross @ inverse @ cross.T
+        for i in range(n):
+            q[i, i] -= ridge
+        inverse2 = np.linalg.inv(gram2)
         for k in range(start, stop):
             y = taps[k]
-            uv = np.zeros(2 * n, dtype=np.complex128)
             for j in range(n_lags):
-                yj = np.complex128(y[j])
-                for i in range(n):
-                    uv[i] += g[j, i] * yj
-                    uv[n + i] += dg[j, i] * yj
-            a = np.zeros(n, dtype=np.complex128)
-            ca = np.zeros(n, dtype=np.complex128)
-            for i in range(n):
-                for m in range(n):
-                    a[i] += inverse[i, m] * uv[m]
-            for i in range(n):
-                for m in range(n):
-                    ca[i] += cross[i, m] * a[m]
-            c = _solve_small(gram2, uv) if n > 0 else uv
+                y_re[j] = y[j].real
+                y_im[j] = y[j].imag
+            for i in range(2 * n):
+                row = both[i]
+                acc_re = 0.0
+                acc_im = 0.0
+                for j in range(n_lags):
+                    acc_re += row[j] * y_re[j]
+                    acc_im += row[j] * y_im[j]
+                uv_re[i] = acc_re
+                uv_im[i] = acc_im
             for j in range(n_lags):
-                r = np.complex128(y[j])
-                for i in range(2 * n):
-                    r -= both[j, i] * c[i]
-                residual_power[j] += r.real * r.real + r.imag * r.imag
+                r_re[j] = y_re[j]
+                r_im[j] = y_im[j]
+            for i in range(2 * n):
+                c_re = 0.0
+                c_im = 0.0
+                for m in range(2 * n):
+                    c_re += inverse2[i, m] * uv_re[m]
+                    c_im += inverse2[i, m] * uv_im[m]
+                row = both[i]
+                for j in range(n_lags):
+                    r_re[j] -= row[j] * c_re
+                    r_im[j] -= row[j] * c_im
+            for j in range(n_lags):
+                residual_power[j] += r_re[j] * r_re[j] + r_im[j] * r_im[j]
             for i in range(n):
-                amplitudes[k, i] = a[i]
+                a_re = 0.0
+                a_im = 0.0
+                for m in range(n):
+                    a_re += inverse[i, m] * uv_re[m]
+                    a_im += inverse[i, m] * uv_im[m]
+                amplitudes[k, i] = complex(a_re, a_im)
                 lags[k, i] = lam[i] + rate[i] * (k - start - mid)
                 variance[k, i] = inverse[i, i]
-                # d(model)/d(lambda_i) = -a_i g'_i: gradient term Re(J^H r), r = y - G a orthogonal to G.
-                grad[i] += -(np.conj(a[i]) * (uv[n + i] - ca[i])).real
+            for i in range(n):
+                ca = 0j
                 for m in range(n):
-                    hess[i, m] += q[i, m] * (np.conj(a[i]) * a[m]).real
+                    ca += cross[i, m] * amplitudes[k, m]
+                a = amplitudes[k, i]
+                # d(model)/d(lambda_i) = -a_i g'_i: gradient term Re(J^H r), r = y - G a orthogonal to G.
+                grad[i] += -(np.conj(a) * (complex(uv_re[n + i], uv_im[n + i]) - ca)).real
+                for m in range(n):
+                    hess[i, m] += q[i, m] * (np.conj(a) * amplitudes[k, m]).real
         for i in range(n):
             delay[i] += rate[i] * count
         pending += count
