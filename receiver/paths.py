@@ -14,29 +14,31 @@ needs removing); this module separates the paths in it and tracks each one:
    (``docs/dtmb.md`` §1; roll-off 0.05) times the resampler's response, made
    periodic over the m-sequence period (the correlation is circular).
    :func:`pulse_tables` builds ``g`` and ``g'`` from that spectrum.
-2. **Fit (SAGE-style least squares).** :func:`fit_paths_kernel`: in blocks of
-   up to ``block_frames`` frames the delays are held, the amplitudes of every
-   frame are the least-squares fit of the model (so two paths closer than a
-   chip are separated by the pulse shape: super-resolution), and one
-   Gauss-Newton step on the delays, with the amplitudes projected out
-   (variable projection), is averaged over the block and applied with a gain:
-   a delay-locked loop per path, with a rate per path for the drift of the
+2. **Fit (SAGE-style least squares).** :func:`fit_paths_kernel`: over runs of
+   frames the delays are held, the amplitudes of every frame are the
+   least-squares fit of the model (so two paths closer than a chip are
+   separated by the pulse shape: super-resolution), and every
+   ``block_frames`` frames one Gauss-Newton step on the delays, with the
+   amplitudes projected out (variable projection), is applied with a gain: a
+   delay-locked loop per path, with a rate per path for the drift of the
    receiver clock and the walker's motion. A confirmed path's correction is
    held to ``steady_delay_step`` per block (paths move by hundredths of a chip
    per second): a spurious neighbour cannot drag a path away.
 3. **Detection.** What the paths' pulses and their delay derivatives leave
    unexplained (so a slightly mis-delayed strong path leaves nothing behind),
    as power per lag over a batch of F frames, divided by the noise floor (the
-   lags outside the span), is
-   ``Gamma(F, 1/F)`` distributed where there is only noise; a lag above the
-   threshold with false-alarm probability ``false_alarm`` per lag and batch
-   (and above ``relative_floor`` of the strongest path) is a new path: the
-   strongest such peak per batch, and none next to a path whose delay loop is
-   still settling (that residual is its fitting error). The next batch fits
-   it with the others, so the residual stays exact and a strong path's
-   sidelobes are never taken for paths. A new path is confirmed (reported) after ``confirm_batches`` batches; a
-   path below ``survival_snr`` for ``lost_batches`` batches, or that merges
-   with an older one (closer than ``min_separation``), is dropped.
+   lags outside the span), is ``Gamma(F, 1/F)`` distributed where there is
+   only noise; a lag above the threshold with false-alarm probability
+   ``false_alarm`` per lag and batch, above ``relative_floor_db`` of the
+   strongest path and standing out of its surroundings like a pulse
+   (:func:`detect_paths`) is a new path: the strongest such peak per batch,
+   and none next to a path whose delay loop is still settling (that residual
+   is its fitting error). The next batch fits it with the others, so the
+   residual stays exact and a strong path's sidelobes are never taken for
+   paths. A new path is confirmed (reported) once its delay has held still,
+   above ``survival_snr_db``, for ``confirm_batches`` batches; a path below
+   ``survival_snr_db`` for ``lost_batches`` batches, or that drifts closer
+   than ``min_separation`` to an older one, is dropped.
 4. **Carrier phase.** A path's frequency is the phase of its amplitude from
    one frame to the next (``receiver.cfo.cfo_from_theta``, as the PN CFO
    estimate), and eq. 9-11 integrate it (``receiver.ranging``). A cycle slip
@@ -47,8 +49,8 @@ needs removing); this module separates the paths in it and tracks each one:
 5. **Towers.** Paths within ``tower_gap`` of one another belong to one tower
    (the delay spread of a street is a few chips; the towers of a
    single-frequency network are hundreds of metres apart, tens of chips).
-   Each tower's earliest confirmed path is its first path, the direct-path
-   candidate; the differences of the towers' first-path phases give
+   Each tower's earliest confirmed path that has lived ``first_path_batches``
+   batches is its first path, the direct-path candidate; the differences of the towers' first-path phases give
    clock-free range differences.
 """
 
@@ -598,7 +600,17 @@ def detect_paths(power: np.ndarray, lag0: int, limit: float, existing: np.ndarra
 
 @dataclass
 class _Path:
-    """State of one tracked path (grid delay: samples, on the lock's frame grid)."""
+    """State of one tracked path.
+
+    ``delay`` (samples, on the lock's frame grid) and ``rate`` (samples per
+    frame) are its delay loop; ``age``, ``steady`` and ``fading`` count
+    batches (lived, held still, below the survival SNR); ``prev_*`` carry
+    its last amplitude and window start to the next batch's phase step;
+    ``smooth_hz`` and ``run_cycles`` are the slip detector's state; ``power``
+    and ``noise`` its mean amplitude power and amplitude noise over the last
+    batch; ``born`` until its first row is written; ``first`` while it is
+    its tower's first path.
+    """
 
     path_id: int
     tower_id: int
@@ -615,6 +627,7 @@ class _Path:
     power: float = 0.0
     noise: float = 0.0
     born: bool = True
+    first: bool = False
 
 
 @dataclass
@@ -762,37 +775,39 @@ class PathTracker:
             p.steady = p.steady + 1 if abs(moved) < cfg.steady_move and p.power >= survival * p.noise else 0
             p.confirmed = p.confirmed or p.steady >= cfg.confirm_batches
 
-        rows = self._rows(paths, amplitudes, lags, rate, bridged, slips, variance, noise, t_s, frame_index)
-        first = self._first_paths(paths, lags, bridged, power, noise, t_s, dt)
+        first_of = self._choose_first_paths(paths, lags)
+        rows = self._rows(paths, amplitudes, lags, rate, bridged, slips, noise, t_s, frame_index)
+        first = self._first_paths(paths, first_of, lags, bridged, power, noise, t_s, dt)
         self._last_t_s = float(t_s[-1])
         self._maintain(residual / (noise_floor * count), noise_floor, offsets, count)
         return PathUpdate(rows, first)
 
     # ---- per-batch bookkeeping -------------------------------------------------------------
 
-    def _confirmed(self, paths: list[_Path]) -> np.ndarray:
-        return np.array([p.confirmed for p in paths], dtype=bool)
+    def _choose_first_paths(self, paths: list[_Path], lags: np.ndarray) -> dict[int, int]:
+        """Tower id -> index of its first path: the earliest confirmed, mature path (mean lag over the batch).
 
-    def _first_indices(self, paths: list[_Path], lags: np.ndarray) -> dict[int, int]:
-        """Tower id -> index of its earliest confirmed, mature, non-fading path (mean lag over the batch)."""
+        A fading path does not become a first path; the first path stays one
+        while it lives (a short fade does not hand its range to a reflection).
+        """
         first: dict[int, int] = {}
-        confirmed = self._confirmed(paths)
         mean_lag = lags.mean(axis=0) if len(lags) else np.zeros(len(paths))
         for i, p in enumerate(paths):
-            eligible = confirmed[i] and p.age >= self.config.first_path_batches and not p.fading
+            eligible = p.confirmed and p.age >= self.config.first_path_batches and (p.first or not p.fading)
             if eligible and (p.tower_id not in first or mean_lag[i] < mean_lag[first[p.tower_id]]):
                 first[p.tower_id] = i
+        for i, p in enumerate(paths):
+            p.first = first.get(p.tower_id) == i
         return first
 
     def _rows(self, paths: list[_Path], amplitudes: np.ndarray, lags: np.ndarray, rate: np.ndarray,
-              bridged: np.ndarray, slips: np.ndarray, variance: np.ndarray, noise: np.ndarray, t_s: np.ndarray,
+              bridged: np.ndarray, slips: np.ndarray, noise: np.ndarray, t_s: np.ndarray,
               frame_index: np.ndarray) -> PathBatch:
         """One row per frame and confirmed path."""
-        confirmed = np.flatnonzero(self._confirmed(paths))
+        confirmed = [i for i, p in enumerate(paths) if p.confirmed]
         count = len(t_s)
         if len(confirmed) == 0:
             return PathBatch.concatenate([])
-        first = set(self._first_indices(paths, lags).values())
         noise_sample = noise * self.header_gain
         cols = {name: [] for name in ("t_s", "frame_index", "path_id", "tower_id", "delay_s", "delay_rate", "cfo_hz",
                                       "snr_db", "flags")}
@@ -801,7 +816,7 @@ class PathTracker:
             p = paths[i]
             flags = np.zeros(count, np.uint8)
             flags[slips[:, i]] |= np.uint8(PathFlag.CYCLE_SLIP)
-            if i in first:
+            if p.first:
                 flags |= np.uint8(PathFlag.FIRST_PATH)
             if p.fading:
                 flags |= np.uint8(PathFlag.FADING)
@@ -826,11 +841,10 @@ class PathTracker:
         nan = np.full(len(order), np.nan)
         return PathBatch(doppler_hz=nan, range_change_m=nan.copy(), **out)
 
-    def _first_paths(self, paths: list[_Path], lags: np.ndarray, bridged: np.ndarray, power: np.ndarray,
-                     noise: np.ndarray, t_s: np.ndarray, dt: np.ndarray) -> dict[str, np.ndarray]:
+    def _first_paths(self, paths: list[_Path], first: dict[int, int], lags: np.ndarray, bridged: np.ndarray,
+                     power: np.ndarray, noise: np.ndarray, t_s: np.ndarray, dt: np.ndarray) -> dict[str, np.ndarray]:
         """The per-frame first-path columns and the towers' range differences."""
         count = len(t_s)
-        first = self._first_indices(paths, lags)
         out = {"first_path_cfo_hz": np.full(count, np.nan), "first_path_delay_s": np.full(count, np.nan),
                "first_path_snr_db": np.full(count, np.nan, np.float32), "first_path_id": np.full(count, -1, np.int32),
                "tower_count": np.full(count, len(first), np.uint8)}
