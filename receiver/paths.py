@@ -14,29 +14,31 @@ needs removing); this module separates the paths in it and tracks each one:
    (``docs/dtmb.md`` §1; roll-off 0.05) times the resampler's response, made
    periodic over the m-sequence period (the correlation is circular).
    :func:`pulse_tables` builds ``g`` and ``g'`` from that spectrum.
-2. **Fit (SAGE-style least squares).** :func:`fit_paths_kernel`: in blocks of
-   up to ``block_frames`` frames the delays are held, the amplitudes of every
-   frame are the least-squares fit of the model (so two paths closer than a
-   chip are separated by the pulse shape: super-resolution), and one
-   Gauss-Newton step on the delays, with the amplitudes projected out
-   (variable projection), is averaged over the block and applied with a gain:
-   a delay-locked loop per path, with a rate per path for the drift of the
+2. **Fit (SAGE-style least squares).** :func:`fit_paths_kernel`: over runs of
+   frames the delays are held, the amplitudes of every frame are the
+   least-squares fit of the model (so two paths closer than a chip are
+   separated by the pulse shape: super-resolution), and every
+   ``block_frames`` frames one Gauss-Newton step on the delays, with the
+   amplitudes projected out (variable projection), is applied with a gain: a
+   delay-locked loop per path, with a rate per path for the drift of the
    receiver clock and the walker's motion. A confirmed path's correction is
    held to ``steady_delay_step`` per block (paths move by hundredths of a chip
    per second): a spurious neighbour cannot drag a path away.
 3. **Detection.** What the paths' pulses and their delay derivatives leave
    unexplained (so a slightly mis-delayed strong path leaves nothing behind),
    as power per lag over a batch of F frames, divided by the noise floor (the
-   lags outside the span), is
-   ``Gamma(F, 1/F)`` distributed where there is only noise; a lag above the
-   threshold with false-alarm probability ``false_alarm`` per lag and batch
-   (and above ``relative_floor`` of the strongest path) is a new path: the
-   strongest such peak per batch, and none next to a path whose delay loop is
-   still settling (that residual is its fitting error). The next batch fits
-   it with the others, so the residual stays exact and a strong path's
-   sidelobes are never taken for paths. A new path is confirmed (reported) after ``confirm_batches`` batches; a
-   path below ``survival_snr`` for ``lost_batches`` batches, or that merges
-   with an older one (closer than ``min_separation``), is dropped.
+   lags outside the span), is ``Gamma(F, 1/F)`` distributed where there is
+   only noise; a lag above the threshold with false-alarm probability
+   ``false_alarm`` per lag and batch, above ``relative_floor_db`` of the
+   strongest path and standing out of its surroundings like a pulse
+   (:func:`detect_paths`) is a new path: the strongest such peak per batch,
+   and none next to a path whose delay loop is still settling (that residual
+   is its fitting error). The next batch fits it with the others, so the
+   residual stays exact and a strong path's sidelobes are never taken for
+   paths. A new path is confirmed (reported) once its delay has held still,
+   above ``survival_snr_db``, for ``confirm_batches`` batches; a path below
+   ``survival_snr_db`` for ``lost_batches`` batches, or that drifts closer
+   than ``min_separation`` to an older one, is dropped.
 4. **Carrier phase.** A path's frequency is the phase of its amplitude from
    one frame to the next (``receiver.cfo.cfo_from_theta``, as the PN CFO
    estimate), and eq. 9-11 integrate it (``receiver.ranging``). A cycle slip
@@ -47,8 +49,8 @@ needs removing); this module separates the paths in it and tracks each one:
 5. **Towers.** Paths within ``tower_gap`` of one another belong to one tower
    (the delay spread of a street is a few chips; the towers of a
    single-frequency network are hundreds of metres apart, tens of chips).
-   Each tower's earliest confirmed path is its first path, the direct-path
-   candidate; the differences of the towers' first-path phases give
+   Each tower's earliest confirmed path that has lived ``first_path_batches``
+   batches is its first path, the direct-path candidate; the differences of the towers' first-path phases give
    clock-free range differences.
 """
 
@@ -234,13 +236,7 @@ def _table_at(table: np.ndarray, x: float, period: int, oversampling: int) -> fl
     return table[i0] * (1.0 - w) + table[i0 + 1] * w
 
 
-@njit(cache=True)
-def _solve_small(matrix: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """``matrix^-1 rhs`` for a small real matrix and a complex right-hand side (two real solves)."""
-    return np.linalg.solve(matrix, rhs.real) + 1j * np.linalg.solve(matrix, rhs.imag)
-
-
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np.ndarray, rate: np.ndarray,
                      max_step: np.ndarray, table: np.ndarray, dtable: np.ndarray, oversampling: int,
                      block_frames: int, gain: float, rate_gain: float, amplitudes: np.ndarray, lags: np.ndarray,
@@ -285,12 +281,17 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
     n_frames, n_lags = taps.shape
     n = delay.shape[0]
     period = (table.shape[0] - 1) // oversampling
-    g = np.empty((n_lags, n))
-    dg = np.empty((n_lags, n))
-    both = np.empty((n_lags, 2 * n))
+    # Pulses and their derivatives, one contiguous row per path: the per-frame sums run along the lags.
+    both = np.empty((2 * n, n_lags))
     lam = np.empty(n)
     hess = np.zeros((n, n))
     grad = np.zeros(n)
+    y_re = np.empty(n_lags)
+    y_im = np.empty(n_lags)
+    r_re = np.empty(n_lags)
+    r_im = np.empty(n_lags)
+    uv_re = np.empty(2 * n)
+    uv_im = np.empty(2 * n)
     pending = 0
     start = 0
     while start < n_frames:
@@ -303,50 +304,65 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
             lam[i] = delay[i] + rate[i] * mid - offsets[start]
             for j in range(n_lags):
                 x = lag0 + j - lam[i]
-                g[j, i] = _table_at(table, x, period, oversampling)
-                dg[j, i] = _table_at(dtable, x, period, oversampling)
-                both[j, i] = g[j, i]
-                both[j, n + i] = dg[j, i]
-        gram = g.T @ g
-        ridge = 1e-6 * np.trace(gram) / max(n, 1)
-        for i in range(n):
-            gram[i, i] += ridge
-        inverse = np.linalg.inv(gram)
-        cross = dg.T @ g
-        q = dg.T @ dg - cross @ inverse @ cross.T
-        gram2 = both.T @ both
+                both[i, j] = _table_at(table, x, period, oversampling)
+                both[n + i, j] = _table_at(dtable, x, period, oversampling)
+        gram2 = both @ both.T
+        ridge = 1e-6 * np.trace(gram2[:n, :n]) / max(n, 1)
         for i in range(2 * n):
             gram2[i, i] += ridge
+        inverse = np.linalg.inv(gram2[:n, :n].copy())
+        cross = gram2[n:, :n].copy()
+        q = gram2[n:, n:] - cross @ inverse @ cross.T
+        for i in range(n):
+            q[i, i] -= ridge
+        inverse2 = np.linalg.inv(gram2)
         for k in range(start, stop):
             y = taps[k]
-            uv = np.zeros(2 * n, dtype=np.complex128)
             for j in range(n_lags):
-                yj = np.complex128(y[j])
-                for i in range(n):
-                    uv[i] += g[j, i] * yj
-                    uv[n + i] += dg[j, i] * yj
-            a = np.zeros(n, dtype=np.complex128)
-            ca = np.zeros(n, dtype=np.complex128)
-            for i in range(n):
-                for m in range(n):
-                    a[i] += inverse[i, m] * uv[m]
-            for i in range(n):
-                for m in range(n):
-                    ca[i] += cross[i, m] * a[m]
-            c = _solve_small(gram2, uv) if n > 0 else uv
+                y_re[j] = y[j].real
+                y_im[j] = y[j].imag
+            for i in range(2 * n):
+                row = both[i]
+                acc_re = 0.0
+                acc_im = 0.0
+                for j in range(n_lags):
+                    acc_re += row[j] * y_re[j]
+                    acc_im += row[j] * y_im[j]
+                uv_re[i] = acc_re
+                uv_im[i] = acc_im
             for j in range(n_lags):
-                r = np.complex128(y[j])
-                for i in range(2 * n):
-                    r -= both[j, i] * c[i]
-                residual_power[j] += r.real * r.real + r.imag * r.imag
+                r_re[j] = y_re[j]
+                r_im[j] = y_im[j]
+            for i in range(2 * n):
+                c_re = 0.0
+                c_im = 0.0
+                for m in range(2 * n):
+                    c_re += inverse2[i, m] * uv_re[m]
+                    c_im += inverse2[i, m] * uv_im[m]
+                row = both[i]
+                for j in range(n_lags):
+                    r_re[j] -= row[j] * c_re
+                    r_im[j] -= row[j] * c_im
+            for j in range(n_lags):
+                residual_power[j] += r_re[j] * r_re[j] + r_im[j] * r_im[j]
             for i in range(n):
-                amplitudes[k, i] = a[i]
+                a_re = 0.0
+                a_im = 0.0
+                for m in range(n):
+                    a_re += inverse[i, m] * uv_re[m]
+                    a_im += inverse[i, m] * uv_im[m]
+                amplitudes[k, i] = complex(a_re, a_im)
                 lags[k, i] = lam[i] + rate[i] * (k - start - mid)
                 variance[k, i] = inverse[i, i]
-                # d(model)/d(lambda_i) = -a_i g'_i: gradient term Re(J^H r), r = y - G a orthogonal to G.
-                grad[i] += -(np.conj(a[i]) * (uv[n + i] - ca[i])).real
+            for i in range(n):
+                ca = 0j
                 for m in range(n):
-                    hess[i, m] += q[i, m] * (np.conj(a[i]) * a[m]).real
+                    ca += cross[i, m] * amplitudes[k, m]
+                a = amplitudes[k, i]
+                # d(model)/d(lambda_i) = -a_i g'_i: gradient term Re(J^H r), r = y - G a orthogonal to G.
+                grad[i] += -(np.conj(a) * (complex(uv_re[n + i], uv_im[n + i]) - ca)).real
+                for m in range(n):
+                    hess[i, m] += q[i, m] * (np.conj(a) * amplitudes[k, m]).real
         for i in range(n):
             delay[i] += rate[i] * count
         pending += count
@@ -584,7 +600,17 @@ def detect_paths(power: np.ndarray, lag0: int, limit: float, existing: np.ndarra
 
 @dataclass
 class _Path:
-    """State of one tracked path (grid delay: samples, on the lock's frame grid)."""
+    """State of one tracked path.
+
+    ``delay`` (samples, on the lock's frame grid) and ``rate`` (samples per
+    frame) are its delay loop; ``age``, ``steady`` and ``fading`` count
+    batches (lived, held still, below the survival SNR); ``prev_*`` carry
+    its last amplitude and window start to the next batch's phase step;
+    ``smooth_hz`` and ``run_cycles`` are the slip detector's state; ``power``
+    and ``noise`` its mean amplitude power and amplitude noise over the last
+    batch; ``born`` until its first row is written; ``first`` while it is
+    its tower's first path.
+    """
 
     path_id: int
     tower_id: int
@@ -601,6 +627,7 @@ class _Path:
     power: float = 0.0
     noise: float = 0.0
     born: bool = True
+    first: bool = False
 
 
 @dataclass
@@ -748,37 +775,39 @@ class PathTracker:
             p.steady = p.steady + 1 if abs(moved) < cfg.steady_move and p.power >= survival * p.noise else 0
             p.confirmed = p.confirmed or p.steady >= cfg.confirm_batches
 
-        rows = self._rows(paths, amplitudes, lags, rate, bridged, slips, variance, noise, t_s, frame_index)
-        first = self._first_paths(paths, lags, bridged, power, noise, t_s, dt)
+        first_of = self._choose_first_paths(paths, lags)
+        rows = self._rows(paths, amplitudes, lags, rate, bridged, slips, noise, t_s, frame_index)
+        first = self._first_paths(paths, first_of, lags, bridged, power, noise, t_s, dt)
         self._last_t_s = float(t_s[-1])
         self._maintain(residual / (noise_floor * count), noise_floor, offsets, count)
         return PathUpdate(rows, first)
 
     # ---- per-batch bookkeeping -------------------------------------------------------------
 
-    def _confirmed(self, paths: list[_Path]) -> np.ndarray:
-        return np.array([p.confirmed for p in paths], dtype=bool)
+    def _choose_first_paths(self, paths: list[_Path], lags: np.ndarray) -> dict[int, int]:
+        """Tower id -> index of its first path: the earliest confirmed, mature path (mean lag over the batch).
 
-    def _first_indices(self, paths: list[_Path], lags: np.ndarray) -> dict[int, int]:
-        """Tower id -> index of its earliest confirmed, mature, non-fading path (mean lag over the batch)."""
+        A fading path does not become a first path; the first path stays one
+        while it lives (a short fade does not hand its range to a reflection).
+        """
         first: dict[int, int] = {}
-        confirmed = self._confirmed(paths)
         mean_lag = lags.mean(axis=0) if len(lags) else np.zeros(len(paths))
         for i, p in enumerate(paths):
-            eligible = confirmed[i] and p.age >= self.config.first_path_batches and not p.fading
+            eligible = p.confirmed and p.age >= self.config.first_path_batches and (p.first or not p.fading)
             if eligible and (p.tower_id not in first or mean_lag[i] < mean_lag[first[p.tower_id]]):
                 first[p.tower_id] = i
+        for i, p in enumerate(paths):
+            p.first = first.get(p.tower_id) == i
         return first
 
     def _rows(self, paths: list[_Path], amplitudes: np.ndarray, lags: np.ndarray, rate: np.ndarray,
-              bridged: np.ndarray, slips: np.ndarray, variance: np.ndarray, noise: np.ndarray, t_s: np.ndarray,
+              bridged: np.ndarray, slips: np.ndarray, noise: np.ndarray, t_s: np.ndarray,
               frame_index: np.ndarray) -> PathBatch:
         """One row per frame and confirmed path."""
-        confirmed = np.flatnonzero(self._confirmed(paths))
+        confirmed = [i for i, p in enumerate(paths) if p.confirmed]
         count = len(t_s)
         if len(confirmed) == 0:
             return PathBatch.concatenate([])
-        first = set(self._first_indices(paths, lags).values())
         noise_sample = noise * self.header_gain
         cols = {name: [] for name in ("t_s", "frame_index", "path_id", "tower_id", "delay_s", "delay_rate", "cfo_hz",
                                       "snr_db", "flags")}
@@ -787,7 +816,7 @@ class PathTracker:
             p = paths[i]
             flags = np.zeros(count, np.uint8)
             flags[slips[:, i]] |= np.uint8(PathFlag.CYCLE_SLIP)
-            if i in first:
+            if p.first:
                 flags |= np.uint8(PathFlag.FIRST_PATH)
             if p.fading:
                 flags |= np.uint8(PathFlag.FADING)
@@ -812,11 +841,10 @@ class PathTracker:
         nan = np.full(len(order), np.nan)
         return PathBatch(doppler_hz=nan, range_change_m=nan.copy(), **out)
 
-    def _first_paths(self, paths: list[_Path], lags: np.ndarray, bridged: np.ndarray, power: np.ndarray,
-                     noise: np.ndarray, t_s: np.ndarray, dt: np.ndarray) -> dict[str, np.ndarray]:
+    def _first_paths(self, paths: list[_Path], first: dict[int, int], lags: np.ndarray, bridged: np.ndarray,
+                     power: np.ndarray, noise: np.ndarray, t_s: np.ndarray, dt: np.ndarray) -> dict[str, np.ndarray]:
         """The per-frame first-path columns and the towers' range differences."""
         count = len(t_s)
-        first = self._first_indices(paths, lags)
         out = {"first_path_cfo_hz": np.full(count, np.nan), "first_path_delay_s": np.full(count, np.nan),
                "first_path_snr_db": np.full(count, np.nan, np.float32), "first_path_id": np.full(count, -1, np.int32),
                "tower_count": np.full(count, len(first), np.uint8)}
