@@ -62,7 +62,6 @@ from functools import lru_cache
 
 import numpy as np
 from numba import njit
-from scipy.stats import gamma
 
 from dtmbnav.core import gb20600
 from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
@@ -535,6 +534,8 @@ def detection_threshold(frames: int, false_alarm: float) -> float:
     The mean of ``frames`` exponential variables (the power of a complex
     Gaussian tap, unit mean) is ``Gamma(frames, 1 / frames)``.
     """
+    from scipy.stats import gamma  # here, not at module level: importing the receiver stays free of scipy.stats
+
     return float(gamma.isf(false_alarm, a=frames, scale=1.0 / frames))
 
 
