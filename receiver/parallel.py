@@ -2,9 +2,11 @@
 
 Once the frame windows of a batch are placed (:meth:`receiver.tracking.FrameTracker.predict`),
 each frame's header-window derotation, channel estimate (:mod:`receiver.channel_estimate`,
-and the path tracker's wider span of it when asked for), body recovery (:mod:`receiver.body`) and SI carriers (:mod:`receiver.ofdm`) depend on
-that frame's samples only; the timing loop and the estimators that link consecutive
-frames run afterwards, in order, on the main thread.
+and the path tracker's wider span of it when asked for), body recovery
+(:mod:`receiver.body`) and SI carriers (:mod:`receiver.ofdm`) depend on that frame's
+samples only; the timing loop, the estimators and the path tracker
+(:mod:`receiver.paths`), which link consecutive frames, run afterwards, in order, on
+the main thread.
 
 A batch is cut into blocks of :data:`FRAME_BLOCK` frames. The blocks are the same
 whatever the number of threads, each is computed by one thread with its own buffers

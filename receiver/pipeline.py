@@ -415,7 +415,9 @@ class Receiver:
         starts = starts[:count]
         frame_index = lock.next_frame_index + np.arange(count)
         phases = lock.phases(np.concatenate([frame_index, frame_index[-1:] + 1]))
-        tracker = self._path_tracker if self._path_tracker is not None and lock.mode == self._path_tracker.mode else None
+        tracker = self._path_tracker
+        if tracker is not None and lock.mode != tracker.mode:
+            tracker = None
         frames = self._workers.run(lock.mode, BatchWindows(self._queue.view, starts, phases, lock.header_symbols(phases),
                                                            lock.cfo_cycles_per_sample, lock.rot),
                                    keep_bodies=cfg.inspect is not None,
@@ -440,8 +442,8 @@ class Receiver:
         self.stage_seconds["estimators"] += t4 - t3
         if tracker is not None:  # sequential (its loops link the frames): on this thread, in frame order
             assert frames.span is not None
-            found = tracker.update(frames.span.raw_taps, frames.span.noise_tap, starts, frame_index, periods / lock.tracker.nominal_period - 1.0,
-                                   rows.t_s, lock.acq.coarse_cfo_hz)
+            found = tracker.update(frames.span.raw_taps, frames.span.noise_tap, starts, frame_index,
+                                   periods / lock.tracker.nominal_period - 1.0, rows.t_s, lock.acq.coarse_cfo_hz)
             rows = replace(rows, **found.first_path)
             keep = len(rows) if lost_at is None else lost_at
             self.path_ranging.push(found.rows.select(found.rows.frame_index < frame_index[0] + keep))
