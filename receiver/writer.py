@@ -22,7 +22,13 @@ import numpy as np
 
 from dtmbnav.core import schema
 from dtmbnav.core.h5io import atomic_h5, package_version
-from dtmbnav.core.records import FRAME_COLUMN_DTYPES, PATH_COLUMN_DTYPES, FrameBatch, FrameFlag, PathBatch
+from dtmbnav.core.records import (
+    FRAME_COLUMN_DTYPES,
+    PATH_COLUMN_DTYPES,
+    FrameBatch,
+    FrameFlag,
+    PathBatch,
+)
 
 #: Unit of each column (written as ``units`` attribute, "column:unit" pairs).
 COLUMN_UNITS = {
