@@ -172,7 +172,7 @@ def test_path_ranging_is_eq_11_per_path_from_its_first_row():
 def test_two_paths_half_a_chip_apart_10_db_apart_with_their_own_dopplers():
     paths = [SignalPath(0.3, 1.0, 5.0), SignalPath(0.8, 10 ** (-10 / 20) * np.exp(1j), -3.0)]
     n = int(2.5 * SYMBOL_RATE_HZ)
-    frames, rows, _ = run_receiver(make_paths_signal(n, paths, start_symbol=START, snr_db=15))
+    _, rows, _ = run_receiver(make_paths_signal(n, paths, start_symbol=START, snr_db=15))
     rows = settled(rows, 1.6)
     ids = np.unique(rows.path_id)
     assert len(ids) == 2
