@@ -16,9 +16,11 @@ is limited to one thread so that "one core" means one core):
 - receiver: the streaming receiver on an 8 s cf32 capture at 7.56 Msps (best
   of 3 runs): end to end including acquisition (one thread and
   ``jobs = 2``), steady state (acquisition left out) and per stage
-  (acquisition, sync, channel estimate, body recovery, SI DFT, estimators),
-  against the per-frame numpy pipeline (:mod:`receiver.reference`), which
-  starts from a finished acquisition;
+  (acquisition, sync, channel estimate, body recovery, SI DFT, estimators,
+  path tracking), against the per-frame numpy pipeline
+  (:mod:`receiver.reference`), which starts from a finished acquisition;
+  and end to end once more with the path tracker switched off
+  (``ReceiverConfig.track_paths``), the rate it is measured against;
 - receive command: ``dtmbnav receive`` as a user runs it, a child process
   on a generated ci8 capture at 7.56 Msps, pinned to one core (two for
   ``--jobs 2``): wall time including interpreter start-up, imports, reading
@@ -39,7 +41,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numba
@@ -211,11 +213,10 @@ def bench_receiver(seconds: float, reference_frames: int, repeats: int) -> list[
     for _ in receive_stream([x[: int(0.2 * SYMBOL_RATE_HZ)]], SYMBOL_RATE_HZ, generator.carrier_hz, config):
         pass
 
-    def fastest(jobs: int) -> tuple[float, Receiver, int]:
+    def fastest(cfg: ReceiverConfig) -> tuple[float, Receiver, int]:
         best: tuple[float, Receiver, int] | None = None
         for _ in range(repeats):
-            rx = Receiver(SYMBOL_RATE_HZ, generator.carrier_hz,
-                          ReceiverConfig(static_window_s=config.static_window_s, jobs=jobs))
+            rx = Receiver(SYMBOL_RATE_HZ, generator.carrier_hz, cfg)
             t0 = time.perf_counter()
             frames = sum(len(b) for b in receive_stream((x[i:i + (1 << 20)] for i in range(0, len(x), 1 << 20)),
                                                          SYMBOL_RATE_HZ, generator.carrier_hz, receiver=rx))
@@ -227,8 +228,9 @@ def bench_receiver(seconds: float, reference_frames: int, repeats: int) -> list[
             raise RuntimeError("benchmark receiver produced no frames")
         return best
 
-    elapsed, rx, frames = fastest(1)
-    elapsed_2, _, _ = fastest(2)
+    elapsed, rx, frames = fastest(config)
+    elapsed_2, _, _ = fastest(replace(config, jobs=2))
+    elapsed_off, _, frames_off = fastest(replace(config, track_paths=False))
     ref_stages: dict[str, float] = {}
     t0 = time.perf_counter()
     receive_reference(x, rx.acquisitions[0], reference_frames, stage_seconds=ref_stages)
@@ -241,6 +243,10 @@ def bench_receiver(seconds: float, reference_frames: int, repeats: int) -> list[
                      f"cf32 7.56 Msps, {seconds:g} s capture, {best_of}{frames / elapsed:.0f} frames/s"),
             BenchRow("receiver end to end, jobs 2", "samples/s", len(x) / elapsed_2, None,
                      len(x) / elapsed_2 / SYMBOL_RATE_HZ, "the same, per-frame work on 2 threads"),
+            BenchRow("receiver end to end, path tracking off", "samples/s", len(x) / elapsed_off, None,
+                     len(x) / elapsed_off / SYMBOL_RATE_HZ,
+                     f"{frames_off / elapsed_off:.0f} frames/s; with tracking "
+                     f"{100 * elapsed_off / elapsed:.0f} % of this speed"),
             BenchRow("receiver steady state (after acquisition)", "samples/s", len(x) / locked,
                      samples_per_frame / ref_per_frame, len(x) / locked / SYMBOL_RATE_HZ,
                      f"{frames / locked:.0f} frames/s; reference {1 / ref_per_frame:.0f} frames/s")]

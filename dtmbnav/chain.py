@@ -30,12 +30,13 @@ import numpy as np
 
 from dtmbnav.core import schema
 from dtmbnav.core.h5io import atomic_folder, atomic_h5, open_h5, read_attrs, read_columns, write_columns
-from dtmbnav.core.records import FrameFlag, ImuLog, RangeSeries
+from dtmbnav.core.records import FrameFlag, ImuLog, PathFlag, PathRangeSeries, RangeSeries
 from dtmbnav.core.sensors import (read_capture_start_s, read_gnss, read_imu, read_tower, read_walk_truth,
                                   read_weinberg_k_m)
 from dtmbnav.errors import NoResult
 from dtmbnav.receive import receive_capture
 from fusion.pdr import PdrConfig, PdrResult, run_pdr
+from fusion.observations import PathRanges
 from fusion.run import FusionConfig, FusionResult, fuse
 from receiver.capture import open_capture
 from receiver.pipeline import ReceiverConfig
@@ -160,6 +161,108 @@ def ranges_from_frames(columns: dict[str, np.ndarray], time_offset_s: float = 0.
                        segment_id=segment)
 
 
+#: ``/receiver/frames`` columns of the path tracker's tower differences (tower k minus tower 0, k = 1, 2).
+RANGE_DIFFERENCE_COLUMNS = {1: "range_difference_change_1_m", 2: "range_difference_change_2_m"}
+
+
+def read_receiver_paths(path: str | os.PathLike) -> dict[str, np.ndarray] | None:
+    """The ``/receiver/paths`` columns of a receiver file (None when it has none: tracker off, older file)."""
+    with open_h5(path) as f:
+        if schema.RECEIVER_PATHS not in f:
+            return None
+    return read_columns(path, schema.RECEIVER_PATHS)
+
+
+def _run_age_s(t_s: np.ndarray, key: np.ndarray, tracked: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Time since each tracked run of equal ``key`` began (s; NaN where not tracked), and where a run begins."""
+    begins = tracked & ~np.concatenate([[False], tracked[:-1] & (key[1:] == key[:-1])])
+    run_start = np.maximum.accumulate(np.where(begins, np.arange(len(t_s)), 0))
+    return np.where(tracked, t_s - t_s[run_start], np.nan), begins
+
+
+def _tower_first_paths(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray] | None,
+                       tower: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per frame: the id, SNR (dB) and cycle-slip flag of a tower's first path in ``/receiver/paths``.
+
+    Frames where the tower has none get id -1, NaN and False. Tower 0's id
+    and SNR are the frame columns' (``first_path_id``, ``first_path_snr_db``);
+    without the group no slip is known.
+    """
+    n = len(frames["t_s"])
+    ids, snr, slip = np.full(n, -1, np.int64), np.full(n, np.nan), np.zeros(n, bool)
+    if tower == 0:
+        ids, snr = frames["first_path_id"].astype(np.int64), frames["first_path_snr_db"].astype(np.float64)
+    if rows is None:
+        return ids, snr, slip
+    flags = rows["flags"].astype(np.int64)
+    sel = np.flatnonzero(((flags & int(PathFlag.FIRST_PATH)) != 0) & (rows["tower_id"] == tower))
+    # Join on frame_index (increasing in both groups); rows of frames not in /receiver/frames are left out.
+    at = np.minimum(np.searchsorted(frames["frame_index"], rows["frame_index"][sel]), n - 1)
+    found = frames["frame_index"][at] == rows["frame_index"][sel]
+    sel, at = sel[found], at[found]
+    ids[at] = rows["path_id"][sel]
+    snr[at] = rows["snr_db"][sel]
+    slip[at] = (flags[sel] & int(PathFlag.CYCLE_SLIP)) != 0
+    return ids, snr, slip
+
+
+def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray] | None, n_towers: int,
+                      time_offset_s: float = 0.0) -> PathRanges | None:
+    """The path tracker's output of a receiver file -> the :class:`PathRanges` fusion consumes (docs/paths.md).
+
+    Tower 0's first-path range is the ``first_path_range_change_m`` column;
+    the difference of tower k's and tower 0's ranges (k < ``n_towers``) the
+    ``range_difference_change_k_m`` column. The receiver numbers towers in the
+    order it finds them, which is taken as the geometry's order. An origin
+    break (``slip``) is a cycle slip of a first path (``/receiver/paths``
+    ``CYCLE_SLIP``) or a change of first path: the path age restarts there,
+    and for a difference also where it starts again after a gap. Frames
+    flagged as a gap or low quality are invalid. Returns None for a file
+    without the first-path columns (path tracker off).
+    """
+    if "first_path_range_change_m" not in frames:
+        return None
+    t = frames["t_s"] + time_offset_s
+    usable = (frames["flags"].astype(np.int64) & int(UNUSABLE_FLAGS)) == 0
+    towers = [_tower_first_paths(frames, rows, k) for k in range(n_towers)]
+
+    def series(values: np.ndarray, key: np.ndarray, tracked: np.ndarray, snr_db: np.ndarray,
+               slip: np.ndarray) -> PathRangeSeries:
+        age, begins = _run_age_s(t, key, tracked)
+        return PathRangeSeries(t_s=t, range_change_m=np.where(tracked, values, 0.0), snr_db=snr_db,
+                               valid=tracked & usable, slip=(slip | begins) & tracked,
+                               path_age_s=np.where(tracked, age, 0.0))
+
+    ids0, snr0, slip0 = towers[0]
+    rng0 = frames["first_path_range_change_m"]
+    first = {0: series(rng0, ids0, (ids0 >= 0) & np.isfinite(rng0), snr0, slip0)}
+    differences = {}
+    for k, name in RANGE_DIFFERENCE_COLUMNS.items():
+        if k >= n_towers or name not in frames:
+            continue
+        ids_k, snr_k, slip_k = towers[k]
+        diff = frames[name]
+        # A pair key: the difference restarts when either tower's first path changes.
+        key = ids0 * (1 << 32) + ids_k if rows is not None else np.zeros(len(t), np.int64)
+        differences[k] = series(diff, key, np.isfinite(diff), np.fmin(snr0, snr_k), slip0 | slip_k)
+    return PathRanges(first_path=first, differences=differences)
+
+
+def read_other_towers(sensors_path: str | os.PathLike) -> tuple[tuple[float, float, float], ...]:
+    """Further towers of a simulated single-frequency network: ``[[towers]]`` after the first, from the
+    scenario recorded in ``/truth/frames`` (x, y, height, m); empty when there are none."""
+    with open_h5(sensors_path) as f:
+        text = f[schema.TRUTH_FRAMES].attrs.get("scenario") if schema.TRUTH_FRAMES in f else None
+    if text is None:
+        return ()
+    try:
+        sites = tomllib.loads(str(text)).get("towers", [])
+        return tuple((float(s["x_m"]), float(s["y_m"]), float(s["height_m"])) for s in sites[1:])
+    except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError, AttributeError):
+        raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: unreadable [[towers]] in the scenario record; "
+                         "give --tower X,Y") from None
+
+
 def resolve_pdr_config(config: PdrConfig, sensors_path: str | os.PathLike) -> PdrConfig:
     """Fill in the Weinberg gain from the sensors file when the user gave none.
 
@@ -222,6 +325,7 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
         fix = read_gnss(sensors_path)[1]
         start_xy_m = (fix.x_m, fix.y_m)
     height_m = 0.0
+    other_towers: tuple[tuple[float, float, float], ...] = ()
     if tower_xy_m is None:
         with open_h5(sensors_path) as f:
             if schema.TRUTH_TRAJECTORY not in f:
@@ -229,12 +333,15 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
                                  "--tower X,Y")
         *tower_xy, height_m = read_tower(sensors_path)
         tower_xy_m = (tower_xy[0], tower_xy[1])
+        other_towers = read_other_towers(sensors_path)
     ranges = ranges_from_frames(frames, capture_start_s)
+    paths = paths_from_frames(frames, read_receiver_paths(receiver_path), 1 + len(other_towers), capture_start_s)
     pdr = run_pdr(imu, pdr_config)
     if len(pdr.steps) == 0:
         raise NoResult(f"{sensors_path}: /{schema.IMU}: the PDR found no steps; nothing to fuse")
     config = FusionConfig(seed=seed) if n_particles is None else FusionConfig(n_particles=n_particles, seed=seed)
-    result = fuse(pdr.steps, ranges, start_xy_m, tower_xy_m, filters, tower_height_m=height_m, config=config)
+    result = fuse(pdr.steps, ranges, start_xy_m, tower_xy_m, filters, tower_height_m=height_m,
+                  other_towers=other_towers, paths=paths, config=config)
     with atomic_h5(out_path) as h5:
         write_columns(h5, schema.RECEIVER_FRAMES, frames, rx_attrs)
         write_pdr(h5, pdr, pdr_config)

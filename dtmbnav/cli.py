@@ -275,7 +275,8 @@ def _receiver_config(args: argparse.Namespace):
 
     return ReceiverConfig(pn_mode=args.pn_mode, static_window_s=args.static_window,
                           clock_offset_hz=args.clock_offset,
-                          iq_orientation="conjugate" if args.conjugate else "auto", jobs=args.jobs)
+                          iq_orientation="conjugate" if args.conjugate else "auto", jobs=args.jobs,
+                          track_paths=not args.no_paths)
 
 
 def _pdr_config(args: argparse.Namespace):
@@ -427,6 +428,8 @@ def _add_receiver_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--clock-offset", type=_number, metavar="HZ",
                    help="oscillator offset f_s in Hz, if known (skips the static window)")
     g.add_argument("--conjugate", action="store_true", help="the front end swaps I and Q")
+    g.add_argument("--no-paths", action="store_true",
+                   help="skip the path tracker (/receiver/paths, first-path and range-difference columns)")
 
 
 def _add_pdr_options(p: argparse.ArgumentParser) -> None:

@@ -31,6 +31,8 @@ class ReceiveSummary:
         Span of the frames, s.
     ended_early : str or None
         Why the input ended before its end (an interrupt, a stream cut inside an IQ pair), None when it did not.
+    path_rows : int
+        Rows written to ``/receiver/paths``.
     """
 
     frames: int
@@ -38,13 +40,17 @@ class ReceiveSummary:
     gaps: int
     seconds: float
     ended_early: str | None = None
+    path_rows: int = 0
 
     def describe(self) -> str:
         if not self.frames:
             return "no lock: no DTMB signal found in the capture (no frames)"
         a = self.attrs
-        return (f"{self.frames} frames over {self.seconds:.1f} s, {a.get('pn_mode')}, SI word {a.get('si_index')}, "
+        text = (f"{self.frames} frames over {self.seconds:.1f} s, {a.get('pn_mode')}, SI word {a.get('si_index')}, "
                 f"f_s = {a.get('clock_offset_hz', float('nan')):.2f} Hz, {self.gaps} gap(s)")
+        if a.get("path_tracking"):
+            text += f", {self.path_rows} path rows"
+        return text
 
 
 def receive_capture(source: CaptureSource, out_path: str | os.PathLike, config: ReceiverConfig,
@@ -53,4 +59,4 @@ def receive_capture(source: CaptureSource, out_path: str | os.PathLike, config: 
     sink, attrs = receive_file(source, out_path, config, csv_path=csv_path, progress=progress)
     span = sink.last_t_s - sink.first_t_s if sink.frames else 0.0
     return ReceiveSummary(frames=sink.frames, attrs=attrs, gaps=sink.gaps, seconds=span,
-                          ended_early=attrs.get(ENDED_EARLY_ATTR))
+                          ended_early=attrs.get(ENDED_EARLY_ATTR), path_rows=sink.paths)

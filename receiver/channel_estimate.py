@@ -127,6 +127,7 @@ class ChannelEstimator:
             self._model = model
             self._windows = np.zeros((batch, self.window_length), dtype=np.complex64)
         self.reference_length = self.window_length
+        self._span_cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
     @cached_property
     def _references(self) -> np.ndarray:
@@ -172,6 +173,43 @@ class ChannelEstimator:
                               self.reference_length, self.taps_before, out.taps, out.snr_db, out.noise_power,
                               out.peak_metric, out.centroid)
         return out
+
+    def span_taps(self, count: int, taps_before: int, taps_after: int) -> tuple[np.ndarray, np.ndarray]:
+        """Raw taps over another delay span, from the correlations of the last :meth:`estimate` (PN420/PN945).
+
+        The path tracker (:mod:`receiver.paths`) reads the channel over a
+        wider span than body recovery needs (up to the header's whole cyclic
+        extension, where every path's estimate is still free of the previous
+        body and of the header tails); the same correlations give it, with the
+        m-sequence sidelobes removed over that span (:func:`deconvolve_kernel`).
+
+        Returns
+        -------
+        raw : ndarray, complex64, (count, taps_before + taps_after)
+            Column ``j`` is delay ``j - taps_before`` samples.
+        noise_tap : ndarray, (count,)
+            Mean tap power on the lags outside the span (the tap noise floor).
+        """
+        tap_bins, noise_bins = self._span_bins(taps_before, taps_after)
+        raw = np.empty((count, len(tap_bins)), np.complex64)
+        noise_tap = np.empty(count)
+        deconvolve_kernel(self._corr[:count], tap_bins, noise_bins, raw, noise_tap)
+        return raw, noise_tap
+
+    def _span_bins(self, taps_before: int, taps_after: int) -> tuple[np.ndarray, np.ndarray]:
+        """Correlation lags of a span and the noise lags outside it (:meth:`span_taps`; made once per span)."""
+        key = (taps_before, taps_after)
+        if key not in self._span_cache:
+            self._span_cache[key] = self._make_span_bins(taps_before, taps_after)
+        return self._span_cache[key]
+
+    def _make_span_bins(self, taps_before: int, taps_after: int) -> tuple[np.ndarray, np.ndarray]:
+        m = self.mode.value
+        if not self.cyclic or taps_after > m.preamble or taps_before > m.postamble or taps_before + taps_after < 1:
+            raise ValueError(f"{self.mode.name}: a path span of -{taps_before}..{taps_after} samples needs a cyclic "
+                             f"header (span within -{m.postamble}..{m.preamble})")
+        tap_bins = np.arange(-taps_before, taps_after) % m.period
+        return tap_bins, np.setdiff1d(np.arange(m.period), tap_bins)
 
     def _deconvolve(self, corr: np.ndarray) -> np.ndarray:
         """Remove the m-sequence sidelobes from the correlation (exact for a channel inside the tap span).

@@ -1,10 +1,12 @@
 """The per-frame work of a batch (channel estimate, body recovery, SI DFT) on one or more threads.
 
 Once the frame windows of a batch are placed (:meth:`receiver.tracking.FrameTracker.predict`),
-each frame's header-window derotation, channel estimate (:mod:`receiver.channel_estimate`),
-body recovery (:mod:`receiver.body`) and SI carriers (:mod:`receiver.ofdm`) depend on
-that frame's samples only; the timing loop and the estimators that link consecutive
-frames run afterwards, in order, on the main thread.
+each frame's header-window derotation, channel estimate (:mod:`receiver.channel_estimate`,
+and the path tracker's wider span of it when asked for), body recovery
+(:mod:`receiver.body`) and SI carriers (:mod:`receiver.ofdm`) depend on that frame's
+samples only; the timing loop, the estimators and the path tracker
+(:mod:`receiver.paths`), which link consecutive frames, run afterwards, in order, on
+the main thread.
 
 A batch is cut into blocks of :data:`FRAME_BLOCK` frames. The blocks are the same
 whatever the number of threads, each is computed by one thread with its own buffers
@@ -70,6 +72,22 @@ class BatchWindows:
 
 
 @dataclass
+class SpanTaps:
+    """The channel over the path tracker's delay span (:meth:`receiver.channel_estimate.ChannelEstimator.span_taps`).
+
+    Attributes
+    ----------
+    raw_taps : ndarray, complex64, (B, taps_before + taps_after)
+        Column ``j`` is delay ``j - taps_before`` samples.
+    noise_tap : ndarray, (B,)
+        Mean tap power on the lags outside the span.
+    """
+
+    raw_taps: np.ndarray
+    noise_tap: np.ndarray
+
+
+@dataclass
 class BatchFrames:
     """Per-frame results of a batch, in frame order.
 
@@ -81,6 +99,8 @@ class BatchFrames:
     bodies : ndarray, complex64, (B, 3780) or None
         Recovered bodies without their coarse-CFO phase (see :func:`receiver.body.body_phases`), only when
         asked for (``ReceiverConfig.inspect``).
+    span : SpanTaps or None
+        The channel over the span asked for (``span`` of :meth:`FrameWorkers.run`), else None.
     seconds : dict
         Time spent per stage of :data:`BLOCK_STAGES`, summed over the blocks (over
         the threads' time when several run at once).
@@ -89,6 +109,7 @@ class BatchFrames:
     channel: ChannelEstimates
     si: np.ndarray
     bodies: np.ndarray | None
+    span: SpanTaps | None
     seconds: dict[str, float]
 
 
@@ -124,11 +145,16 @@ class FrameWorkers:
             estimators[mode] = ChannelEstimator(mode, FRAME_BLOCK, *self._taps)
         return estimators[mode]
 
-    def run(self, mode: PnMode, windows: BatchWindows, keep_bodies: bool = False) -> BatchFrames:
-        """Channel estimates, SI carriers (and bodies when ``keep_bodies``) of every frame of a batch."""
+    def run(self, mode: PnMode, windows: BatchWindows, keep_bodies: bool = False,
+            span: tuple[int, int] | None = None) -> BatchFrames:
+        """Channel estimates, SI carriers (and bodies when ``keep_bodies``) of every frame of a batch.
+
+        ``span`` = ``(taps_before, taps_after)``: also the raw taps over that delay span (the path
+        tracker's, :mod:`receiver.paths`; PN420 and PN945 only).
+        """
         count = len(windows.starts)
         blocks = [(lo, min(lo + FRAME_BLOCK, count)) for lo in range(0, count, FRAME_BLOCK)]
-        work = partial(self._block, mode, windows, keep_bodies=keep_bodies)
+        work = partial(self._block, mode, windows, keep_bodies=keep_bodies, span=span)
 
         def run_share(share: list[tuple[int, int]]) -> list[tuple]:
             return [work(*block) for block in share]
@@ -144,8 +170,10 @@ class FrameWorkers:
                                       for f in fields(ChannelEstimates)})
         si = np.concatenate([p[1] for p in parts])
         bodies = np.concatenate([p[2] for p in parts]) if keep_bodies else None
-        seconds = {stage: sum(p[3][i] for p in parts) for i, stage in enumerate(BLOCK_STAGES)}
-        return BatchFrames(channel, si, bodies, seconds)
+        spans = SpanTaps(np.concatenate([p[3][0] for p in parts]),
+                         np.concatenate([p[3][1] for p in parts])) if span is not None else None
+        seconds = {stage: sum(p[4][i] for p in parts) for i, stage in enumerate(BLOCK_STAGES)}
+        return BatchFrames(channel, si, bodies, spans, seconds)
 
     def close(self) -> None:
         """Stop the threads (the object cannot run batches afterwards)."""
@@ -159,8 +187,9 @@ class FrameWorkers:
             local.estimators, local.ofdm = {}, OfdmDemodulator(FRAME_BLOCK)
         return local.estimators, local.ofdm
 
-    def _block(self, mode: PnMode, w: BatchWindows, lo: int, hi: int,
-               keep_bodies: bool) -> tuple[ChannelEstimates, np.ndarray, np.ndarray | None, tuple[float, ...]]:
+    def _block(self, mode: PnMode, w: BatchWindows, lo: int, hi: int, keep_bodies: bool,
+               span: tuple[int, int] | None) -> tuple[ChannelEstimates, np.ndarray, np.ndarray | None,
+                                                      tuple[np.ndarray, np.ndarray] | None, tuple[float, ...]]:
         """Frames ``lo:hi`` of a batch, on this thread's buffers."""
         est, ofdm = self._estimator(mode), self._buffers()[1]
         taps_before, taps_after = self._taps[:2]
@@ -173,6 +202,7 @@ class FrameWorkers:
         derotate_segments(buf, buf_start, starts + est.window_offset, est.window_length, w.cfo_cycles_per_sample,
                           w.rot, est.windows)
         ch = est.estimate(hi - lo, w.phases[lo:hi])
+        span_taps = est.span_taps(hi - lo, *span) if span is not None else None
         t1 = time.perf_counter()
         phase = body_phases(starts, ng, taps_before, w.cfo_cycles_per_sample)
         recover_bodies(buf, buf_start, starts, ng, w.rot, phase, ch.taps, taps_before, w.headers[lo:hi],
@@ -181,4 +211,4 @@ class FrameWorkers:
         si = ofdm.si_carriers(hi - lo, phase)
         t3 = time.perf_counter()
         bodies = ofdm.bodies[: hi - lo].copy() if keep_bodies else None
-        return ch, si, bodies, (t1 - t0, t2 - t1, t3 - t2)
+        return ch, si, bodies, span_taps, (t1 - t0, t2 - t1, t3 - t2)

@@ -8,6 +8,8 @@ Data path (each stage its own module)::
          header-tail removal + cyclic reconstruction (body.py), SI carriers (ofdm.py)
       -> timing loop / loss of lock (tracking.py)
       -> SI and PN CFO estimates (cfo.py) -> f_s, Doppler, range (ranging.py)
+      beside them: the paths in the header CIR, their delays and carrier phases,
+      the first path's range and the towers' range differences (paths.py)
 
 The receiver works on the 7.56 Msps stream in fixed batches of
 ``batch_frames`` frames, processed only when all their samples have arrived,
@@ -45,7 +47,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -53,7 +55,7 @@ from tqdm import tqdm
 
 from dtmbnav.core import gb20600
 from dtmbnav.core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
-from dtmbnav.core.records import FrameBatch, FrameFlag
+from dtmbnav.core.records import FrameBatch, FrameFlag, PathBatch
 from receiver import DEFAULT_CFO_SEARCH_HZ, DEFAULT_STATIC_WINDOW_S
 from receiver.acquisition import CFO_OUTSIDE_SEARCH, Acquisition, search_window, window_length
 from receiver.capture import CaptureSource
@@ -62,7 +64,8 @@ from receiver.channel_estimate import TAP_THRESHOLD, TAPS_AFTER, TAPS_BEFORE, Ch
 from receiver.derotate import rotation_table
 from receiver.ofdm import si_carrier_numbers, si_snr_db
 from receiver.parallel import BatchWindows, FrameWorkers
-from receiver.ranging import RangeIntegrator
+from receiver.paths import PathConfig, PathTracker
+from receiver.ranging import FIRST_PATH_COLUMNS, PathRanging, RangeIntegrator
 from receiver.reader import read_ahead
 from receiver.resample import StreamResampler
 from receiver.tracking import FrameTracker, LockMonitor
@@ -71,8 +74,9 @@ from receiver.writer import FrameSink
 #: Search position after the end of the stream (no acquisition window can fit).
 END_OF_STREAM = np.iinfo(np.int64).max // 4
 #: Stage names of :attr:`Receiver.stage_seconds`: acquisition (searches and lock set-up, a one-off
-#: cost per lock) and, per batch, sync (timing loop), channel estimate, body recovery, SI DFT, estimators.
-STAGES = ("resample", "acquisition", "sync", "channel", "body", "fft", "estimators")
+#: cost per lock) and, per batch, sync (timing loop), channel estimate, body recovery, SI DFT, estimators,
+#: path tracking.
+STAGES = ("resample", "acquisition", "sync", "channel", "body", "fft", "estimators", "paths")
 #: Lags on each side of the channel-estimate span kept out of the noise floor for a narrowband
 #: capture: its paths' spectrum ends at the capture's band edge, so each path rings for tens of
 #: samples, which would otherwise read as noise (and lower the SNRs).
@@ -137,6 +141,11 @@ class ReceiverConfig:
     jobs : int
         Threads for the per-frame work of each batch (:mod:`receiver.parallel`);
         the output is the same for any number.
+    track_paths : bool
+        Run the path tracker (``receiver.paths``: ``/receiver/paths`` and the
+        first-path columns); PN420 and PN945 only.
+    paths : PathConfig
+        Path-tracker settings.
     inspect : callable or None
         ``inspect(stage, arrays)`` called per batch with intermediate outputs.
     """
@@ -161,6 +170,8 @@ class ReceiverConfig:
     loop_alpha: float = 0.05
     loop_beta: float = 0.001
     jobs: int = 1
+    track_paths: bool = True
+    paths: PathConfig = field(default_factory=PathConfig)
     inspect: Callable[[str, Mapping[str, np.ndarray]], None] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
@@ -294,6 +305,12 @@ class Receiver:
         # Noise per received sample -> noise per carrier (in per-sample units): white noise fills the
         # 7.56 Msps band only up to the resampler's noise bandwidth.
         self._carrier_noise_scale = SYMBOL_RATE_HZ / self.resampler.noise_bandwidth_hz
+        # The first path's eq. 9-11 (its own f_s from the same window; the SI f_s if it had no frame there).
+        self.first_path_ranging = RangeIntegrator(carrier_hz, self.config.clock_offset_hz, self.config.static_window_s,
+                                                  FIRST_PATH_COLUMNS, fallback=self.ranging)
+        self.path_ranging = PathRanging(carrier_hz)
+        self._path_tracker: PathTracker | None = None
+        self._paths_out: list[PathBatch] = []
         self._modes = (self.config.pn_mode,) if self.config.pn_mode else tuple(PnMode)
         self._acq_window = window_length(self.config.acquisition_frames)
         self._queue = SampleQueue()
@@ -340,9 +357,18 @@ class Receiver:
         if self._orientation_pending and self._held:   # the stream ended before the orientation was decided
             out.extend(self._decide_orientation())
             out.extend(self._run(final=True))
-        out.extend(self.ranging.flush())
+        out.extend(self._range_paths(self.ranging.flush()))
+        if self._path_tracker is not None:
+            out.extend(self.first_path_ranging.flush())
+            self._release_paths(np.inf)
         self._workers.close()
         return out
+
+    def pop_paths(self) -> PathBatch:
+        """The ``/receiver/paths`` rows ranged since the last call (frame order)."""
+        rows = PathBatch.concatenate(self._paths_out)
+        self._paths_out = []
+        return rows
 
     @property
     def pn_mode(self) -> PnMode | None:
@@ -396,7 +422,21 @@ class Receiver:
             "conjugate_iq": self.conjugated,
             "static_window_s": self.config.static_window_s,
             "notes": "\n".join(self.notes()),
+            "path_tracking": self._path_tracker is not None,
+            "first_path_clock_offset_hz": (np.nan if self.first_path_ranging.clock_offset_hz is None
+                                           else self.first_path_ranging.clock_offset_hz),
         }
+
+    def path_attributes(self) -> dict[str, Any]:
+        """Parameters for the ``/receiver/paths`` attributes (the tracker's settings and span)."""
+        tracker = self._path_tracker
+        attrs: dict[str, Any] = {"carrier_hz": self.carrier_hz, "clock_offset_hz": np.nan if
+                                 self.first_path_ranging.clock_offset_hz is None else
+                                 self.first_path_ranging.clock_offset_hz}
+        if tracker is not None:
+            attrs.update({k: v for k, v in vars(tracker.config).items() if v is not None})
+            attrs.update(taps_before=tracker.taps_before, taps_after=tracker.taps_after)
+        return attrs
 
     # ---- driver -----------------------------------------------------------------------
 
@@ -425,7 +465,7 @@ class Receiver:
 
     def _emit(self, batch: FrameBatch) -> list[FrameBatch]:
         self.frames_out += len(batch)
-        return self.ranging.push(batch)
+        return self._range_paths(self.ranging.push(batch))
 
     def _decide_orientation(self) -> list[FrameBatch]:
         """Release the held rows, or conjugate the buffer and lock again from the held lock's window."""
@@ -442,6 +482,20 @@ class Receiver:
         self._lock = None
         self._si_detector = None
         return []
+
+    def _range_paths(self, batches: list[FrameBatch]) -> list[FrameBatch]:
+        """Eq. 9-11 on the first path of SI-ranged batches; the path rows up to them leave with their range."""
+        if self._path_tracker is None:
+            return batches
+        out = [b for batch in batches for b in self.first_path_ranging.push(batch)]
+        if out:
+            self._release_paths(float(out[-1].t_s[-1]))
+        return out
+
+    def _release_paths(self, until_t_s: float) -> None:
+        rows = self.path_ranging.release(self.first_path_ranging.clock_offset_hz, until_t_s)
+        if len(rows):
+            self._paths_out.append(rows)
 
     def _try_acquire(self) -> bool:
         start, stop = self._search_from, self._search_from + self._acq_window
@@ -473,6 +527,12 @@ class Receiver:
                 index += (acq.frame_in_superframe - index + f // 2) % f - f // 2
         self._lock = _Lock(acq, self.config, index, start)
         self._lock_starts_gap = self._frame_counter is not None
+        if self.config.track_paths and acq.mode.value.cyclic_length > 0:
+            if self._path_tracker is None:
+                self._path_tracker = PathTracker(acq.mode, self.carrier_hz, self.config.paths,
+                                                 (self.resampler.up, self.resampler.down))
+            else:
+                self._path_tracker.new_lock(acq.mode)
         if self._si_detector is None:
             self._si_detector = SiWordDetector(self.config.taps_before, self.config.taps_before + self.config.taps_after,
                                                self.config.si_polarity)
@@ -505,9 +565,13 @@ class Receiver:
         starts = starts[:count]
         frame_index = lock.next_frame_index + np.arange(count)
         phases = lock.phases(np.concatenate([frame_index, frame_index[-1:] + 1]))
+        tracker = self._path_tracker
+        if tracker is not None and lock.mode != tracker.mode:
+            tracker = None
         frames = self._workers.run(lock.mode, BatchWindows(self._queue.view, starts, phases, lock.header_symbols(phases),
                                                            lock.cfo_cycles_per_sample, lock.rot),
-                                   keep_bodies=cfg.inspect is not None)
+                                   keep_bodies=cfg.inspect is not None,
+                                   span=None if tracker is None else (tracker.taps_before, tracker.taps_after))
         ch, si = frames.channel, frames.si
         for name, dt in frames.seconds.items():
             self.stage_seconds[name] += dt
@@ -524,7 +588,16 @@ class Receiver:
             cfg.inspect("body", {"bodies": frames.bodies})
         t3 = time.perf_counter()
         rows = self._estimate(lock, starts, smoothed, periods, si, ch, frame_index, phases[:-1])
-        self.stage_seconds["estimators"] += time.perf_counter() - t3
+        t4 = time.perf_counter()
+        self.stage_seconds["estimators"] += t4 - t3
+        if tracker is not None:  # sequential (its loops link the frames): on this thread, in frame order
+            assert frames.span is not None
+            found = tracker.update(frames.span.raw_taps, frames.span.noise_tap, starts, frame_index,
+                                   periods / lock.tracker.nominal_period - 1.0, rows.t_s, lock.acq.coarse_cfo_hz)
+            rows = replace(rows, **found.first_path)
+            keep = len(rows) if lost_at is None else lost_at
+            self.path_ranging.push(found.rows.select(found.rows.frame_index < frame_index[0] + keep))
+            self.stage_seconds["paths"] += time.perf_counter() - t4
         if cfg.inspect is not None:
             cfg.inspect("ofdm", {"si_carriers": si})
         lock.next_frame_index += count
@@ -598,11 +671,17 @@ def receive_stream(chunks: Iterable[np.ndarray], sample_rate_hz: float, carrier_
     receiver : Receiver, optional
         A receiver to drive (to read its attributes afterwards); made from the
         other arguments when omitted.
+
+    Only the frames come out: the path tracker's rows are dropped as they
+    come (memory stays flat); :func:`receive_into_sink` writes them, or drive
+    :meth:`Receiver.process` and :meth:`Receiver.pop_paths` directly.
     """
     rx = receiver or Receiver(sample_rate_hz, carrier_hz, config)
     for chunk in chunks:
         yield from rx.process(chunk)
+        rx.pop_paths()
     yield from rx.finish()
+    rx.pop_paths()
 
 
 def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, config: ReceiverConfig | None = None, *,
@@ -734,10 +813,12 @@ def receive_into_sink(rx: Receiver, chunks: Iterable[np.ndarray], sink: FrameSin
                     break
                 for batch in rx.process(chunk):
                     sink.append(batch)
+                sink.append_paths(rx.pop_paths())
                 received += len(chunk)
                 bar.update(len(chunk))
             for batch in rx.finish():
                 sink.append(batch)
+            sink.append_paths(rx.pop_paths())
             if stop.signum is not None:
                 ended_early = f"{Interrupted(stop.signum)} after sample {received}"
             if ended_early is not None and sink.frames == 0 and (input_error or stop.signum is not None):
@@ -748,7 +829,7 @@ def receive_into_sink(rx: Receiver, chunks: Iterable[np.ndarray], sink: FrameSin
     out = {**rx.attributes(), "source": source, **(attrs or {})}
     if ended_early is not None:
         out[schema.ENDED_EARLY_ATTR] = ended_early
-    sink.close(out)
+    sink.close(out, {**rx.path_attributes(), "source": source} if rx.config.track_paths else None)
     kept = (f"kept the {sink.frames} frames received before it"
             + (f" in {sink.h5_path} (attribute {schema.ENDED_EARLY_ATTR})" if sink.h5_path is not None else ""))
     if input_error is not None:

@@ -22,17 +22,50 @@ gap ``range_change_m`` is therefore the range change since the first frame of
 the new segment (``segment_id``) plus the last value of the segment before
 it; the receiver flags that frame GAP, and the fusion takes the new segment as
 a new range origin.
+
+The same eq. 9-11 apply to one propagation path's carrier frequency
+(``docs/paths.md``): a second integrator works on the first path's columns
+(:data:`FIRST_PATH_COLUMNS`), with its own f_s from the same static window
+(the first path's own mean frequency there; the SI carriers' f_s when the
+first path had no valid frame in it), and :class:`PathRanging` applies that
+f_s to every tracked path's rows.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.records import FrameBatch, FrameFlag
+from dtmbnav.core.records import FrameBatch, FrameFlag, PathBatch, PathFlag
 from receiver import DEFAULT_STATIC_WINDOW_S
+
+
+@dataclass(frozen=True)
+class RangeColumns:
+    """The :class:`FrameBatch` columns one integrator reads and writes (None: not written)."""
+
+    cfo: str
+    range: str
+    doppler: str | None = None
+    velocity: str | None = None
+
+
+#: The SI-carrier columns (eq. 5-11).
+SI_COLUMNS = RangeColumns("cfo_hz", "range_change_m", "doppler_hz", "velocity_mps")
+#: The first path's columns (docs/paths.md).
+FIRST_PATH_COLUMNS = RangeColumns("first_path_cfo_hz", "first_path_range_change_m")
+
+
+def held_doppler(doppler_hz: np.ndarray, last_hz: float) -> np.ndarray:
+    """``doppler_hz`` with each NaN replaced by the last finite value before it (``last_hz`` before the first)."""
+    missing = ~np.isfinite(doppler_hz)
+    if not missing.any():
+        return doppler_hz
+    idx = np.where(~missing, np.arange(len(doppler_hz)), -1)
+    np.maximum.accumulate(idx, out=idx)
+    return np.where(idx >= 0, doppler_hz[np.maximum(idx, 0)], last_hz)
 
 
 class RangeIntegrator:
@@ -46,10 +79,16 @@ class RangeIntegrator:
         f_s given by the user; None to measure it over the static window.
     static_window_s : float
         Length of the static window at the start of the first lock, s.
+    columns : RangeColumns
+        What to integrate: the SI carriers' CFO (default) or the first path's.
+    fallback : RangeIntegrator, optional
+        Whose f_s to use when the static window holds no usable frame of
+        ``columns.cfo`` (instead of an error); it must have calibrated first.
     """
 
     def __init__(self, carrier_hz: float, clock_offset_hz: float | None = None,
-                 static_window_s: float = DEFAULT_STATIC_WINDOW_S) -> None:
+                 static_window_s: float = DEFAULT_STATIC_WINDOW_S, columns: RangeColumns = SI_COLUMNS,
+                 fallback: "RangeIntegrator | None" = None) -> None:
         if not np.isfinite(carrier_hz) or carrier_hz <= 0:
             raise ValueError(f"carrier_hz must be a positive frequency, got {carrier_hz!r}")
         if clock_offset_hz is None and static_window_s <= 0:
@@ -58,6 +97,8 @@ class RangeIntegrator:
         self.wavelength_m = SPEED_OF_LIGHT_MPS / carrier_hz
         self.clock_offset_hz = clock_offset_hz
         self.static_window_s = static_window_s
+        self.columns = columns
+        self.fallback = fallback
         self._pending: list[FrameBatch] = []
         self._t_first: float | None = None
         self._range_m = 0.0
@@ -85,21 +126,100 @@ class RangeIntegrator:
         self._pending = []
         in_window = rows.t_s < self._t_first + self.static_window_s
         dt = np.diff(rows.t_s, prepend=np.nan)
-        usable = in_window & np.isfinite(rows.cfo_hz) & ((rows.flags & FrameFlag.LOW_QUALITY) == 0)
-        if not np.any(usable):
+        cfo = getattr(rows, self.columns.cfo)
+        usable = in_window & np.isfinite(cfo) & ((rows.flags & FrameFlag.LOW_QUALITY) == 0)
+        if np.any(usable):
+            self.clock_offset_hz = float(np.sum(cfo[usable] * dt[usable]) / np.sum(dt[usable]))
+        elif self.fallback is not None and self.fallback.clock_offset_hz is not None:
+            self.clock_offset_hz = self.fallback.clock_offset_hz
+        else:
             raise ValueError("no valid frame in the static window: cannot estimate the clock offset f_s "
                              "(give clock_offset_hz or a longer static_window_s)")
-        self.clock_offset_hz = float(np.sum(rows.cfo_hz[usable] * dt[usable]) / np.sum(dt[usable]))
         rows.flags[in_window] |= np.uint8(FrameFlag.CALIBRATION)
         return [self._integrate(rows)]
 
     def _integrate(self, batch: FrameBatch) -> FrameBatch:
         assert self.clock_offset_hz is not None
-        doppler = batch.cfo_hz - self.clock_offset_hz
+        doppler = getattr(batch, self.columns.cfo) - self.clock_offset_hz
         t_prev = np.concatenate([[self._last_t_s if self._last_t_s is not None else batch.t_s[0]], batch.t_s[:-1]])
         # A frame without a CFO pair (a lock's first) adds nothing: the range is held across a gap.
         cycles = np.cumsum(np.where(np.isfinite(doppler), doppler * (batch.t_s - t_prev), 0.0))
         range_m = self._range_m - self.wavelength_m * cycles
         self._range_m = float(range_m[-1])
         self._last_t_s = float(batch.t_s[-1])
-        return replace(batch, doppler_hz=doppler, velocity_mps=doppler * self.wavelength_m, range_change_m=range_m)
+        out = {self.columns.range: range_m}
+        if self.columns.doppler is not None:
+            out[self.columns.doppler] = doppler
+        if self.columns.velocity is not None:
+            out[self.columns.velocity] = doppler * self.wavelength_m
+        return replace(batch, **out)
+
+
+class PathRanging:
+    """Eq. 9-11 per tracked path: ``doppler_hz`` and ``range_change_m`` of ``/receiver/paths`` rows.
+
+    Rows wait until the f_s they need is known (the first-path integrator's,
+    after the static window), then every path's Doppler ``cfo_hz - f_s`` is
+    integrated from the path's first row (range change 0 there), holding the
+    last Doppler where ``cfo_hz`` is NaN, exactly as :class:`RangeIntegrator`.
+
+    Parameters
+    ----------
+    carrier_hz : float
+        RF carrier, Hz.
+    """
+
+    def __init__(self, carrier_hz: float) -> None:
+        self.wavelength_m = SPEED_OF_LIGHT_MPS / carrier_hz
+        self._pending: list[PathBatch] = []
+        #: path id -> (range change, last Doppler, time of its last row)
+        self._state: dict[int, tuple[float, float, float]] = {}
+
+    def push(self, rows: PathBatch) -> None:
+        """Queue rows (in frame order)."""
+        if len(rows):
+            self._pending.append(rows)
+
+    def release(self, clock_offset_hz: float | None, until_t_s: float) -> PathBatch:
+        """The queued rows up to ``until_t_s`` with their range, once ``clock_offset_hz`` is known."""
+        if clock_offset_hz is None or not self._pending:
+            return PathBatch.concatenate([])
+        rows = self._pending[0] if len(self._pending) == 1 else PathBatch.concatenate(self._pending)
+        done = rows.t_s <= until_t_s
+        if done.all():
+            self._pending = []
+        else:
+            self._pending = [rows.select(~done)]
+            rows = rows.select(done)
+        if len(rows) == 0:
+            return rows
+        doppler = rows.cfo_hz - clock_offset_hz
+        # Group the rows by path (in time order within each) and integrate every group at once.
+        order = np.lexsort((rows.t_s, rows.path_id))
+        ids, t, dop = rows.path_id[order], rows.t_s[order], doppler[order]
+        first = np.r_[True, ids[1:] != ids[:-1]]
+        group = np.cumsum(first) - 1
+        starts = np.flatnonzero(first)
+        carried = [self._state.get(int(pid)) for pid in ids[starts]]
+        born = (rows.flags[order][starts] & PathFlag.BORN) > 0
+        fresh = np.array([c is None or b for c, b in zip(carried, born)])
+        range0 = np.array([0.0 if f else c[0] for f, c in zip(fresh, carried)])
+        last_doppler = np.array([0.0 if f else c[1] for f, c in zip(fresh, carried)])
+        last_t = np.array([t[s] if f else c[2] for f, c, s in zip(fresh, carried, starts)])
+        # Held Doppler: the last finite value in the group, else the path's last one.
+        finite = np.isfinite(dop)
+        idx = np.where(finite, np.arange(len(dop)), -1)
+        np.maximum.accumulate(idx, out=idx)
+        inside = idx >= starts[group]
+        held = np.where(inside, dop[np.maximum(idx, 0)], last_doppler[group])
+        dt = np.diff(np.r_[0.0, t])
+        dt[starts] = t[starts] - last_t
+        steps = held * dt
+        total = np.cumsum(steps)
+        before = np.r_[0.0, total][starts]            # cumulative sum before each group
+        path_range = range0[group] - self.wavelength_m * (total - before[group])
+        range_m = np.empty(len(rows))
+        range_m[order] = path_range
+        ends = np.r_[starts[1:], len(ids)] - 1
+        self._state = {int(ids[e]): (float(path_range[e]), float(held[e]), float(t[e])) for e in ends}
+        return replace(rows, doppler_hz=doppler, range_change_m=range_m)

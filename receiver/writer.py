@@ -1,12 +1,14 @@
-"""Writing receiver results: HDF5 ``/receiver/frames`` (via receiver.h5io) and CSV.
+"""Writing receiver results: HDF5 ``/receiver/frames`` and ``/receiver/paths`` (via receiver.h5io) and CSV.
 
 The HDF5 group holds one dataset per :class:`~dtmbnav.core.records.FrameBatch`
 column and the receiver's parameters as attributes (``pn_mode``,
 ``si_index``, ``sample_rate_hz``, ``clock_offset_hz`` = the f_s used,
-``carrier_hz``, the resampling ratio, versions). Both files are written
-atomically (a hidden temporary name renamed when complete), so a failed run
-never leaves a file that looks complete; a run that keeps what it received
-before an interruption finishes them normally and says so in the
+``carrier_hz``, the resampling ratio, versions); ``/receiver/paths`` holds
+one dataset per :class:`~dtmbnav.core.records.PathBatch` column (the path
+tracker's rows, written as they come, like the frames). Both files are
+written atomically (a hidden temporary name renamed when complete), so a
+failed run never leaves a file that looks complete; a run that keeps what it
+received before an interruption finishes them normally and says so in the
 ``ended_early`` attribute (``docs/schema.md``).
 """
 
@@ -16,7 +18,7 @@ import contextlib
 import csv
 import os
 import sys
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any
 
@@ -25,7 +27,7 @@ import numpy as np
 
 from dtmbnav.core import schema
 from dtmbnav.core.h5io import atomic_h5, atomic_path, package_version
-from dtmbnav.core.records import FRAME_COLUMN_DTYPES, FrameBatch, FrameFlag
+from dtmbnav.core.records import FRAME_COLUMN_DTYPES, PATH_COLUMN_DTYPES, FrameBatch, FrameFlag, PathBatch
 
 #: Unit of each column (written as ``units`` attribute, "column:unit" pairs).
 COLUMN_UNITS = {
@@ -33,6 +35,15 @@ COLUMN_UNITS = {
     "cfo_pn_hz": "Hz", "doppler_hz": "Hz", "velocity_mps": "m/s (positive closing)",
     "range_change_m": "m since first frame", "snr_db": "dB", "si_snr_db": "dB", "peak_metric": "0..1", "flags": "FrameFlag bits",
     "segment_id": "lock segment",
+    "first_path_cfo_hz": "Hz", "first_path_range_change_m": "m since first frame", "first_path_delay_s": "s after t_s",
+    "first_path_snr_db": "dB", "first_path_id": "path id", "tower_count": "towers",
+    "range_difference_change_1_m": "m since both tracked", "range_difference_change_2_m": "m since both tracked",
+}
+#: Unit of each ``/receiver/paths`` column.
+PATH_COLUMN_UNITS = {
+    "t_s": "s", "frame_index": "frame", "path_id": "id", "tower_id": "id", "delay_s": "s after t_s",
+    "delay_rate": "s/s", "cfo_hz": "Hz", "doppler_hz": "Hz", "range_change_m": "m since the path's first row",
+    "snr_db": "dB", "flags": "PathFlag bits",
 }
 #: Rows gathered before they are appended to the HDF5 columns. Growing the resizable datasets has a
 #: fixed cost per call that is large next to a receiver batch's rows, so rows go in blocks of this
@@ -40,13 +51,13 @@ COLUMN_UNITS = {
 WRITE_ROWS = 1 << 15
 
 
-def frame_attributes(receiver_attrs: Mapping[str, Any]) -> dict[str, Any]:
+def frame_attributes(receiver_attrs: Mapping[str, Any], units: Mapping[str, str] = COLUMN_UNITS) -> dict[str, Any]:
     """Group attributes: the receiver's parameters plus versions and units."""
     attrs = dict(receiver_attrs)
     attrs[schema.PACKAGE_VERSION_ATTR] = package_version()
     attrs["numpy_version"] = np.__version__
     attrs["h5py_version"] = h5py.__version__
-    attrs["units"] = ", ".join(f"{k}:{v}" for k, v in COLUMN_UNITS.items())
+    attrs["units"] = ", ".join(f"{k}:{v}" for k, v in units.items())
     return attrs
 
 
@@ -70,7 +81,7 @@ def write_csv(path: str | os.PathLike, columns: Mapping[str, np.ndarray]) -> Non
 
 
 class FrameSink:
-    """Writes frame batches as they come: HDF5 ``/receiver/frames`` and/or CSV, memory flat.
+    """Writes frame batches as they come: HDF5 ``/receiver/frames`` (and ``/receiver/paths``) and/or CSV, memory flat.
 
     The HDF5 columns are resizable datasets that grow batch by batch inside an
     :func:`~dtmbnav.core.h5io.atomic_h5` file and the CSV rows go to a hidden
@@ -88,6 +99,7 @@ class FrameSink:
     def __init__(self, h5_path: str | os.PathLike | None, csv_path: str | os.PathLike | None = None) -> None:
         self.h5_path = None if h5_path is None else Path(h5_path)
         self.frames = 0
+        self.paths = 0
         self.gaps = 0
         self.first_t_s = float("nan")
         self.last_t_s = float("nan")
@@ -97,6 +109,9 @@ class FrameSink:
         self._pending: list[FrameBatch] = []
         self._pending_rows = 0
         self._written = 0
+        self._pending_paths: list[PathBatch] = []
+        self._pending_path_rows = 0
+        self._paths_written = 0
         try:
             if h5_path is not None:
                 self._h5 = self._files.enter_context(atomic_h5(h5_path))
@@ -128,32 +143,74 @@ class FrameSink:
         self.frames += n
         self.gaps += int(np.count_nonzero(batch.flags & FrameFlag.GAP))
 
-    def _write_pending(self) -> None:
-        """Append the gathered rows to the HDF5 columns."""
-        if not self._pending_rows:
+    def append_paths(self, rows: PathBatch) -> None:
+        """Write path-tracker rows (HDF5 only; the group is made on the first call), in blocks like the frames."""
+        if self._h5 is None or len(rows) == 0:
             return
-        group = self._h5[schema.RECEIVER_FRAMES]
-        end = self._written + self._pending_rows
-        for name in FRAME_COLUMN_DTYPES:
-            group[name].resize((end,))
-            group[name][self._written:] = np.concatenate([getattr(b, name) for b in self._pending])
-        self._written = end
+        self._pending_paths.append(rows)
+        self._pending_path_rows += len(rows)
+        self.paths += len(rows)
+        if self._pending_path_rows >= WRITE_ROWS:
+            self._write_pending_paths()
+
+    def _write_pending(self) -> None:
+        """Append the gathered frame rows to the HDF5 columns."""
+        self._written = _append_rows(self._h5[schema.RECEIVER_FRAMES], FRAME_COLUMN_DTYPES, self._pending,
+                                     self._written)
         self._pending, self._pending_rows = [], 0
 
-    def close(self, attrs: Mapping[str, Any]) -> None:
-        """Finish the files and move them into place; ``attrs`` become the group's attributes."""
+    def _write_pending_paths(self) -> None:
+        """Append the gathered path rows to the ``/receiver/paths`` columns."""
+        self._paths_written = _append_rows(self._paths_group(), PATH_COLUMN_DTYPES, self._pending_paths,
+                                           self._paths_written)
+        self._pending_paths, self._pending_path_rows = [], 0
+
+    def _paths_group(self) -> h5py.Group:
+        if schema.RECEIVER_PATHS not in self._h5:
+            group = self._h5.create_group(schema.RECEIVER_PATHS)
+            for name, dtype in PATH_COLUMN_DTYPES.items():
+                group.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(8192,))
+        return self._h5[schema.RECEIVER_PATHS]
+
+    def close(self, attrs: Mapping[str, Any], path_attrs: Mapping[str, Any] | None = None) -> None:
+        """Finish the files and move them into place; ``attrs`` become the frames group's attributes,
+        ``path_attrs`` the paths group's.
+
+        With ``path_attrs`` the paths group is written even when no path was found.
+        """
         if self._h5 is not None:
             self._write_pending()
             for key, value in frame_attributes(attrs).items():
                 self._h5[schema.RECEIVER_FRAMES].attrs[key] = value
+            if self._pending_paths or path_attrs is not None:
+                group = self._paths_group()
+                self._write_pending_paths()
+                for key, value in frame_attributes(path_attrs or {}, PATH_COLUMN_UNITS).items():
+                    group.attrs[key] = value
         self._h5 = self._csv = None
         self._files.close()
 
     def abort(self, exc: BaseException) -> None:
         """Drop the partial files (the target paths are left as they were)."""
         self._pending, self._pending_rows = [], 0
+        self._pending_paths, self._pending_path_rows = [], 0
         self._h5 = self._csv = None
         try:
             self._files.__exit__(type(exc), exc, exc.__traceback__)
         except BaseException:  # a failure while cleaning up must not hide the error that caused it
             pass
+
+
+def _append_rows(group: h5py.Group, columns: Iterable[str], batches: list[Any], written: int) -> int:
+    """Append the rows of ``batches`` (records with the ``columns``) to a group's resizable datasets.
+
+    Returns the group's row count afterwards.
+    """
+    rows = sum(len(b) for b in batches)
+    if not rows:
+        return written
+    end = written + rows
+    for name in columns:
+        group[name].resize((end,))
+        group[name][written:] = np.concatenate([getattr(b, name) for b in batches])
+    return end

@@ -1,4 +1,4 @@
-"""Geometry-driven propagation channel from the tower to the walking receiver.
+"""Geometry-driven propagation channel from the tower(s) to the walking receiver.
 
 The channel is a sum of paths, each with a delay ``tau_p(t)``, a real or
 complex gain and the carrier phase ``-2 pi fc tau_p(t)`` that its geometry
@@ -41,6 +41,15 @@ Paths (``ChannelConfig`` of the scenario):
   drawn from the seed. The diffuse fading runs in true time, so it also
   moves while the walker stands still (environmental motion).
 
+Several towers (a single-frequency network, ``Scenario.sites``): each tower
+has all of the paths above, computed from its own position in the same scene
+(so its own blockage and reflections), with its power (``power_db``, all of
+its paths) and fixed transmit delay (``transmit_delay_s``) added; amplitudes
+are then relative to the first tower's unobstructed direct path. Blockage
+attenuates a direct path (diffraction over and around the block), it never
+removes it: a blocked direct path is still the first to arrive, 20-22 dB down
+in the shipped streets (docs/paths.md).
+
 Path lengths are computed at the track's samples and interpolated with a
 cubic spline of each length against time, so delays and Dopplers are smooth
 between the ~100 Hz track samples.
@@ -55,7 +64,7 @@ from scipy.interpolate import CubicSpline
 
 from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
 from dtmbnav.core.records import Track
-from sim.scenario import Building, Scenario, Wall
+from sim.scenario import Building, ChannelConfig, Scenario, TowerSite, Wall
 
 #: Sinusoids summed in each diffuse tap (sum-of-sinusoids Rayleigh fading).
 DIFFUSE_SINUSOIDS = 16
@@ -212,19 +221,93 @@ class DirectPath:
     los: np.ndarray
 
 
+#: Path kinds, in the order a tower's paths come in :meth:`Channel.state` (``PATH_KINDS[kind]`` names a kind code).
+PATH_KINDS = ("direct", "ground", "scatterer", "wall", "diffuse")
+DIRECT, GROUND, SCATTERER, WALL, DIFFUSE = range(len(PATH_KINDS))
+
+
+class _TowerPaths:
+    """The paths from one tower of the scenario to the receiver along the track (module docstring)."""
+
+    def __init__(self, site: TowerSite, channel: ChannelConfig, track: Track, rng: np.random.Generator,
+                 diffuse_taps: int) -> None:
+        self.site = site
+        self.gain = 10.0 ** (site.power_db / 20.0)
+        ground = np.hypot(track.x_m - site.x_m, track.y_m - site.y_m)
+        h_r = channel.antenna_height_m
+        lengths = [np.hypot(ground, site.height_m - h_r)]
+        #: (amplitude, blocked-by-LOS?, scatterer xy or None) per specular path
+        self.specular: list[tuple[float, bool, tuple[float, float] | None]] = [(1.0, True, None)]
+        self.kinds = [DIRECT]
+        if channel.ground_reflection:
+            lengths.append(np.hypot(ground, site.height_m + h_r))
+            self.specular.append((-(10.0 ** (channel.ground_reflection_db / 20.0)), True, None))
+            self.kinds.append(GROUND)
+        for s in channel.scatterers:
+            leg_in = np.hypot(np.hypot(s.x_m - site.x_m, s.y_m - site.y_m), site.height_m - h_r)
+            lengths.append(leg_in + np.hypot(track.x_m - s.x_m, track.y_m - s.y_m))
+            self.specular.append((10.0 ** (s.gain_db / 20.0), False, (s.x_m, s.y_m)))
+            self.kinds.append(SCATTERER)
+        self.walls = [WallImage.of(wall, site.x_m, site.y_m) for wall in channel.walls]
+        lengths += [w.path_length_m(track.x_m, track.y_m, site.height_m - h_r) for w in self.walls]
+        self.kinds += [WALL] * len(self.walls)
+        self.lengths = [CubicSpline(track.t_s, length) for length in lengths]
+        self.direct_rate = self.lengths[0].derivative()
+
+        self.diffuse_excess_s = np.zeros(0)
+        if channel.rician_k_db is not None:
+            quantiles = (np.arange(diffuse_taps) + 0.5) / diffuse_taps
+            self.diffuse_excess_s = -channel.diffuse_delay_s * np.log1p(-quantiles)
+            self.diffuse_amp = np.sqrt(10.0 ** (-channel.rician_k_db / 10.0) / (diffuse_taps * DIFFUSE_SINUSOIDS))
+            self.diffuse_freq_hz = channel.diffuse_doppler_hz * np.cos(
+                rng.uniform(0.0, 2.0 * np.pi, (diffuse_taps, DIFFUSE_SINUSOIDS)))
+            self.diffuse_phase = rng.uniform(0.0, 2.0 * np.pi, (diffuse_taps, DIFFUSE_SINUSOIDS))
+        self.kinds += [DIFFUSE] * len(self.diffuse_excess_s)
+
+    def state(self, t_s: np.ndarray, x: np.ndarray, y: np.ndarray,
+              buildings: list[Building]) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
+        """Delays (s, the transmit delay included), gains and the line-of-sight loss (dB) of this tower's paths."""
+        site = self.site
+        los_loss = blocking_loss_db(x, y, site.x_m, site.y_m, buildings)
+        los_gain = 10.0 ** (-los_loss / 20.0)
+        delays, gains = [], []
+        for spline, (amp, los_blocked, scatterer) in zip(self.lengths, self.specular):
+            delays.append(spline(t_s) / SPEED_OF_LIGHT_MPS + site.transmit_delay_s)
+            if los_blocked:
+                gains.append(amp * los_gain)
+            else:
+                loss = blocking_loss_db(x, y, scatterer[0], scatterer[1], buildings)
+                gains.append(amp * 10.0 ** (-loss / 20.0))
+        for spline, wall in zip(self.lengths[len(self.specular):], self.walls):
+            delays.append(spline(t_s) / SPEED_OF_LIGHT_MPS + site.transmit_delay_s)
+            gains.append(wall.amplitude_at(x, y, buildings))
+        for tap, excess in enumerate(self.diffuse_excess_s):
+            delays.append(delays[0] + excess)
+            phases = 2.0 * np.pi * self.diffuse_freq_hz[tap][:, None] * t_s + self.diffuse_phase[tap][:, None]
+            gains.append(self.diffuse_amp * np.exp(1j * phases).sum(axis=0))
+        return delays, [self.gain * g for g in gains], los_loss
+
+
 class Channel:
     """Multipath channel of a scenario along a track (module docstring).
+
+    Every tower of the scenario (``Scenario.sites``: one, or the towers of a
+    single-frequency network) contributes its own paths, computed from its
+    position with the same scene (buildings, walls, scatterers), scaled by its
+    ``power_db`` and delayed by its ``transmit_delay_s``; :meth:`state`
+    returns them as one flat list, tower by tower (``path_tower``,
+    ``path_kind`` say which is which).
 
     Parameters
     ----------
     scenario : Scenario
-        ``tower`` and ``channel`` sections are used.
+        ``tower`` (carrier), ``sites`` and ``channel`` are used.
     track : Track
         Receiver trajectory; ``t_s`` is true time, s.
     rng : numpy.random.Generator
-        Draws the diffuse component.
+        Draws the diffuse component (tower by tower).
     diffuse_taps : int
-        Number of diffuse delay taps.
+        Number of diffuse delay taps per tower.
     """
 
     def __init__(self, scenario: Scenario, track: Track, rng: np.random.Generator, diffuse_taps: int = 2) -> None:
@@ -233,38 +316,14 @@ class Channel:
         if diffuse_taps < 1:
             raise ValueError(f"diffuse_taps must be >= 1, got {diffuse_taps}")
         self.carrier_hz = scenario.tower.carrier_hz
-        self._tower = scenario.tower
         self._channel = scenario.channel
         self._x = CubicSpline(track.t_s, track.x_m)
         self._y = CubicSpline(track.t_s, track.y_m)
         self._t_range = (float(track.t_s[0]), float(track.t_s[-1]))
-
-        tower, channel = scenario.tower, scenario.channel
-        ground = np.hypot(track.x_m - tower.x_m, track.y_m - tower.y_m)
-        h_r = channel.antenna_height_m
-        lengths = [np.hypot(ground, tower.height_m - h_r)]
-        #: (amplitude, blocked-by-LOS?, scatterer xy or None) per specular path
-        self._specular: list[tuple[float, bool, tuple[float, float] | None]] = [(1.0, True, None)]
-        if channel.ground_reflection:
-            lengths.append(np.hypot(ground, tower.height_m + h_r))
-            self._specular.append((-(10.0 ** (channel.ground_reflection_db / 20.0)), True, None))
-        for s in channel.scatterers:
-            leg_in = np.hypot(np.hypot(s.x_m - tower.x_m, s.y_m - tower.y_m), tower.height_m - h_r)
-            lengths.append(leg_in + np.hypot(track.x_m - s.x_m, track.y_m - s.y_m))
-            self._specular.append((10.0 ** (s.gain_db / 20.0), False, (s.x_m, s.y_m)))
-        self._walls = [WallImage.of(wall, tower.x_m, tower.y_m) for wall in channel.walls]
-        lengths += [w.path_length_m(track.x_m, track.y_m, tower.height_m - h_r) for w in self._walls]
-        self._lengths = [CubicSpline(track.t_s, length) for length in lengths]
-        self._direct_rate = self._lengths[0].derivative()
-
-        self._diffuse_excess_s = np.zeros(0)
-        if channel.rician_k_db is not None:
-            quantiles = (np.arange(diffuse_taps) + 0.5) / diffuse_taps
-            self._diffuse_excess_s = -channel.diffuse_delay_s * np.log1p(-quantiles)
-            self._diffuse_amp = np.sqrt(10.0 ** (-channel.rician_k_db / 10.0) / (diffuse_taps * DIFFUSE_SINUSOIDS))
-            self._diffuse_freq_hz = channel.diffuse_doppler_hz * np.cos(
-                rng.uniform(0.0, 2.0 * np.pi, (diffuse_taps, DIFFUSE_SINUSOIDS)))
-            self._diffuse_phase = rng.uniform(0.0, 2.0 * np.pi, (diffuse_taps, DIFFUSE_SINUSOIDS))
+        self._towers = [_TowerPaths(site, scenario.channel, track, rng, diffuse_taps) for site in scenario.sites]
+        #: Tower index (0 = the first tower) and kind (:data:`PATH_KINDS`) of each path of :meth:`state`.
+        self.path_tower = np.concatenate([np.full(len(t.kinds), i) for i, t in enumerate(self._towers)])
+        self.path_kind = np.concatenate([np.asarray(t.kinds) for t in self._towers])
 
     def max_doppler_hz(self) -> float:
         """Upper bound of any path's Doppler magnitude over the track, Hz.
@@ -273,13 +332,18 @@ class Channel:
         scatterer behind the walker); the diffuse taps add their own Doppler.
         """
         speed = np.hypot(self._x.derivative()(self._x.x), self._y.derivative()(self._y.x)).max()
-        diffuse = self._channel.diffuse_doppler_hz if len(self._diffuse_excess_s) else 0.0
+        diffuse = self._channel.diffuse_doppler_hz if len(self._towers[0].diffuse_excess_s) else 0.0
         return 2.0 * speed * self.carrier_hz / SPEED_OF_LIGHT_MPS + diffuse
 
     @property
     def num_paths(self) -> int:
-        """Number of paths P (direct, ground, scatterers, walls, then diffuse taps)."""
-        return len(self._specular) + len(self._walls) + len(self._diffuse_excess_s)
+        """Number of paths P (per tower: direct, ground, scatterers, walls, then diffuse taps)."""
+        return len(self.path_kind)
+
+    @property
+    def num_towers(self) -> int:
+        """Number of towers."""
+        return len(self._towers)
 
     def _check(self, t_s: np.ndarray) -> np.ndarray:
         t_s = np.asarray(t_s, dtype=np.float64)
@@ -296,34 +360,24 @@ class Channel:
         t_s = self._check(t_s)
         return self._x(t_s), self._y(t_s)
 
-    def direct(self, t_s: np.ndarray) -> DirectPath:
-        """Range, range rate and line of sight of the direct path at true times ``t_s``."""
+    def direct(self, t_s: np.ndarray, tower: int = 0) -> DirectPath:
+        """Range, range rate and line of sight of one tower's direct path at true times ``t_s``."""
         t_s = self._check(t_s)
+        paths = self._towers[tower]
         x, y = self._x(t_s), self._y(t_s)
-        loss = blocking_loss_db(x, y, self._tower.x_m, self._tower.y_m, self._channel.buildings)
-        return DirectPath(self._lengths[0](t_s), self._direct_rate(t_s), loss == 0.0)
+        loss = blocking_loss_db(x, y, paths.site.x_m, paths.site.y_m, self._channel.buildings)
+        return DirectPath(paths.lengths[0](t_s), paths.direct_rate(t_s), loss == 0.0)
 
     def state(self, t_s: np.ndarray) -> ChannelState:
-        """Every path's delay and complex coefficient at true times ``t_s``."""
+        """Every path's delay and complex coefficient at true times ``t_s`` (``los``: of the first tower)."""
         t_s = self._check(t_s)
         x, y = self._x(t_s), self._y(t_s)
-        los_loss = blocking_loss_db(x, y, self._tower.x_m, self._tower.y_m, self._channel.buildings)
-        los_gain = 10.0 ** (-los_loss / 20.0)
-        delays, gains = [], []
-        for spline, (amp, los_blocked, scatterer) in zip(self._lengths, self._specular):
-            delays.append(spline(t_s) / SPEED_OF_LIGHT_MPS)
-            if los_blocked:
-                gains.append(amp * los_gain)
-            else:
-                loss = blocking_loss_db(x, y, scatterer[0], scatterer[1], self._channel.buildings)
-                gains.append(amp * 10.0 ** (-loss / 20.0))
-        for spline, wall in zip(self._lengths[len(self._specular):], self._walls):
-            delays.append(spline(t_s) / SPEED_OF_LIGHT_MPS)
-            gains.append(wall.amplitude_at(x, y, self._channel.buildings))
-        for tap, excess in enumerate(self._diffuse_excess_s):
-            delays.append(delays[0] + excess)
-            phases = 2.0 * np.pi * self._diffuse_freq_hz[tap][:, None] * t_s + self._diffuse_phase[tap][:, None]
-            gains.append(self._diffuse_amp * np.exp(1j * phases).sum(axis=0))
+        delays, gains, los = [], [], None
+        for paths in self._towers:
+            tower_delays, tower_gains, los_loss = paths.state(t_s, x, y, self._channel.buildings)
+            delays += tower_delays
+            gains += tower_gains
+            los = los_loss == 0.0 if los is None else los
         delay_s = np.array(delays)
         coef = np.array(gains, dtype=np.complex128) * np.exp(-2j * np.pi * self.carrier_hz * delay_s)
-        return ChannelState(delay_s, coef, los_loss == 0.0)
+        return ChannelState(delay_s, coef, los)

@@ -1,6 +1,7 @@
 """Scenario description: one small TOML file says everything a simulation needs.
 
-A scenario names the tower and its signal, the walk, the receiver front end and
+A scenario names the tower (or the towers of a single-frequency network,
+``[[towers]]``) and its signal, the walk, the receiver front end and
 clock, the propagation scene, the IMU and the GNSS start fix, plus the seed. The
 four reference walks of ``docs/scenarios.md`` ship as package data
 (``park-loop-cw``, ``park-loop-ccw``, ``street-out``, ``street-back``; the aliases
@@ -25,6 +26,8 @@ from typing import Any
 
 #: Short names that resolve to a packaged scenario.
 ALIASES = {"park-loop": "park-loop-cw", "street": "street-out"}
+#: The site keys of ``[tower]`` that ``[[towers]]`` takes over when a scenario lists several towers.
+SITE_KEYS = ("x_m", "y_m", "height_m")
 
 
 @dataclass(frozen=True)
@@ -60,6 +63,37 @@ class TowerConfig:
     si_index: int = 15
     si_polarity: int = 1
     si_power_db: float = 0.0
+
+
+@dataclass(frozen=True)
+class TowerSite:
+    """One transmitter of a single-frequency network (SFN): where it is and how it is heard.
+
+    Every tower of an SFN sends the same signal (``[tower]``: carrier, header
+    mode, SI word) on the same GNSS-synchronised time base (docs/paths.md).
+
+    Attributes
+    ----------
+    x_m, y_m : float
+        Tower position in the local ENU frame, m.
+    height_m : float
+        Antenna height above the walker's plane, m.
+    power_db : float
+        Power of its unobstructed direct path relative to that of the first
+        tower (whose power sets ``receiver.cn_db``), dB.
+    transmit_delay_s : float
+        Fixed transmit-delay offset of this tower (network planning), s, >= 0.
+    """
+
+    x_m: float = 2000.0
+    y_m: float = 2200.0
+    height_m: float = 150.0
+    power_db: float = 0.0
+    transmit_delay_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not self.transmit_delay_s >= 0.0:
+            raise ValueError(f"towers: transmit_delay_s must be >= 0, got {self.transmit_delay_s!r}")
 
 
 @dataclass(frozen=True)
@@ -334,7 +368,13 @@ class GnssConfig:
 
 @dataclass(frozen=True)
 class Scenario:
-    """A complete simulation scenario (see the module docstring)."""
+    """A complete simulation scenario (see the module docstring).
+
+    ``towers`` lists the sites of a single-frequency network; empty for the
+    single tower of ``tower``. When it is given, ``tower``'s site
+    (:data:`SITE_KEYS`) is kept equal to the first entry's, so code that
+    knows one tower sees the first one.
+    """
 
     name: str = "custom"
     description: str = ""
@@ -345,13 +385,34 @@ class Scenario:
     channel: ChannelConfig = field(default_factory=ChannelConfig)
     imu: ImuConfig = field(default_factory=ImuConfig)
     gnss: GnssConfig = field(default_factory=GnssConfig)
+    towers: list[TowerSite] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        towers = [t if isinstance(t, TowerSite) else _build(TowerSite, t, "towers") for t in self.towers]
+        object.__setattr__(self, "towers", towers)
+        if towers:
+            first = towers[0]
+            object.__setattr__(self, "tower", dataclasses.replace(
+                self.tower, **{key: getattr(first, key) for key in SITE_KEYS}))
+
+    @property
+    def sites(self) -> list[TowerSite]:
+        """Every transmitter of the scenario, the first one first (one site without ``[[towers]]``)."""
+        if self.towers:
+            return list(self.towers)
+        return [TowerSite(**{key: getattr(self.tower, key) for key in SITE_KEYS})]
 
     def replace(self, **sections: dict[str, Any]) -> "Scenario":
         """Return a copy with fields of named sections changed.
 
         ``scn.replace(receiver={"cn_db": 10}, seed=3)`` changes one receiver
-        field and the seed; top-level scalars are passed as plain values.
+        field and the seed; top-level scalars and ``towers`` (a list of
+        :class:`TowerSite` or tables) are passed as plain values. A tower
+        site is moved through ``towers`` when the scenario has several.
         """
+        tower_keys = set(sections.get("tower", {})) & set(SITE_KEYS)
+        if tower_keys and (self.towers or sections.get("towers")):
+            raise ValueError(f"scenario: {sorted(tower_keys)} of [tower] with [[towers]] given; change towers instead")
         updates: dict[str, Any] = {}
         for key, value in sections.items():
             current = getattr(self, key)
@@ -447,8 +508,13 @@ _SECTIONS = {
 
 
 def scenario_from_dict(data: dict[str, Any]) -> Scenario:
-    """Build a :class:`Scenario` from a parsed TOML document (ValueError naming a bad key or value)."""
-    top = {k: v for k, v in data.items() if k not in _SECTIONS}
+    """Build a :class:`Scenario` from a parsed TOML document (ValueError naming a bad key or value).
+
+    ``[[towers]]`` (an array of tables) lists the sites of an SFN; the site
+    keys of ``[tower]`` (:data:`SITE_KEYS`) are then an error, so that no
+    file states a position twice.
+    """
+    top = {k: v for k, v in data.items() if k not in _SECTIONS and k != "towers"}
     unknown = set(top) - {"name", "description", "seed"}
     if unknown:
         raise ValueError(f"scenario: unknown top-level key(s) {sorted(unknown)}")
@@ -457,8 +523,16 @@ def scenario_from_dict(data: dict[str, Any]) -> Scenario:
     _check_type(top.get("seed", 0), int, "scenario: seed")
     if top.get("seed", 0) < 0:
         raise ValueError(f"scenario: seed must not be negative, got {top['seed']}")
+    towers = data.get("towers", [])
+    if not isinstance(towers, list) or not all(isinstance(t, dict) for t in towers):
+        raise ValueError("scenario: towers must be an array of tables ([[towers]])")
+    doubled = sorted(set(SITE_KEYS) & set(data.get("tower", {}))) if towers else []
+    if doubled:
+        raise ValueError(f"scenario [tower]: {doubled} given together with [[towers]]; "
+                         "give the sites in [[towers]] only")
     sections = {k: _build(cls, data.get(k, {}), k, check=True) for k, cls in _SECTIONS.items()}
-    return Scenario(**top, **sections)
+    return Scenario(**top, **sections,
+                    towers=[_build(TowerSite, t, f"towers.{i}", check=True) for i, t in enumerate(towers)])
 
 
 def packaged_scenarios() -> list[str]:
@@ -528,6 +602,9 @@ def scenario_to_toml(scn: Scenario) -> str:
     for section in _SECTIONS:
         lines.append(f"\n[{section}]")
         for key, value in _to_dict(getattr(scn, section)).items():
-            if value is not None:
+            if value is not None and not (section == "tower" and scn.towers and key in SITE_KEYS):
                 lines.append(f"{key} = {_toml_value(value)}")
+    for site in scn.towers:
+        lines.append("\n[[towers]]")
+        lines.extend(f"{key} = {_toml_value(value)}" for key, value in _to_dict(site).items())
     return "\n".join(lines) + "\n"

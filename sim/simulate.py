@@ -10,7 +10,9 @@
   start) and ``/truth/frames`` (:class:`sim.rf.FrameTruth` of the captured
   segment) with the attributes ``pn_mode``, ``si_index``,
   ``sample_rate_hz``, ``carrier_hz``, ``seed``, ``sample_format``,
-  ``capture_start_s``, ``num_samples`` and ``scenario`` (TOML text).
+  ``capture_start_s``, ``num_samples`` and ``scenario`` (TOML text), and
+  ``/truth/paths`` (:func:`sim.path_truth.path_truth`: every tower's every
+  path at 100 Hz).
 
 Segments: ``start_s``/``seconds`` select a window of the scenario. The
 capture's first sample is sample ``round(start_s * fs)`` of the full
@@ -33,6 +35,7 @@ from dtmbnav.core.h5io import atomic_h5, write_columns
 from sim.capture_writer import CaptureWriter
 from sim.gnss import simulate_gnss
 from sim.imu import simulate_imu
+from sim.path_truth import path_truth, path_truth_attributes
 from sim.rf import CaptureGenerator
 from sim.scenario import Scenario, scenario_to_toml
 from sim.walk import simulate_walk
@@ -128,4 +131,5 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, seconds: float | None =
             "seed": generator.seed, "sample_format": generator.sample_format,
             schema.CAPTURE_START_ATTR: capture_start_s, "num_samples": generator.num_samples,
             "scenario": scenario_to_toml(scenario)})
+        write_columns(h5, schema.TRUTH_PATHS, path_truth(generator), attrs=path_truth_attributes(generator))
     return SimulationResult(capture_path, truth_path)

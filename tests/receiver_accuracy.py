@@ -5,15 +5,24 @@
 runs the receiver on it in chunks and returns its rows with the simulator's
 per-frame truth; :func:`accuracy` scores them over the walking part.
 
+:func:`path_accuracy` scores the path tracker's outputs (``docs/paths.md``):
+the first path's range change against the first tower's direct path, and the
+clock-free range difference of two towers against theirs, from the per-path
+truth (``/truth/paths``).
+
 Run ``python tests/receiver_accuracy.py`` (from the repository root) to print
 the 60 s figures of the brief: park-loop with the GNSS-disciplined and the
-free-running clock, and street. ``python tests/receiver_accuracy.py narrowband``
-prints the narrowband figures: park-loop, GNSS-disciplined clock, 40 s of
-walking recorded at 2.048, 2.4 and 3.2 Msps (an RTL-SDR's rates).
+free-running clock, and street, SI carriers and first path. ``--walk NAME``
+scores a whole walk (or ``--start``/``--seconds`` a segment of it), simulated
+in the process; ``--capture DIR`` scores a capture that ``dtmbnav simulate``
+wrote into DIR (the capture and its ``truth.h5``), without simulating again.
+``--narrowband`` prints the narrowband figures: park-loop, GNSS-disciplined clock,
+40 s of walking recorded at 2.048, 2.4 and 3.2 Msps (an RTL-SDR's rates).
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from dataclasses import dataclass
@@ -23,11 +32,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from dtmbnav.core import schema  # noqa: E402
+from dtmbnav.core.h5io import read_columns  # noqa: E402
 from dtmbnav.core.iqformat import decode  # noqa: E402
 from dtmbnav.core.records import FrameBatch, FrameFlag  # noqa: E402
+from receiver.capture import open_capture  # noqa: E402
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream  # noqa: E402
+from sim.channel import DIRECT  # noqa: E402
+from sim.path_truth import PathTruth, path_truth  # noqa: E402
 from sim.rf import CaptureGenerator, FrameTruth  # noqa: E402
-from sim.scenario import Scenario, load_scenario  # noqa: E402
+from sim.scenario import Scenario, load_scenario, scenario_from_dict  # noqa: E402
 from sim.walk import simulate_walk  # noqa: E402
 
 
@@ -41,9 +55,10 @@ class CaptureRun:
     scenario: Scenario
     start_s: float
     seconds_per_second: float
+    paths: PathTruth | None = None
 
 
-def run_capture(scenario: str | Scenario, *, start_s: float, seconds: float, config: ReceiverConfig,
+def run_capture(scenario: str | Scenario, *, start_s: float, seconds: float | None, config: ReceiverConfig,
                 sample_rate_hz: float | None = None, sample_format: str | None = None, pn_mode: str | None = None,
                 chunk_samples: int = 1 << 20, **receiver_overrides) -> CaptureRun:
     """Simulate a segment and receive it.
@@ -67,7 +82,41 @@ def run_capture(scenario: str | Scenario, *, start_s: float, seconds: float, con
     t0 = time.perf_counter()
     frames = FrameBatch.concatenate(list(receive_stream(chunks(), gen.sample_rate_hz, gen.carrier_hz, receiver=rx)))
     elapsed = time.perf_counter() - t0
-    return CaptureRun(frames, gen.frame_truth(), rx, scn, start_s, elapsed / seconds)
+    return CaptureRun(frames, gen.frame_truth(), rx, scn, start_s, elapsed / gen.num_samples * gen.sample_rate_hz,
+                      path_truth(gen))
+
+
+def load_simulated_capture(folder: str | Path) -> tuple[Path, FrameTruth, PathTruth, Scenario, float]:
+    """The capture, frame truth, path truth, scenario and segment start of a ``dtmbnav simulate`` folder."""
+    import tomllib
+
+    import h5py
+
+    folder = Path(folder)
+    meta = sorted(folder.glob("*.sigmf-meta"))
+    if not meta:
+        raise ValueError(f"{folder}: no SigMF capture")
+    truth_file = folder / "truth.h5"
+    frames_truth = FrameTruth(**read_columns(truth_file, schema.TRUTH_FRAMES))
+    paths = PathTruth(**read_columns(truth_file, schema.TRUTH_PATHS))
+    with h5py.File(truth_file, "r") as f:
+        scenario = scenario_from_dict(tomllib.loads(f[schema.TRUTH_FRAMES].attrs["scenario"]))
+        start_s = float(f[schema.TRUTH_FRAMES].attrs[schema.CAPTURE_START_ATTR])
+    return meta[0], frames_truth, paths, scenario, start_s
+
+
+def run_simulated_capture(folder: str | Path) -> CaptureRun:
+    """Receive a capture written by ``dtmbnav simulate`` into ``folder`` (with its ``truth.h5``)."""
+    capture, frames_truth, paths, scenario, start_s = load_simulated_capture(folder)
+    source = open_capture(capture)
+    config = segment_config(scenario, start_s, frames_truth)
+    rx = Receiver(source.sample_rate_hz, source.center_hz, config)
+    t0 = time.perf_counter()
+    frames = FrameBatch.concatenate(list(receive_stream(source.chunks(1 << 20), source.sample_rate_hz,
+                                                        source.center_hz, receiver=rx)))
+    elapsed = time.perf_counter() - t0
+    return CaptureRun(frames, frames_truth, rx, scenario, start_s, elapsed / source.num_samples * source.sample_rate_hz,
+                      paths)
 
 
 def match_truth(frames: FrameBatch, truth: FrameTruth) -> np.ndarray:
@@ -131,25 +180,132 @@ NARROWBAND_RATES_HZ = (2.048e6, 2.4e6, 3.2e6)
 NARROWBAND_WALK_S = 40.0
 
 
-def main(which: str = "wideband") -> None:
-    """Print the brief's 60 s figures (about 3 minutes of simulation per case on one core), or the narrowband ones."""
-    if which == "narrowband":
-        cases = [("park-loop-cw", {"sample_rate_hz": rate}, f"park-loop at {rate / 1e6:g} Msps, GNSS-disciplined clock",
-                  NARROWBAND_WALK_S) for rate in NARROWBAND_RATES_HZ]
-    else:
-        cases = [("park-loop-cw", {}, "park-loop, GNSS-disciplined clock", 60.0),
-                 ("park-loop-cw", {"clock": {"preset": "free-running"}}, "park-loop, free-running clock", 60.0),
-                 ("street-out", {}, "street (out), GNSS-disciplined clock", 60.0)]
-    for name, overrides, label, walk_s in cases:
+@dataclass
+class PathAccuracy:
+    """Scores of the path tracker's outputs over a time window of a run (``docs/paths.md``)."""
+
+    first_path_error_p95_m: float
+    first_path_error_max_m: float
+    si_error_p95_m: float
+    difference_error_p95_m: float
+    difference_error_max_m: float
+    first_path_share: float
+    frames: int
+    seconds: float
+
+    def __str__(self) -> str:
+        text = (f"first-path range error p95 {self.first_path_error_p95_m:.3f} m (max {self.first_path_error_max_m:.3f} m; "
+                f"SI carriers p95 {self.si_error_p95_m:.3f} m), first path found in {100 * self.first_path_share:.1f} % "
+                f"of the frames")
+        if np.isfinite(self.difference_error_p95_m):
+            text += (f"; tower-differenced range error p95 {self.difference_error_p95_m:.3f} m "
+                     f"(max {self.difference_error_max_m:.3f} m)")
+        return text + f"; {self.frames} frames over {self.seconds:.1f} s"
+
+
+def direct_range_m(paths: PathTruth, tower: int, t_s: np.ndarray) -> np.ndarray:
+    """A tower's direct-path range at capture times ``t_s``, interpolated from the per-path truth, m."""
+    rows = (paths.tower_id == tower) & (paths.kind == DIRECT)
+    return np.interp(t_s, paths.t_s[rows], paths.range_m[rows])
+
+
+def path_accuracy(run: CaptureRun, t_from_s: float, t_to_s: float) -> PathAccuracy:
+    """First-path and tower-differenced range-change errors over ``[t_from_s, t_to_s)`` (capture time).
+
+    The first path's range change is compared with the first tower's direct
+    path since the receiver's first frame (as :func:`accuracy` does for the
+    SI carriers); the range difference (tower 1 minus tower 0) with the
+    truth's since the first frame where the receiver reports it.
+    """
+    f = run.frames
+    assert run.paths is not None
+    r0 = direct_range_m(run.paths, 0, f.t_s)
+    sel = (f.t_s >= t_from_s) & (f.t_s < t_to_s)
+    first_err = np.abs(f.first_path_range_change_m - (r0 - r0[0]))[sel]
+    first_err = np.where(np.isfinite(first_err), first_err, np.inf)
+    si_err = np.abs(f.range_change_m - (r0 - r0[0]))[sel]
+    diff_p95 = diff_max = np.nan
+    reported = np.flatnonzero(np.isfinite(f.range_difference_change_1_m))
+    if len(reported) and np.any(run.paths.tower_id == 1):
+        true_diff = direct_range_m(run.paths, 1, f.t_s) - r0
+        ref = reported[0]
+        err = np.abs(f.range_difference_change_1_m - (true_diff - true_diff[ref]))[sel & (np.arange(len(f)) >= ref)]
+        err = np.where(np.isfinite(err), err, np.inf)
+        diff_p95, diff_max = float(np.percentile(err, 95)), float(np.max(err))
+    return PathAccuracy(float(np.percentile(first_err, 95)), float(np.max(first_err)),
+                        float(np.percentile(si_err, 95)), diff_p95, diff_max,
+                        float(np.mean(f.first_path_id[sel] >= 0)), int(sel.sum()), float(t_to_s - t_from_s))
+
+
+def segment_config(scn: Scenario, start_s: float, truth: FrameTruth | None = None) -> ReceiverConfig:
+    """Receiver settings for a segment from ``start_s``: the f_s window is the standstill but its last 0.5 s.
+
+    A segment that starts after the standstill has no static window: it is
+    given the true f_s (the clock offset of its first second, plus the
+    tuner's offset), and says so.
+    """
+    still = scn.walk.start_still_s - start_s
+    if still > 1.0:
+        return ReceiverConfig(static_window_s=still - 0.5)
+    if truth is None:
+        raise ValueError("a segment after the standstill needs the truth for its f_s")
+    first = truth.t_s < truth.t_s[0] + 1.0
+    return ReceiverConfig(clock_offset_hz=float(np.mean(truth.clock_offset_hz[first])) + scn.receiver.bulk_cfo_hz)
+
+
+def report(run: CaptureRun, label: str, t_from_s: float, t_to_s: float) -> None:
+    """Print the SI-carrier and the path figures of a run."""
+    print(f"{label}: {accuracy(run, t_from_s, t_to_s)}", flush=True)
+    print(f"{label}: {path_accuracy(run, t_from_s, t_to_s)}; receiver at {1 / run.seconds_per_second:.1f}x real "
+          "time incl. simulation wait", flush=True)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Print the brief's 60 s figures, or a whole walk's (module docstring)."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--walk", help="score this scenario's whole walk (name or .toml)")
+    parser.add_argument("--start", type=float, default=0.0, help="segment start, s (with --walk)")
+    parser.add_argument("--seconds", type=float, help="segment length, s (with --walk; default: to the end)")
+    parser.add_argument("--capture", type=Path, help="score a capture written by dtmbnav simulate into this folder")
+    parser.add_argument("--narrowband", action="store_true", help="park-loop recorded at the narrowband rates")
+    args = parser.parse_args(argv)
+    if args.narrowband:
+        for rate in NARROWBAND_RATES_HZ:
+            scn = load_scenario("park-loop-cw")
+            still = scn.walk.start_still_s
+            run = run_capture(scn, start_s=0.0, seconds=still + NARROWBAND_WALK_S, config=segment_config(scn, 0.0),
+                              sample_rate_hz=rate)
+            print(f"park-loop at {rate / 1e6:g} Msps, GNSS-disciplined clock: "
+                  f"{accuracy(run, still, still + NARROWBAND_WALK_S)}", flush=True)
+        return
+    if args.capture is not None:
+        run = run_simulated_capture(args.capture)
+        still = run.scenario.walk.start_still_s - run.start_s
+        f_s = "true f_s" if run.receiver.config.clock_offset_hz is not None else "f_s from the standstill"
+        report(run, f"{run.scenario.name} capture from {run.start_s:g} s ({f_s})", max(still, 0.0),
+               float(run.frames.t_s[-1]) + 1e-9)
+        return
+    if args.walk is not None:
+        scn = load_scenario(args.walk)
+        walk_truth = None
+        if scn.walk.start_still_s - args.start <= 1.0:
+            walk = simulate_walk(scn)
+            walk_truth = CaptureGenerator(scn, walk.track, start_s=args.start, seconds=1.0).frame_truth()
+        run = run_capture(scn, start_s=args.start, seconds=args.seconds,
+                          config=segment_config(scn, args.start, walk_truth))
+        still = scn.walk.start_still_s - args.start
+        report(run, f"{scn.name} from {args.start:g} s", max(still, 0.0), float(run.frames.t_s[-1]) + 1e-9)
+        return
+    cases = [("park-loop-cw", {}, "park-loop, GNSS-disciplined clock"),
+             ("park-loop-cw", {"clock": {"preset": "free-running"}}, "park-loop, free-running clock"),
+             ("street-out", {}, "street (out), GNSS-disciplined clock"),
+             ("sfn-park", {}, "sfn-park, free-running clock")]
+    for name, overrides, label in cases:
         scn = load_scenario(name)
         still = scn.walk.start_still_s
-        # Static window: the whole still period but the last 0.5 s (the walker may lean off).
-        config = ReceiverConfig(static_window_s=still - 0.5)
-        rate = overrides.pop("sample_rate_hz", None)
-        run = run_capture(scn, start_s=0.0, seconds=still + walk_s, config=config, sample_rate_hz=rate, **overrides)
-        print(f"{label}: {accuracy(run, still, still + walk_s)}; receiver at "
-              f"{1 / run.seconds_per_second:.1f}x real time incl. simulation wait", flush=True)
+        run = run_capture(scn, start_s=0.0, seconds=still + 60.0, config=segment_config(scn, 0.0), **overrides)
+        report(run, label, still, still + 60.0)
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:2])
+    main()

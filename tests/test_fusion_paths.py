@@ -203,3 +203,46 @@ def test_default_epochs_have_no_path_columns():
     assert epochs.first_path_range_m.shape == (len(walk.pdr), 0)
     copy = FilterEpochs(**epochs.columns())
     np.testing.assert_array_equal(copy.interval_s, epochs.interval_s)
+
+
+# --- the receiver file's path columns -> PathRanges (dtmbnav.chain) ---------------------------
+
+def test_receiver_path_columns_become_path_ranges():
+    """First path 7 then 9 (a new origin), a cycle slip on path 9, a difference that starts late."""
+    from dtmbnav.chain import paths_from_frames
+    from dtmbnav.core.records import FrameFlag, PathFlag
+
+    n = 10
+    t = 0.1 * np.arange(n)
+    ids = np.array([-1, 7, 7, 7, 9, 9, 9, 9, 9, 9])
+    flags = np.zeros(n, np.uint8)
+    flags[8] = FrameFlag.LOW_QUALITY
+    diff = np.where(np.arange(n) >= 3, 0.01 * np.arange(n), np.nan)
+    frames = {"t_s": t, "frame_index": np.arange(100, 100 + n), "flags": flags,
+              "first_path_range_change_m": 0.05 * np.arange(n), "first_path_snr_db": np.full(n, 20.0, np.float32),
+              "first_path_id": ids.astype(np.int32), "range_difference_change_1_m": diff,
+              "range_difference_change_2_m": np.full(n, np.nan)}
+    # /receiver/paths: tower 0's first paths as in the frames, tower 1's first path 4 from frame 3, slip at 6.
+    frame_index, path_id, tower_id, row_flags = [], [], [], []
+    for i in range(n):
+        if ids[i] >= 0:
+            frame_index.append(100 + i), path_id.append(ids[i]), tower_id.append(0)
+            row_flags.append(PathFlag.FIRST_PATH | (PathFlag.CYCLE_SLIP if i == 6 else 0))
+        if i >= 3:
+            frame_index.append(100 + i), path_id.append(4), tower_id.append(1), row_flags.append(PathFlag.FIRST_PATH)
+    rows = {"frame_index": np.array(frame_index), "path_id": np.array(path_id), "tower_id": np.array(tower_id),
+            "flags": np.array(row_flags, np.uint8), "snr_db": np.where(np.array(tower_id) == 1, 12.0, 20.0)}
+    paths = paths_from_frames(frames, rows, n_towers=2, time_offset_s=5.0)
+    first = paths.first_path[0]
+    np.testing.assert_allclose(first.t_s, t + 5.0)
+    assert first.valid.tolist() == [False] + [True] * 7 + [False, True]          # no path, then a bad frame
+    assert first.slip.tolist() == [False, True, False, False, True, False, True, False, False, False]
+    np.testing.assert_allclose(first.path_age_s[1:4], [0.0, 0.1, 0.2])          # path 7
+    np.testing.assert_allclose(first.path_age_s[4:], 0.1 * np.arange(6), atol=1e-12)  # path 9 from its first frame
+    difference = paths.differences[1]
+    assert difference.valid.tolist() == [False] * 3 + [True] * 5 + [False, True]
+    assert difference.slip[3] and difference.slip[4] and difference.slip[6]      # start, first-path change, slip
+    np.testing.assert_allclose(difference.snr_db[3:], 12.0)                      # the weaker path's
+    assert list(paths.differences) == [1]                                        # no tower 2 in a 2-tower geometry
+    frames.pop("first_path_range_change_m")
+    assert paths_from_frames(frames, rows, n_towers=2) is None                    # tracker off: SI range only

@@ -3,14 +3,16 @@
 Locks in every header mode, with constant and rotating phase, at several input
 rates and sample formats with a 5 kHz tuner offset, and names the SI word; on
 a park-loop segment (line of sight, C/N 15 dB, GNSS-disciplined clock) the
-radial velocity and the integrated range meet the brief's accuracy. The 60 s
-figures come from ``python tests/receiver_accuracy.py``.
+radial velocity and the integrated range, SI carriers and first path, meet the
+brief's accuracy; on an sfn-park segment (two towers, free-running TCXO) the
+tower-differenced range does. The 60 s and whole-walk figures come from
+``python tests/receiver_accuracy.py``.
 """
 
 import h5py
 import numpy as np
 import pytest
-from receiver_accuracy import accuracy, match_truth, run_capture
+from receiver_accuracy import accuracy, match_truth, path_accuracy, run_capture
 
 from dtmbnav.core.records import FrameFlag
 from receiver.capture import open_capture
@@ -60,6 +62,21 @@ def test_park_loop_segment_velocity_and_range_accuracy():
     assert acc.range_error_p95_m < 0.5
     assert abs(acc.clock_offset_error_hz) < 0.05
     assert not np.any(run.frames.flags & (FrameFlag.GAP | FrameFlag.LOW_QUALITY))
+    # The first path is the direct path (line of sight): its range change meets the park-loop target.
+    paths = path_accuracy(run, still - start, 16.0)
+    assert paths.first_path_share == 1.0 and paths.first_path_error_p95_m < 0.1
+
+
+@pytest.mark.slow
+def test_sfn_segment_tower_difference_cancels_the_free_running_clock():
+    """sfn-park, 4 s still then 6 s of walking, free-running TCXO: the two towers' range difference."""
+    scn = load_scenario("sfn-park")
+    still = scn.walk.start_still_s
+    start = still - 4.0
+    run = run_capture(scn, start_s=start, seconds=10.0, config=ReceiverConfig(static_window_s=3.5))
+    acc = path_accuracy(run, still - start, 10.0)
+    assert np.all(run.frames.tower_count[run.frames.t_s > still - start] == 2)
+    assert acc.difference_error_p95_m < 0.1
 
 
 @pytest.mark.slow
@@ -77,6 +94,8 @@ def test_receive_file_from_simulated_sigmf(tmp_path):
         assert group.attrs["carrier_hz"] == scn.tower.carrier_hz
         assert len(group["frame_index"]) == sink.frames
         assert np.all(np.diff(group["frame_index"][()]) == 1)
+        paths = f["receiver/paths"]
+        assert paths.attrs["taps_before"] == 83 and len(paths["t_s"]) == sink.paths
     assert len((tmp_path / "rx.csv").read_text().splitlines()) == sink.frames + 1
     with pytest.raises(ValueError, match="carrier_hz"):
         capture.center_hz = None

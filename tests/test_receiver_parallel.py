@@ -17,7 +17,7 @@ from receiver_signals import make_signal
 from dtmbnav.cli import EXIT_OK, main
 from dtmbnav.core import gb20600, iqformat, schema
 from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
-from dtmbnav.core.records import FRAME_COLUMN_DTYPES, FrameBatch
+from dtmbnav.core.records import FRAME_COLUMN_DTYPES, PATH_COLUMN_DTYPES, FrameBatch, PathBatch
 from receiver import writer
 from receiver.acquisition import differential_grid_metric, window_length
 from receiver.capture import open_capture, rails_to_samples
@@ -71,6 +71,10 @@ def test_cli_jobs_give_the_same_file(tmp_path):
         assert len(ga["t_s"]) > 2000
         for name in FRAME_COLUMN_DTYPES:
             assert np.array_equal(ga[name][:], gb[name][:], equal_nan=True), name
+        pa, pb = a[schema.RECEIVER_PATHS], b[schema.RECEIVER_PATHS]   # the path tracker runs after the threads
+        assert len(pa["t_s"]) > 0
+        for name in PATH_COLUMN_DTYPES:
+            assert np.array_equal(pa[name][:], pb[name][:], equal_nan=True), name
 
 
 def test_jobs_must_be_positive(capsys):
@@ -168,21 +172,27 @@ def test_frame_sink_writes_every_row_in_blocks(sizes, block, tmp_path_factory):
     rng = np.random.default_rng(len(sizes))
     batches = [FrameBatch(**{name: rng.integers(0, 100, n).astype(dtype) for name, dtype in FRAME_COLUMN_DTYPES.items()})
                for n in sizes]
+    path_rows = [PathBatch(**{name: rng.integers(0, 100, 2 * n).astype(dtype)
+                              for name, dtype in PATH_COLUMN_DTYPES.items()}) for n in sizes]
     saved = writer.WRITE_ROWS
     writer.WRITE_ROWS = block
     try:
         sink = writer.FrameSink(path)
-        for batch in batches:
+        for batch, rows in zip(batches, path_rows):
             sink.append(batch)
-        sink.close({"pn_mode": "PN420"})
+            sink.append_paths(rows)
+        sink.close({"pn_mode": "PN420"}, {"carrier_hz": 666e6})
     finally:
         writer.WRITE_ROWS = saved
-    whole = FrameBatch.concatenate(batches)
-    assert sink.frames == len(whole)
+    whole, whole_paths = FrameBatch.concatenate(batches), PathBatch.concatenate(path_rows)
+    assert sink.frames == len(whole) and sink.paths == len(whole_paths)
     with h5py.File(path) as h5:
         group = h5[schema.RECEIVER_FRAMES]
         for name in FRAME_COLUMN_DTYPES:
             assert np.array_equal(group[name][:], getattr(whole, name)), name
+        group = h5[schema.RECEIVER_PATHS]
+        for name in PATH_COLUMN_DTYPES:
+            assert np.array_equal(group[name][:], getattr(whole_paths, name)), name
 
 
 def test_receive_path_imports_only_the_receiver():

@@ -4,7 +4,7 @@ and narrowband (RTL-SDR) rates.
 Each test builds the impairment into a simulated capture (sim.rf) or a
 symbol-rate test signal and checks the receiver's output against the truth.
 The narrowband figures over 40 s of walking come from
-``python tests/receiver_accuracy.py narrowband``; here a few seconds.
+``python tests/receiver_accuracy.py --narrowband``; here a few seconds.
 """
 
 import numpy as np

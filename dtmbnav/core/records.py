@@ -270,6 +270,16 @@ FRAME_COLUMN_DTYPES: dict[str, type] = {
     "cfo_hz": np.float64, "cfo_pn_hz": np.float64, "doppler_hz": np.float64, "velocity_mps": np.float64,
     "range_change_m": np.float64, "snr_db": np.float32, "si_snr_db": np.float32,
     "peak_metric": np.float32, "flags": np.uint8, "segment_id": np.int32,
+    "first_path_cfo_hz": np.float64, "first_path_range_change_m": np.float64, "first_path_delay_s": np.float64,
+    "first_path_snr_db": np.float32, "first_path_id": np.int32, "tower_count": np.uint8,
+    "range_difference_change_1_m": np.float64, "range_difference_change_2_m": np.float64,
+}
+#: The path tracker's columns of ``/receiver/frames`` and the value they hold where it found nothing
+#: (or does not run).
+FIRST_PATH_FILL: dict[str, float] = {
+    "first_path_cfo_hz": np.nan, "first_path_range_change_m": np.nan, "first_path_delay_s": np.nan,
+    "first_path_snr_db": np.nan, "first_path_id": -1, "tower_count": 0,
+    "range_difference_change_1_m": np.nan, "range_difference_change_2_m": np.nan,
 }
 
 
@@ -314,6 +324,19 @@ class FrameBatch(ColumnRecord):
       re-acquisition: the range carries no motion across a change of
       segment (whatever moved during the gap is unknown), so it is a new
       origin for the fusion.
+
+    The path tracker's columns (``docs/paths.md``; :data:`FIRST_PATH_FILL`
+    where it found nothing; left out of the constructor, they take that fill):
+
+    - ``first_path_cfo_hz``: carrier frequency of the first tower's first
+      (earliest) path, as ``cfo_hz``; ``first_path_range_change_m``: eq. 9-11 on
+      it (its own f_s), since the first frame: the direct-path range change;
+    - ``first_path_delay_s``, ``first_path_snr_db``, ``first_path_id``: that
+      path's delay after ``t_s``, SNR and id (``/receiver/paths``);
+    - ``tower_count``: towers (groups of paths) tracked;
+    - ``range_difference_change_1_m``, ``..._2_m``: change of the range to
+      tower 1 (2) minus the range to tower 0, from their first paths' carrier
+      phases (clock-free), since the frame where both were first tracked.
     """
 
     t_s: np.ndarray
@@ -330,6 +353,20 @@ class FrameBatch(ColumnRecord):
     peak_metric: np.ndarray
     flags: np.ndarray
     segment_id: np.ndarray
+    first_path_cfo_hz: np.ndarray | None = None
+    first_path_range_change_m: np.ndarray | None = None
+    first_path_delay_s: np.ndarray | None = None
+    first_path_snr_db: np.ndarray | None = None
+    first_path_id: np.ndarray | None = None
+    tower_count: np.ndarray | None = None
+    range_difference_change_1_m: np.ndarray | None = None
+    range_difference_change_2_m: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        for name, fill in FIRST_PATH_FILL.items():
+            if getattr(self, name) is None:
+                setattr(self, name, np.full(len(self.t_s), fill, dtype=FRAME_COLUMN_DTYPES[name]))
+        super().__post_init__()
 
     @classmethod
     def empty(cls) -> "FrameBatch":
@@ -343,3 +380,74 @@ class FrameBatch(ColumnRecord):
             return cls(**{name: np.empty(0, dtype=dt) for name, dt in FRAME_COLUMN_DTYPES.items()})
         return cls(**{name: np.concatenate([getattr(b, name) for b in batches]).astype(dt, copy=False)
                       for name, dt in FRAME_COLUMN_DTYPES.items()})
+
+
+# --- receiver paths (/receiver/paths) --------------------------------------------------------
+
+class PathFlag(IntFlag):
+    """Per-row bits of ``/receiver/paths`` (``flags`` column)."""
+
+    #: The earliest tracked path of its tower: the direct-path candidate.
+    FIRST_PATH = 1
+    #: The path's first row: no phase pair yet (``cfo_hz`` NaN, range change 0).
+    BORN = 2
+    #: A cycle slip was detected on this frame; the range change is bridged with the path's smoothed Doppler.
+    CYCLE_SLIP = 4
+    #: The path's power is below the survival threshold in this batch (it is dropped if that lasts).
+    FADING = 8
+
+
+#: Storage type of each ``/receiver/paths`` column.
+PATH_COLUMN_DTYPES: dict[str, type] = {
+    "t_s": np.float64, "frame_index": np.int64, "path_id": np.int32, "tower_id": np.int32, "delay_s": np.float64,
+    "delay_rate": np.float32, "cfo_hz": np.float64, "doppler_hz": np.float64, "range_change_m": np.float64,
+    "snr_db": np.float32, "flags": np.uint8,
+}
+
+
+@dataclass
+class PathBatch(ColumnRecord):
+    """Tracked propagation paths, one row per frame and tracked path (``/receiver/paths``).
+
+    Notes
+    -----
+    Columns (``docs/schema.md``, ``docs/paths.md``):
+
+    - ``t_s``, ``frame_index``: the frame's, as in :class:`FrameBatch`.
+    - ``path_id``: the path's id, unique within a receiver run (a path that is
+      lost and found again gets a new id); ``tower_id``: the group of paths it
+      belongs to, i.e. the transmitter of a single-frequency network (0 = the
+      tower found first in a lock, then in order of discovery).
+    - ``delay_s``: arrival of the frame's header over this path after the
+      frame's ``t_s``, s (sub-sample, from the pulse-shape fit).
+    - ``delay_rate``: rate of change of the path's delay, s/s (range rate over
+      c plus the receiver clock's rate).
+    - ``cfo_hz``: the path's carrier frequency from its phase between this
+      frame and the previous one (the same measure as the frames' ``cfo_hz``,
+      coarse CFO included); on frames flagged ``CYCLE_SLIP`` its smoothed value.
+    - ``doppler_hz``: ``cfo_hz - f_s`` (eq. 9); ``range_change_m``: eq. 11 for
+      this path, since its first row.
+    - ``snr_db``: the path's power over the noise per sample, dB (its share of
+      the header SNR).
+    - ``flags``: :class:`PathFlag` bits.
+    """
+
+    t_s: np.ndarray
+    frame_index: np.ndarray
+    path_id: np.ndarray
+    tower_id: np.ndarray
+    delay_s: np.ndarray
+    delay_rate: np.ndarray
+    cfo_hz: np.ndarray
+    doppler_hz: np.ndarray
+    range_change_m: np.ndarray
+    snr_db: np.ndarray
+    flags: np.ndarray
+
+    @classmethod
+    def concatenate(cls, batches: list["PathBatch"]) -> "PathBatch":
+        """Rows of ``batches`` in order, as one batch."""
+        if not batches:
+            return cls(**{name: np.empty(0, dtype=dt) for name, dt in PATH_COLUMN_DTYPES.items()})
+        return cls(**{name: np.concatenate([getattr(b, name) for b in batches]).astype(dt, copy=False)
+                      for name, dt in PATH_COLUMN_DTYPES.items()})

@@ -1,0 +1,940 @@
+"""Path tracking from the PN-header channel estimate: each path's delay and carrier phase (``docs/paths.md``).
+
+The SI-carrier CFO (eq. 5-8) sees the sum of all paths; in a street it follows
+the strongest reflection. The PN header gives, every frame, the channel
+impulse response (CIR) over the header's cyclic extension
+(:meth:`receiver.channel_estimate.ChannelEstimator.span_taps`: inside it no
+previous body and no header tail reach the correlation window, so nothing
+needs removing); this module separates the paths in it and tracks each one:
+
+1. **Model.** The CIR of a frame is ``y[l] = sum_i a_i g(l - lambda_i) + noise``:
+   path i has a complex amplitude ``a_i`` (its carrier phase) and a fractional
+   delay ``lambda_i`` (samples after the frame's window start), and ``g`` is the
+   known pulse seen through the header correlation: the SRRC of GB 20600
+   (``docs/dtmb.md`` §1; roll-off 0.05) times the resampler's response, made
+   periodic over the m-sequence period (the correlation is circular).
+   :func:`pulse_tables` builds ``g`` and ``g'`` from that spectrum.
+2. **Fit (SAGE-style least squares).** :func:`fit_paths_kernel`: over runs of
+   frames the delays are held, the amplitudes of every frame are the
+   least-squares fit of the model (so two paths closer than a chip are
+   separated by the pulse shape: super-resolution), and every
+   ``block_frames`` frames one Gauss-Newton step on the delays, with the
+   amplitudes projected out (variable projection), is applied with a gain: a
+   delay-locked loop per path, with a rate per path for the drift of the
+   receiver clock and the walker's motion. A confirmed path's correction is
+   held to ``steady_delay_step`` per block (paths move by hundredths of a chip
+   per second): a spurious neighbour cannot drag a path away.
+3. **Detection.** What the paths' pulses and their delay derivatives leave
+   unexplained (so a slightly mis-delayed strong path leaves nothing behind),
+   as power per lag over a batch of F frames, divided by the noise floor (the
+   lags outside the span), is ``Gamma(F, 1/F)`` distributed where there is
+   only noise; a lag above the threshold with false-alarm probability
+   ``false_alarm`` per lag and batch, above ``relative_floor_db`` of the
+   strongest path and standing out of its surroundings like a pulse
+   (:func:`detect_paths`) is a new path: the strongest such peak per batch,
+   and none next to a path whose delay loop is still settling (that residual
+   is its fitting error). The next batch fits it with the others, so the
+   residual stays exact and a strong path's sidelobes are never taken for
+   paths. A new path is confirmed (reported) once its delay has held still,
+   above ``survival_snr_db``, for ``confirm_batches`` batches; a path below
+   ``survival_snr_db`` for ``lost_batches`` batches, or that drifts closer
+   than ``min_separation`` to an older one, is dropped.
+4. **Carrier phase.** A path's frequency is the phase of its amplitude from
+   one frame to the next (``receiver.cfo.cfo_from_theta``, as the PN CFO
+   estimate), and eq. 9-11 integrate it (``receiver.ranging``). A cycle slip
+   (:func:`slip_kernel`): frames whose phase step departs from the path's
+   smoothed frequency by more than ``slip_sigmas`` times its phase noise are
+   bridged with the smoothed frequency; a run of them that adds up to half a
+   cycle or more is flagged as a slip.
+5. **Towers.** Paths within ``tower_gap`` of one another belong to one tower
+   (the delay spread of a street is a few chips; the towers of a
+   single-frequency network are hundreds of metres apart, tens of chips).
+   Each tower's earliest confirmed path that has lived ``first_path_batches``
+   batches is its first path, the direct-path candidate; the differences of the towers' first-path phases give
+   clock-free range differences.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+from numba import njit
+
+from dtmbnav.core import gb20600
+from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
+from dtmbnav.core.records import PathBatch, PathFlag
+from receiver.cfo import cfo_from_theta
+from receiver.ranging import held_doppler
+from receiver.resample import design_filter
+
+#: Points per chip of the pulse tables (linear interpolation between them).
+PULSE_OVERSAMPLING = 32
+#: Lags (from, to) on either side of a residual peak whose median is its local background (detect_paths).
+RING = (3, 10)
+#: Towers whose clock-free range differences go to ``/receiver/frames`` (towers 1 and 2 against tower 0).
+RANGE_DIFFERENCE_TOWERS = 2
+
+
+@dataclass(frozen=True)
+class PathConfig:
+    """Path-tracker settings (module docstring).
+
+    Attributes
+    ----------
+    taps_before, taps_after : int or None
+        Delay span of the CIR around the frame's window start, samples; None:
+        the header's whole cyclic extension (PN420: -83..82, PN945: -217..217).
+    block_frames : int
+        Frames per delay update.
+    delay_gain, rate_gain : float
+        Gains of each path's delay loop (per block) and of its rate.
+    max_delay_step : float
+        Largest delay correction per block of a path not yet confirmed, samples.
+    steady_delay_step : float
+        Largest delay correction per block of a confirmed path, samples.
+    false_alarm : float
+        Probability that noise alone crosses the detection threshold, per lag and batch.
+    relative_floor_db : float
+        A new path must be at least this strong relative to the strongest path, dB.
+    survival_snr_db : float
+        Per-frame tap SNR of a path's fitted amplitude (mean over a batch) below which it fades, dB.
+    lost_batches : int
+        Consecutive fading batches after which a path is dropped.
+    confirm_batches : int
+        Consecutive steady batches (delay correction below ``steady_move``)
+        a new path needs before it is reported: a fitting artefact wanders, a
+        path holds still.
+    steady_move : float
+        Largest delay-loop correction over a batch of a steady path, samples.
+    first_path_batches : int
+        Batches a confirmed path must have lived before it can be its tower's
+        first path (a young path may still be a fitting artefact).
+    min_separation : float
+        Paths closer than this (samples) are merged into the older one.
+    tower_gap : float
+        Paths more than this (samples) from every path of a tower start a new tower.
+    max_paths : int
+        Paths tracked at most.
+    max_births : int
+        New paths per batch at most.
+    settle_batches : int
+        Batches a new path's delay loop needs to converge; no path is born
+        within ``settle_guard`` of a younger one.
+    settle_guard : float
+        Samples around a settling path where no path is born.
+    slip_sigmas : float
+        Phase-step outlier threshold, in standard deviations of the path's phase noise.
+    slip_min_cycles : float
+        Smallest phase-step departure that counts as an outlier, cycles.
+    frequency_time_s : float
+        Time constant of each path's smoothed frequency (the slip reference), s.
+    """
+
+    taps_before: int | None = None
+    taps_after: int | None = None
+    block_frames: int = 16
+    delay_gain: float = 0.3
+    rate_gain: float = 0.02
+    max_delay_step: float = 0.2
+    steady_delay_step: float = 0.01
+    false_alarm: float = 1e-7
+    relative_floor_db: float = -35.0
+    survival_snr_db: float = 6.0
+    lost_batches: int = 3
+    confirm_batches: int = 3
+    steady_move: float = 0.05
+    first_path_batches: int = 14
+    min_separation: float = 0.35
+    tower_gap: float = 20.0
+    max_paths: int = 12
+    max_births: int = 1
+    settle_batches: int = 2
+    settle_guard: float = 1.5
+    slip_sigmas: float = 6.0
+    slip_min_cycles: float = 0.05
+    frequency_time_s: float = 0.1
+
+    def span(self, mode: PnMode) -> tuple[int, int]:
+        """``(taps_before, taps_after)`` for a header mode (the cyclic extension unless set)."""
+        m = mode.value
+        return (m.postamble if self.taps_before is None else self.taps_before,
+                m.preamble if self.taps_after is None else self.taps_after)
+
+
+# ---- the pulse model -------------------------------------------------------------------------
+
+def srrc_spectrum(f: np.ndarray, rolloff: float = gb20600.SRRC_ROLLOFF) -> np.ndarray:
+    """Square-root raised-cosine spectrum at ``f`` cycles per chip (1 in the pass band; unit-energy pulse)."""
+    f = np.abs(np.asarray(f, dtype=np.float64))
+    edge = (1.0 - rolloff) / 2.0
+    out = np.where(f <= edge, 1.0, 0.0)
+    slope = (f > edge) & (f <= (1.0 + rolloff) / 2.0)
+    return np.where(slope, np.sqrt(0.5 * (1.0 + np.cos(np.pi / rolloff * (f - edge)))), out)
+
+
+def resampler_response(up: int, down: int) -> Callable[[np.ndarray], np.ndarray] | None:
+    """Zero-phase response of the receiver's resampler (``receiver.resample.design_filter``) at ``f`` cycles per chip.
+
+    None for a 7.56 Msps capture (no resampling). The prototype runs at
+    ``up`` times the input rate, i.e. ``down`` samples per chip.
+    """
+    if up == 1 and down == 1:
+        return None
+    h = design_filter(up, down).astype(np.float64)
+    n = np.arange(len(h)) - (len(h) - 1) // 2
+
+    def response(f: np.ndarray) -> np.ndarray:
+        return np.cos(2.0 * np.pi * np.outer(f, n) / down) @ h / up
+
+    return response
+
+
+def pulse_tables(period: int, oversampling: int = PULSE_OVERSAMPLING,
+                 response: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The CIR of a unit path, ``g(x)``, and ``g'(x)`` over one period, ``oversampling`` points per chip.
+
+    ``g`` is the pulse the header correlation sees (module docstring), made
+    periodic over ``period`` chips: its Fourier series holds the pulse's
+    spectrum at ``k / period`` cycles per chip, including the roll-off beyond
+    half the chip rate, which the 1-sample-per-chip correlation aliases, as
+    sampling the continuous pulse does. Entry ``m`` is ``x = m / oversampling``;
+    one extra entry repeats the first (for interpolation).
+    """
+    reach = int(np.ceil((1.0 + gb20600.SRRC_ROLLOFF) / 2.0 * period))
+    k = np.arange(-reach, reach + 1)
+    f = k / period
+    coef = srrc_spectrum(f) / period
+    if response is not None:
+        coef = coef * response(f)
+    size = period * oversampling
+    spectrum = np.zeros(size, dtype=np.complex128)
+    spectrum[k % size] = coef
+    g = np.real(np.fft.ifft(spectrum)) * size
+    spectrum[k % size] = coef * 2j * np.pi * f
+    dg = np.real(np.fft.ifft(spectrum)) * size
+    return np.append(g, g[0]), np.append(dg, dg[0])
+
+
+@lru_cache(maxsize=8)
+def _pulse_tables_cached(period: int, up: int, down: int) -> tuple[np.ndarray, np.ndarray]:
+    return pulse_tables(period, PULSE_OVERSAMPLING, resampler_response(up, down))
+
+
+# ---- the least-squares fit (numba kernel and its numpy twin) ---------------------------------
+
+@njit(cache=True, fastmath=True)
+def _table_at(table: np.ndarray, x: float, period: int, oversampling: int) -> float:
+    """Periodic table lookup with linear interpolation, ``x`` in chips."""
+    pos = (x % period) * oversampling
+    i0 = int(pos)
+    w = pos - i0
+    return table[i0] * (1.0 - w) + table[i0 + 1] * w
+
+
+@njit(cache=True, fastmath=True)
+def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np.ndarray, rate: np.ndarray,
+                     max_step: np.ndarray, table: np.ndarray, dtable: np.ndarray, oversampling: int,
+                     block_frames: int, gain: float, rate_gain: float, amplitudes: np.ndarray, lags: np.ndarray,
+                     variance: np.ndarray, residual_power: np.ndarray) -> None:
+    """Least-squares path amplitudes and delay-loop updates over a batch (module docstring, step 2).
+
+    The frames are fitted in runs with one window offset (the lags of a
+    path do not move inside a run); the delay loops are updated every
+    ``block_frames`` frames whatever the runs, so their bandwidth per frame
+    does not depend on how often the receiver's timing moves the window.
+
+    Parameters
+    ----------
+    taps : (F, L) complex64
+        Raw CIR of each frame; column j is lag ``lag0 + j``.
+    offsets : (F,) float64
+        Each frame's window start on the path-delay grid: path i sits at lag
+        ``delay_i - offsets[k]``.
+    lag0 : int
+        Lag of column 0 (``-taps_before``).
+    delay, rate : (n,) float64
+        Grid delay of each path at the batch's first frame and its drift per
+        frame, samples; updated in place to the frame after the batch.
+    max_step : (n,) float64
+        Largest delay correction per update of each path, samples.
+    table, dtable : float64
+        :func:`pulse_tables` (period ``(len - 1) / oversampling`` chips).
+    block_frames, gain, rate_gain
+        Frames per update and the loop gains.
+    amplitudes : (F, n) complex128, out
+        Fitted amplitude of each path in each frame.
+    lags : (F, n) float64, out
+        Lag of each path in each frame, samples after the window start.
+    variance : (F, n) float64, out
+        Diagonal of ``(G^T G)^-1``: the amplitude's noise variance in units of the tap noise.
+    residual_power : (L,) float64, in/out
+        Accumulates, per lag, the power of what neither the paths' pulses nor
+        their delay derivatives explain (``y`` minus its projection on
+        ``[G, G']``): a slightly mis-delayed strong path leaves no trace there
+        that detection could take for a path.
+    """
+    n_frames, n_lags = taps.shape
+    n = delay.shape[0]
+    period = (table.shape[0] - 1) // oversampling
+    # Pulses and their derivatives, one contiguous row per path: the per-frame sums run along the lags.
+    both = np.empty((2 * n, n_lags))
+    lam = np.empty(n)
+    hess = np.zeros((n, n))
+    grad = np.zeros(n)
+    y_re = np.empty(n_lags)
+    y_im = np.empty(n_lags)
+    r_re = np.empty(n_lags)
+    r_im = np.empty(n_lags)
+    uv_re = np.empty(2 * n)
+    uv_im = np.empty(2 * n)
+    pending = 0
+    start = 0
+    while start < n_frames:
+        stop = start + 1
+        while stop < n_frames and pending + stop - start < block_frames and offsets[stop] == offsets[start]:
+            stop += 1
+        count = stop - start
+        mid = 0.5 * (count - 1)
+        for i in range(n):
+            lam[i] = delay[i] + rate[i] * mid - offsets[start]
+            for j in range(n_lags):
+                x = lag0 + j - lam[i]
+                both[i, j] = _table_at(table, x, period, oversampling)
+                both[n + i, j] = _table_at(dtable, x, period, oversampling)
+        gram2 = both @ both.T
+        ridge = 1e-6 * np.trace(gram2[:n, :n]) / max(n, 1)
+        for i in range(2 * n):
+            gram2[i, i] += ridge
+        inverse = np.linalg.inv(gram2[:n, :n].copy())
+        cross = gram2[n:, :n].copy()
+        q = gram2[n:, n:] - cross @ inverse @ cross.T
+        for i in range(n):
+            q[i, i] -= ridge
+        inverse2 = np.linalg.inv(gram2)
+        for k in range(start, stop):
+            y = taps[k]
+            for j in range(n_lags):
+                y_re[j] = y[j].real
+                y_im[j] = y[j].imag
+            for i in range(2 * n):
+                row = both[i]
+                acc_re = 0.0
+                acc_im = 0.0
+                for j in range(n_lags):
+                    acc_re += row[j] * y_re[j]
+                    acc_im += row[j] * y_im[j]
+                uv_re[i] = acc_re
+                uv_im[i] = acc_im
+            for j in range(n_lags):
+                r_re[j] = y_re[j]
+                r_im[j] = y_im[j]
+            for i in range(2 * n):
+                c_re = 0.0
+                c_im = 0.0
+                for m in range(2 * n):
+                    c_re += inverse2[i, m] * uv_re[m]
+                    c_im += inverse2[i, m] * uv_im[m]
+                row = both[i]
+                for j in range(n_lags):
+                    r_re[j] -= row[j] * c_re
+                    r_im[j] -= row[j] * c_im
+            for j in range(n_lags):
+                residual_power[j] += r_re[j] * r_re[j] + r_im[j] * r_im[j]
+            for i in range(n):
+                a_re = 0.0
+                a_im = 0.0
+                for m in range(n):
+                    a_re += inverse[i, m] * uv_re[m]
+                    a_im += inverse[i, m] * uv_im[m]
+                amplitudes[k, i] = complex(a_re, a_im)
+                lags[k, i] = lam[i] + rate[i] * (k - start - mid)
+                variance[k, i] = inverse[i, i]
+            for i in range(n):
+                ca = 0j
+                for m in range(n):
+                    ca += cross[i, m] * amplitudes[k, m]
+                a = amplitudes[k, i]
+                # d(model)/d(lambda_i) = -a_i g'_i: gradient term Re(J^H r), r = y - G a orthogonal to G.
+                grad[i] += -(np.conj(a) * (complex(uv_re[n + i], uv_im[n + i]) - ca)).real
+                for m in range(n):
+                    hess[i, m] += q[i, m] * (np.conj(a) * amplitudes[k, m]).real
+        for i in range(n):
+            delay[i] += rate[i] * count
+        pending += count
+        if n > 0 and (pending >= block_frames or stop == n_frames):
+            for i in range(n):
+                hess[i, i] += 1e-9 + 1e-6 * abs(hess[i, i])
+            step = np.linalg.solve(hess, grad)
+            # A partial block (the batch's end) moves the loop in proportion to its frames.
+            weight = gain * pending / block_frames
+            for i in range(n):
+                correction = min(max(step[i], -max_step[i]), max_step[i])
+                delay[i] += weight * correction
+                rate[i] += rate_gain * correction / block_frames
+                for m in range(n):
+                    hess[i, m] = 0.0
+                grad[i] = 0.0
+            pending = 0
+        start = stop
+
+
+def fit_paths_reference(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np.ndarray, rate: np.ndarray,
+                        max_step: np.ndarray, table: np.ndarray, dtable: np.ndarray, oversampling: int,
+                        block_frames: int, gain: float,
+                        rate_gain: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Plain-numpy :func:`fit_paths_kernel` (vectorised over the frames of each run).
+
+    Returns ``amplitudes, lags, variance, residual_power``; ``delay`` and
+    ``rate`` are updated in place.
+    """
+    n_frames, n_lags = taps.shape
+    n = len(delay)
+    period = (len(table) - 1) // oversampling
+    grid = np.arange(len(table) - 1) / oversampling
+    amplitudes = np.zeros((n_frames, n), complex)
+    lags = np.zeros((n_frames, n))
+    variance = np.zeros((n_frames, n))
+    residual_power = np.zeros(n_lags)
+    lag_axis = lag0 + np.arange(n_lags)
+    hess, grad, pending = np.zeros((n, n)), np.zeros(n), 0
+    start = 0
+    while start < n_frames:
+        limit = min(block_frames - pending, n_frames - start)
+        same = np.flatnonzero(offsets[start:start + limit] != offsets[start])
+        stop = start + (same[0] if len(same) else limit)
+        count, mid = stop - start, 0.5 * (stop - start - 1)
+        lam = delay + rate * mid - offsets[start]
+        x = np.mod(lag_axis[:, None] - lam[None, :], period)
+        g = np.interp(x, grid, table[:-1], period=period)
+        dg = np.interp(x, grid, dtable[:-1], period=period)
+        ridge = 1e-6 * np.trace(g.T @ g) / max(n, 1)
+        inverse = np.linalg.inv(g.T @ g + ridge * np.eye(n))
+        cross = dg.T @ g
+        q = dg.T @ dg - cross @ inverse @ cross.T
+        both = np.hstack([g, dg])
+        y = taps[start:stop].astype(np.complex128)
+        a = (y @ g) @ inverse.T
+        c = np.linalg.solve(both.T @ both + ridge * np.eye(2 * n), (y @ both).T).T if n else np.zeros((count, 0))
+        residual_power += np.sum(np.abs(y - c @ both.T) ** 2, axis=0)
+        amplitudes[start:stop] = a
+        lags[start:stop] = lam[None, :] + rate[None, :] * (np.arange(count) - mid)[:, None]
+        variance[start:stop] = np.diag(inverse)[None, :]
+        grad += -np.real(np.conj(a) * (y @ dg - a @ cross.T)).sum(axis=0)
+        hess += q * np.real(np.conj(a).T @ a)
+        delay += rate * count
+        pending += count
+        if n and (pending >= block_frames or stop == n_frames):
+            hess += np.diag(1e-9 + 1e-6 * np.abs(np.diag(hess)))
+            correction = np.clip(np.linalg.solve(hess, grad), -max_step, max_step)
+            delay += gain * pending / block_frames * correction
+            rate += rate_gain * correction / block_frames
+            hess, grad, pending = np.zeros((n, n)), np.zeros(n), 0
+        start = stop
+    return amplitudes, lags, variance, residual_power
+
+
+# ---- cycle slips ---------------------------------------------------------------------------
+
+@njit(cache=True)
+def slip_kernel(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarray, smooth_hz: float,
+                run_cycles: float, alpha: float, sigmas: float, min_cycles: float,
+                bridged: np.ndarray, slips: np.ndarray) -> tuple[float, float]:
+    """Bridge and flag phase-step outliers of one path over a batch (module docstring, step 4).
+
+    Parameters
+    ----------
+    cfo_hz : (F,) float64
+        The path's frequency per frame (NaN: no phase pair).
+    dt_s : (F,) float64
+        Time to the previous frame, s.
+    sigma_cycles : (F,) float64
+        Standard deviation of the frame's phase step from noise, cycles.
+    smooth_hz : float
+        Smoothed frequency before the batch (NaN: not yet known).
+    run_cycles : float
+        Departure accumulated by the outlier run still open at the batch start, cycles.
+    alpha : float
+        Smoothing weight per second (``dt / time constant`` per frame).
+    sigmas, min_cycles : float
+        Outlier threshold: ``max(sigmas * sigma, min_cycles)``.
+    bridged : (F,) float64, out
+        ``cfo_hz`` with outliers replaced by the smoothed frequency.
+    slips : (F,) bool, out
+        True on the frames of an outlier run that added up to half a cycle or more.
+
+    Returns
+    -------
+    smooth_hz, run_cycles : float
+        State for the next batch.
+    """
+    n = cfo_hz.shape[0]
+    run_start = 0
+    for k in range(n):
+        slips[k] = False
+        f = cfo_hz[k]
+        if not np.isfinite(f):
+            bridged[k] = f
+            continue
+        if not np.isfinite(smooth_hz):
+            smooth_hz = f
+        departure = (f - smooth_hz) * dt_s[k]
+        if abs(departure) > max(sigmas * sigma_cycles[k], min_cycles):
+            if run_cycles == 0.0:
+                run_start = k
+            run_cycles += departure
+            bridged[k] = smooth_hz
+            if abs(run_cycles) >= 0.5:
+                for j in range(run_start, k + 1):
+                    slips[j] = True
+        else:
+            run_cycles = 0.0
+            bridged[k] = f
+            smooth_hz += min(alpha * dt_s[k], 1.0) * (f - smooth_hz)
+    return smooth_hz, run_cycles
+
+
+def slip_reference(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarray, smooth_hz: float,
+                   run_cycles: float, alpha: float, sigmas: float,
+                   min_cycles: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Plain-Python :func:`slip_kernel` (returns ``bridged, slips, smooth_hz, run_cycles``)."""
+    bridged = np.empty(len(cfo_hz))
+    slips = np.zeros(len(cfo_hz), dtype=bool)
+    run_start = 0
+    for k, f in enumerate(cfo_hz):
+        if not np.isfinite(f):
+            bridged[k] = f
+            continue
+        if not np.isfinite(smooth_hz):
+            smooth_hz = f
+        departure = (f - smooth_hz) * dt_s[k]
+        if abs(departure) > max(sigmas * sigma_cycles[k], min_cycles):
+            if run_cycles == 0.0:
+                run_start = k
+            run_cycles += departure
+            bridged[k] = smooth_hz
+            if abs(run_cycles) >= 0.5:
+                slips[run_start: k + 1] = True
+        else:
+            run_cycles = 0.0
+            bridged[k] = f
+            smooth_hz += min(alpha * dt_s[k], 1.0) * (f - smooth_hz)
+    return bridged, slips, smooth_hz, run_cycles
+
+
+# ---- detection -----------------------------------------------------------------------------
+
+@lru_cache(maxsize=64)
+def detection_threshold(frames: int, false_alarm: float) -> float:
+    """Residual power over the noise floor that noise alone exceeds with probability ``false_alarm``.
+
+    The mean of ``frames`` exponential variables (the power of a complex
+    Gaussian tap, unit mean) is ``Gamma(frames, 1 / frames)``.
+    """
+    from scipy.stats import gamma  # here, not at module level: importing the receiver stays free of scipy.stats
+
+    return float(gamma.isf(false_alarm, a=frames, scale=1.0 / frames))
+
+
+def detect_paths(power: np.ndarray, lag0: int, limit: float, existing: np.ndarray, settled: np.ndarray,
+                 min_separation: float, settle_guard: float, max_births: int) -> list[float]:
+    """New paths in the residual power of a batch: its strongest peaks above ``limit``.
+
+    A path is a pulse about a chip wide: its peak must stand above the
+    residual around it (the median over ``RING`` lags on either side) by the
+    factor the threshold stands above the noise floor. Interference spread
+    over the lags (a tone, a DC offset: their header correlation is a smooth
+    function of the lag) raises the floor and the ring alike and is never
+    taken for a path. A peak next to a path that is still settling (its
+    delay not yet converged) is that path's fitting error, not a path: no
+    birth within ``settle_guard`` of one. Peaks are taken strongest first,
+    one chip apart.
+
+    Parameters
+    ----------
+    power : (L,) ndarray
+        Mean residual power per lag over the noise floor.
+    lag0 : int
+        Lag of ``power[0]``.
+    limit : float
+        Detection threshold (noise and relative floor).
+    existing : ndarray
+        Lags of the paths already tracked.
+    settled : ndarray of bool
+        Which of them have settled.
+    min_separation, settle_guard : float
+        Closest allowed to a settled / a settling path, samples.
+    max_births : int
+        Most paths returned.
+
+    Returns
+    -------
+    list of float
+        Fractional lags of the new paths (parabolic interpolation of the peak).
+    """
+    p = np.asarray(power, dtype=np.float64)
+    if len(p) < 3:
+        return []
+    inner = np.arange(1, len(p) - 1)
+    peaks = inner[(p[inner] > limit) & (p[inner] >= p[inner - 1]) & (p[inner] >= p[inner + 1])]
+    found: list[float] = []
+    for peak in peaks[np.argsort(p[peaks])[::-1]]:
+        ring = np.concatenate([p[max(peak - RING[1], 0): max(peak - RING[0] + 1, 0)], p[peak + RING[0]: peak + RING[1] + 1]])
+        if len(ring) and p[peak] <= limit * np.median(ring):
+            continue
+        left, centre, right = p[peak - 1: peak + 2]
+        curvature = left - 2.0 * centre + right
+        lag = lag0 + peak + (float(np.clip(0.5 * (left - right) / curvature, -0.5, 0.5)) if curvature < 0 else 0.0)
+        distance = np.abs(np.asarray(existing, dtype=np.float64) - lag)
+        guard = np.where(settled, min_separation, settle_guard)
+        if np.all(distance >= guard) and all(abs(lag - f) >= 1.0 for f in found):
+            found.append(lag)
+            if len(found) >= max_births:
+                break
+    return found
+
+
+# ---- the tracker ---------------------------------------------------------------------------
+
+@dataclass
+class _Path:
+    """State of one tracked path.
+
+    ``delay`` (samples, on the lock's frame grid) and ``rate`` (samples per
+    frame) are its delay loop; ``age``, ``steady`` and ``fading`` count
+    batches (lived, held still, below the survival SNR); ``prev_*`` carry
+    its last amplitude and window start to the next batch's phase step;
+    ``smooth_hz`` and ``run_cycles`` are the slip detector's state; ``power``
+    and ``noise`` its mean amplitude power and amplitude noise over the last
+    batch; ``born`` until its first row is written; ``first`` while it is
+    its tower's first path.
+    """
+
+    path_id: int
+    tower_id: int
+    delay: float
+    rate: float
+    age: int = 0
+    steady: int = 0
+    confirmed: bool = False
+    fading: int = 0
+    prev_amplitude: complex = complex(np.nan, np.nan)
+    prev_start: int = 0
+    smooth_hz: float = np.nan
+    run_cycles: float = 0.0
+    power: float = 0.0
+    noise: float = 0.0
+    born: bool = True
+    first: bool = False
+
+
+@dataclass
+class PathUpdate:
+    """What the tracker found in one batch of frames.
+
+    Attributes
+    ----------
+    rows : PathBatch
+        One row per frame and confirmed path (``doppler_hz`` and
+        ``range_change_m`` still NaN: :class:`receiver.ranging.PathRanging` fills them).
+    first_path : dict of str to ndarray
+        The per-frame first-path columns of ``/receiver/frames`` (:data:`dtmbnav.core.records.FIRST_PATH_FILL`),
+        ``first_path_range_change_m`` left to the range integrator.
+    """
+
+    rows: PathBatch
+    first_path: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+class PathTracker:
+    """Detects, separates and tracks the propagation paths in each frame's PN-header CIR.
+
+    One tracker serves a receiver run; :meth:`new_lock` drops the paths when
+    the receiver re-acquires (path ids keep counting; the towers' range
+    differences continue from their last values, holding their last rate
+    across the gap, as eq. 11 does).
+
+    Parameters
+    ----------
+    mode : PnMode
+        Header mode of the lock (PN420 or PN945).
+    carrier_hz : float
+        RF carrier, Hz (wavelength of the range differences).
+    config : PathConfig
+    resample : (up, down)
+        The receiver's resampling ratio (the resampler shapes the pulse).
+    """
+
+    def __init__(self, mode: PnMode, carrier_hz: float, config: PathConfig | None = None,
+                 resample: tuple[int, int] = (1, 1)) -> None:
+        self.config = config or PathConfig()
+        self.wavelength_m = SPEED_OF_LIGHT_MPS / carrier_hz
+        self._resample = resample
+        self._next_id = 0
+        self._range_difference = np.zeros(RANGE_DIFFERENCE_TOWERS)
+        self._difference_hz = np.zeros(RANGE_DIFFERENCE_TOWERS)
+        self._difference_started = np.zeros(RANGE_DIFFERENCE_TOWERS, dtype=bool)
+        self._last_t_s: float | None = None
+        self.new_lock(mode)
+
+    def new_lock(self, mode: PnMode) -> None:
+        """Forget the paths and towers (a new acquisition); keep ids and range differences counting."""
+        m = mode.value
+        if m.cyclic_length == 0:
+            raise ValueError(f"{mode.name}: path tracking needs a cyclic header (PN420 or PN945)")
+        self.mode = mode
+        self.taps_before, self.taps_after = self.config.span(mode)
+        if not (0 <= self.taps_before <= m.postamble and 0 <= self.taps_after <= m.preamble
+                and self.taps_before + self.taps_after > 0):
+            raise ValueError(f"{mode.name}: a path span of -{self.taps_before}..{self.taps_after} samples must lie "
+                             f"within the header's cyclic extension (-{m.postamble}..{m.preamble})")
+        self.header_gain = m.header_power_ratio * m.period
+        self.table, self.dtable = _pulse_tables_cached(m.period, *self._resample)
+        self.paths: list[_Path] = []
+        self._towers: list[float] = []       # last first-path grid delay of each tower
+        self._start_ref: int | None = None
+        self._index_ref = 0
+
+    @property
+    def lag0(self) -> int:
+        """Lag of the CIR's first column."""
+        return -self.taps_before
+
+    def update(self, taps: np.ndarray, noise_tap: np.ndarray, starts: np.ndarray, frame_index: np.ndarray,
+               eta: np.ndarray, t_s: np.ndarray, coarse_cfo_hz: float) -> PathUpdate:
+        """Fit, track and report the paths of a batch of frames.
+
+        Parameters
+        ----------
+        taps : (F, L) complex64
+            CIR over the tracker's span (``span_taps``).
+        noise_tap : (F,)
+            Tap noise floor of each frame.
+        starts : (F,) int64
+            Window starts (stream samples at 7.56 Msps).
+        frame_index : (F,) int64
+            Frame counter.
+        eta : (F,) float64
+            Normalised sampling offset per frame (``receiver.cfo.cfo_from_theta``).
+        t_s : (F,) float64
+            Frame times, s.
+        coarse_cfo_hz : float
+            The coarse CFO removed from the CIR.
+        """
+        cfg = self.config
+        count = len(starts)
+        nominal = self.mode.value.frame_length
+        if self._start_ref is None:
+            self._start_ref, self._index_ref = int(starts[0]), int(frame_index[0])
+        offsets = ((starts - self._start_ref) - (frame_index - self._index_ref) * nominal).astype(np.float64)
+        paths = self.paths
+        n = len(paths)
+        delay = np.array([p.delay for p in paths], dtype=np.float64)
+        rate = np.array([p.rate for p in paths], dtype=np.float64)
+        amplitudes = np.zeros((count, n), np.complex128)
+        lags = np.zeros((count, n))
+        variance = np.zeros((count, n))
+        residual = np.zeros(taps.shape[1])
+        # A path that has held still moves no faster than a path can (walking: hundredths of a chip per
+        # second): a spurious neighbour cannot drag it away.
+        max_step = np.array([cfg.steady_delay_step if p.confirmed else cfg.max_delay_step for p in paths])
+        fit_paths_kernel(taps, offsets, self.lag0, delay, rate, max_step, self.table, self.dtable,
+                         PULSE_OVERSAMPLING, cfg.block_frames, cfg.delay_gain, cfg.rate_gain, amplitudes, lags,
+                         variance, residual)
+        noise = np.maximum(noise_tap.astype(np.float64), 1e-30)
+        noise_floor = float(np.mean(noise))
+        dt = np.diff(np.concatenate([[t_s[0] if self._last_t_s is None else self._last_t_s], t_s]))
+        power = np.abs(amplitudes) ** 2
+        step = np.diff(np.concatenate([[starts[0]], starts]))
+
+        # Each path's frequency from its phase step (as the PN CFO estimate) and the step's noise: each frame's
+        # phase has variance var / (2 |a|^2), the step twice that.
+        prev = np.vstack([[p.prev_amplitude for p in paths], amplitudes[:-1]]) if n else amplitudes
+        path_step = np.repeat(step[:, None], n, axis=1)
+        path_step[0] = starts[0] - np.array([p.prev_start for p in paths], dtype=np.int64)
+        cfo = cfo_from_theta(np.conj(amplitudes) * prev, np.maximum(path_step, 1), eta[:, None], coarse_cfo_hz)
+        sigma = np.sqrt(variance * noise[:, None] / np.maximum(power, 1e-30)) / (2.0 * np.pi)
+        bridged = np.empty((count, n))
+        slips = np.zeros((count, n), dtype=bool)
+        mean_power = power.mean(axis=0)
+        mean_variance = variance.mean(axis=0)
+        alpha = 1.0 / cfg.frequency_time_s
+        survival = 10.0 ** (cfg.survival_snr_db / 10.0)
+        for i, p in enumerate(paths):
+            moved = delay[i] - (p.delay + p.rate * count)
+            p.delay, p.rate = float(delay[i]), float(rate[i])
+            column, flags = np.empty(count), np.zeros(count, dtype=np.bool_)
+            p.smooth_hz, p.run_cycles = slip_kernel(cfo[:, i], dt, sigma[:, i], p.smooth_hz, p.run_cycles, alpha,
+                                                    cfg.slip_sigmas, cfg.slip_min_cycles, column, flags)
+            bridged[:, i], slips[:, i] = column, flags
+            p.prev_amplitude, p.prev_start = complex(amplitudes[-1, i]), int(starts[-1])
+            p.power, p.noise = float(mean_power[i]), noise_floor * float(mean_variance[i])
+            # A path is confirmed once it has held still, above the survival SNR, for confirm_batches batches.
+            p.steady = p.steady + 1 if abs(moved) < cfg.steady_move and p.power >= survival * p.noise else 0
+            p.confirmed = p.confirmed or p.steady >= cfg.confirm_batches
+
+        first_of = self._choose_first_paths(paths, lags)
+        rows = self._rows(paths, amplitudes, lags, rate, bridged, slips, noise, t_s, frame_index)
+        first = self._first_paths(paths, first_of, lags, bridged, power, noise, t_s, dt)
+        self._last_t_s = float(t_s[-1])
+        self._maintain(residual / (noise_floor * count), noise_floor, offsets, count)
+        return PathUpdate(rows, first)
+
+    # ---- per-batch bookkeeping -------------------------------------------------------------
+
+    def _choose_first_paths(self, paths: list[_Path], lags: np.ndarray) -> dict[int, int]:
+        """Tower id -> index of its first path: the earliest confirmed, mature path (mean lag over the batch).
+
+        A fading path does not become a first path; the first path stays one
+        while it lives (a short fade does not hand its range to a reflection).
+        """
+        first: dict[int, int] = {}
+        mean_lag = lags.mean(axis=0) if len(lags) else np.zeros(len(paths))
+        for i, p in enumerate(paths):
+            eligible = p.confirmed and p.age >= self.config.first_path_batches and (p.first or not p.fading)
+            if eligible and (p.tower_id not in first or mean_lag[i] < mean_lag[first[p.tower_id]]):
+                first[p.tower_id] = i
+        for i, p in enumerate(paths):
+            p.first = first.get(p.tower_id) == i
+        return first
+
+    def _rows(self, paths: list[_Path], amplitudes: np.ndarray, lags: np.ndarray, rate: np.ndarray,
+              bridged: np.ndarray, slips: np.ndarray, noise: np.ndarray, t_s: np.ndarray,
+              frame_index: np.ndarray) -> PathBatch:
+        """One row per frame and confirmed path."""
+        confirmed = [i for i, p in enumerate(paths) if p.confirmed]
+        count = len(t_s)
+        if len(confirmed) == 0:
+            return PathBatch.concatenate([])
+        noise_sample = noise * self.header_gain
+        cols = {name: [] for name in ("t_s", "frame_index", "path_id", "tower_id", "delay_s", "delay_rate", "cfo_hz",
+                                      "snr_db", "flags")}
+        nominal = self.mode.value.frame_length
+        for i in confirmed:
+            p = paths[i]
+            flags = np.zeros(count, np.uint8)
+            flags[slips[:, i]] |= np.uint8(PathFlag.CYCLE_SLIP)
+            if p.first:
+                flags |= np.uint8(PathFlag.FIRST_PATH)
+            if p.fading:
+                flags |= np.uint8(PathFlag.FADING)
+            cfo_i = bridged[:, i]
+            if p.born:
+                flags[0] |= np.uint8(PathFlag.BORN)
+            with np.errstate(divide="ignore"):
+                snr = 10.0 * np.log10(np.abs(amplitudes[:, i]) ** 2 / noise_sample)
+            cols["t_s"].append(t_s)
+            cols["frame_index"].append(frame_index)
+            cols["path_id"].append(np.full(count, p.path_id))
+            cols["tower_id"].append(np.full(count, p.tower_id))
+            cols["delay_s"].append(lags[:, i] / SYMBOL_RATE_HZ)
+            cols["delay_rate"].append(np.full(count, rate[i] / nominal))
+            cols["cfo_hz"].append(cfo_i)
+            cols["snr_db"].append(snr)
+            cols["flags"].append(flags)
+            p.born = False
+        # Frame-major order: all paths of a frame together.
+        order = np.argsort(np.tile(np.arange(count), len(confirmed)), kind="stable")
+        out = {k: np.concatenate(v)[order] for k, v in cols.items()}
+        nan = np.full(len(order), np.nan)
+        return PathBatch(doppler_hz=nan, range_change_m=nan.copy(), **out)
+
+    def _first_paths(self, paths: list[_Path], first: dict[int, int], lags: np.ndarray, bridged: np.ndarray,
+                     power: np.ndarray, noise: np.ndarray, t_s: np.ndarray, dt: np.ndarray) -> dict[str, np.ndarray]:
+        """The per-frame first-path columns and the towers' range differences."""
+        count = len(t_s)
+        out = {"first_path_cfo_hz": np.full(count, np.nan), "first_path_delay_s": np.full(count, np.nan),
+               "first_path_snr_db": np.full(count, np.nan, np.float32), "first_path_id": np.full(count, -1, np.int32),
+               "tower_count": np.full(count, len(first), np.uint8)}
+        cfo_of = {t: bridged[:, i] for t, i in first.items()}
+        if 0 in first:
+            i = first[0]
+            with np.errstate(divide="ignore"):
+                snr = 10.0 * np.log10(power[:, i] / (noise * self.header_gain))
+            out.update(first_path_cfo_hz=bridged[:, i].copy(), first_path_delay_s=lags[:, i] / SYMBOL_RATE_HZ,
+                       first_path_snr_db=snr.astype(np.float32), first_path_id=np.full(count, paths[i].path_id, np.int32))
+        for slot in range(RANGE_DIFFERENCE_TOWERS):
+            column = np.full(count, np.nan)
+            tower = slot + 1
+            if tower in first and 0 in first:
+                if not self._difference_started[slot]:
+                    self._difference_started[slot] = True
+                    self._range_difference[slot] = 0.0
+                    dt = dt.copy()
+                    dt[0] = 0.0
+                difference = held_doppler(cfo_of[tower] - cfo_of[0], self._difference_hz[slot])
+                column = self._range_difference[slot] - self.wavelength_m * np.cumsum(difference * dt)
+                self._range_difference[slot] = float(column[-1])
+                self._difference_hz[slot] = float(difference[-1])
+            elif self._difference_started[slot]:
+                # Tower missing in this batch: hold its rate, as eq. 11 does across gaps.
+                self._range_difference[slot] -= self.wavelength_m * self._difference_hz[slot] * float(np.sum(dt))
+            out[f"range_difference_change_{tower}_m"] = column
+        return out
+
+    def _maintain(self, residual: np.ndarray, noise_floor: float, offsets: np.ndarray, count: int) -> None:
+        """Ages, fading and merging of the paths, then births from the residual (module docstring, step 3)."""
+        cfg = self.config
+        survival = 10.0 ** (cfg.survival_snr_db / 10.0)
+        strongest = max((p.power for p in self.paths), default=0.0)
+        relative = 10.0 ** (cfg.relative_floor_db / 10.0)
+        keep: list[_Path] = []
+        for p in self.paths:
+            p.age += 1
+            p.fading = p.fading + 1 if (p.power < survival * p.noise or p.power < relative * strongest) else 0
+            if p.fading < cfg.lost_batches:
+                keep.append(p)
+        # Merge paths that drifted together: the older one stays.
+        keep.sort(key=lambda p: p.delay)
+        merged: list[_Path] = []
+        for p in keep:
+            if merged and p.delay - merged[-1].delay < cfg.min_separation:
+                if p.age > merged[-1].age:
+                    merged[-1] = p
+                continue
+            merged.append(p)
+        self.paths = merged
+        if len(self.paths) >= cfg.max_paths:
+            return
+        offset = float(np.mean(offsets))
+        existing = np.array([p.delay - offset for p in self.paths])
+        settled = np.array([p.age >= cfg.settle_batches for p in self.paths], dtype=bool)
+        limit = max(detection_threshold(count, cfg.false_alarm), relative * strongest / noise_floor)
+        found = detect_paths(residual, self.lag0, limit, existing, settled, cfg.min_separation, cfg.settle_guard,
+                             min(cfg.max_births, cfg.max_paths - len(self.paths)))
+        # Every path's delay drifts with the receiver clock (the sampling offset): a new path starts with the
+        # drift the confirmed paths agree on (the timing loop's period is too noisy for it), else none.
+        rates = [p.rate for p in self.paths if p.confirmed]
+        drift = float(np.median(rates)) if rates else 0.0
+        for lag in sorted(found):
+            delay = lag + offset
+            self.paths.append(_Path(self._next_id, self._tower_of(delay), delay, drift))
+            self._next_id += 1
+        self.paths.sort(key=lambda p: p.delay)
+        self._update_towers()
+
+    def _tower_of(self, delay: float) -> int:
+        """Tower of a new path: the tower with a path within ``tower_gap``, else a new one."""
+        gap = self.config.tower_gap
+        best, best_distance = -1, np.inf
+        for p in self.paths:
+            distance = abs(p.delay - delay)
+            if distance <= gap and distance < best_distance:
+                best, best_distance = p.tower_id, distance
+        if best >= 0:
+            return best
+        for tower, first_delay in enumerate(self._towers):
+            if abs(first_delay - delay) <= gap:
+                return tower
+        self._towers.append(delay)
+        return len(self._towers) - 1
+
+    def _update_towers(self) -> None:
+        for tower in range(len(self._towers)):
+            delays = [p.delay for p in self.paths if p.tower_id == tower]
+            if delays:
+                self._towers[tower] = min(delays)
+
