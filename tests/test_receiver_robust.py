@@ -198,3 +198,27 @@ def test_segment_change_is_a_new_origin_for_the_fusion():
     old = ranges_from_frames(frames)
     assert np.all(old.segment_id == 0)
     assert np.all(np.isfinite(aggregate_ranges(old, epochs, config).range_change_m))
+
+
+@pytest.mark.parametrize("rate", [2.048e6, 2.4e6, 3.2e6])
+def test_simulated_front_end_filters_before_it_samples(rate):
+    """The simulator's narrowband capture is the band-limited centre of the channel: the pulse through its
+    anti-alias filter is flat over the passband and at least the stopband attenuation down from fs / 2 on,
+    so nothing folds onto the SI carriers; at and above the symbol rate the pulse is the SRRC itself."""
+    from sim.frontend import ANTI_ALIAS_PASSBAND, ANTI_ALIAS_STOPBAND_DB, anti_alias_pulse
+    from sim.transmitter import pulse_table
+
+    table = pulse_table(16)
+    assert anti_alias_pulse(table, SYMBOL_RATE_HZ) is table
+    pulse = anti_alias_pulse(table, rate)
+    osr = pulse.oversampling
+    # The pulse in time order: column j holds times i / osr + span - 1 - j.
+    fine = np.concatenate([pulse.polyphase[:-1, j] for j in range(2 * pulse.span - 1, -1, -1)])
+    freq = np.fft.rfftfreq(8 * len(fine), 1.0 / osr) * SYMBOL_RATE_HZ
+    gain_db = 20 * np.log10(np.abs(np.fft.rfft(fine, 8 * len(fine))) / osr + 1e-300)
+    srrc_db = 20 * np.log10(np.abs(np.fft.rfft(np.concatenate(
+        [table.polyphase[:-1, j] for j in range(2 * table.span - 1, -1, -1)]), 8 * len(fine))) / osr + 1e-300)
+    passband = freq <= ANTI_ALIAS_PASSBAND * rate / 2
+    assert np.max(np.abs(gain_db[passband] - srrc_db[passband])) < 0.1
+    stopband = (freq >= rate / 2) & (freq <= SYMBOL_RATE_HZ)
+    assert np.max(gain_db[stopband]) < srrc_db[0] - ANTI_ALIAS_STOPBAND_DB
