@@ -28,7 +28,8 @@ def receive(x, config, rate=SYMBOL_RATE_HZ):
 
 
 def walking_segment(seconds=0.4, **receiver):
-    """A piece of the park-loop walk (line of sight, C/N 15 dB) received with the true f_s."""
+    """A piece of the park-loop walk (line of sight, C/N 15 dB), received with f_s = the tuner offset
+    (the clock's own offset is taken out of the comparison, :func:`range_error_m`)."""
     scn = load_scenario("park-loop-cw")
     start = scn.walk.start_still_s + 5.0
     bulk = receiver.get("bulk_cfo_hz", 0.0)
@@ -50,7 +51,7 @@ def range_error_m(run):
 def test_tuner_offset_of_tens_of_khz_locks_and_ranges(mode, offset_hz):
     """A HackRF/PlutoSDR crystal 20-60 ppm off at UHF: the PN ambiguity is resolved, the range is right.
 
-    A CFO left wrong by 0.5 Hz would already move the range by 0.1 m over these 0.4 s; the brief's range
+    A CFO left wrong by 0.5 Hz would already move the range by 0.1 m over these 0.4 s; the issue's range
     target is 0.5 m (95 %).
     """
     run = walking_segment(pn_mode=mode, bulk_cfo_hz=offset_hz)
@@ -205,7 +206,11 @@ def test_simulated_front_end_filters_before_it_samples(rate):
     """The simulator's narrowband capture is the band-limited centre of the channel: the pulse through its
     anti-alias filter is flat over the passband and at least the stopband attenuation down from fs / 2 on,
     so nothing folds onto the SI carriers; at and above the symbol rate the pulse is the SRRC itself."""
-    from sim.frontend import ANTI_ALIAS_PASSBAND, ANTI_ALIAS_STOPBAND_DB, anti_alias_pulse
+    from sim.frontend import (
+        ANTI_ALIAS_PASSBAND,
+        ANTI_ALIAS_STOPBAND_DB,
+        anti_alias_pulse,
+    )
     from sim.transmitter import pulse_table
 
     table = pulse_table(16)
