@@ -477,7 +477,7 @@ class Receiver:
         self.conjugated = not self.conjugated
         self._queue.conjugate()
         (self._search_from, self._frame_counter, self._last_start, self._lock_starts_gap,
-         acquisitions, self.search_outcomes) = self._restart
+         acquisitions, self.search_outcomes, self.scatter_flagged) = self._restart
         del self.acquisitions[acquisitions:]
         self._lock = None
         self._si_detector = None
@@ -513,7 +513,7 @@ class Receiver:
             return True
         if self._orientation_pending:
             self._restart = (start, self._frame_counter, self._last_start, self._lock_starts_gap,
-                             len(self.acquisitions), dict(self.search_outcomes))
+                             len(self.acquisitions), dict(self.search_outcomes), self.scatter_flagged)
         self.search_outcomes[result.outcome] = self.search_outcomes.get(result.outcome, 0) + 1
         self.acquisitions.append(acq)
         m = acq.mode.value
@@ -587,7 +587,7 @@ class Receiver:
             cfg.inspect("tracking", {"window_start": starts, "measured": measured, "smoothed": smoothed})
             cfg.inspect("body", {"bodies": frames.bodies})
         t3 = time.perf_counter()
-        rows = self._estimate(lock, starts, smoothed, periods, si, ch, frame_index, phases[:-1])
+        rows, scattered = self._estimate(lock, starts, smoothed, periods, si, ch, frame_index, phases[:-1])
         t4 = time.perf_counter()
         self.stage_seconds["estimators"] += t4 - t3
         if tracker is not None:  # sequential (its loops link the frames): on this thread, in frame order
@@ -602,7 +602,7 @@ class Receiver:
             cfg.inspect("ofdm", {"si_carriers": si})
         lock.next_frame_index += count
         if lost_at is not None:
-            rows = FrameBatch(**{k: v[:lost_at] for k, v in rows.columns().items()})
+            rows, scattered = rows.select(slice(0, lost_at)), scattered[:lost_at]
             # Search again from the first weak frame, but always past this lock's acquisition window
             # (a signal that acquires but cannot be tracked must not be re-acquired forever).
             self._search_from = max(int(starts[lost_at]), lock.acquired_from + self._acq_window // 2)
@@ -610,11 +610,15 @@ class Receiver:
         elif count < size:  # end of stream: the partial batch was the last one; nothing more to search
             self._lock = None
             self._search_from = END_OF_STREAM
+        self.scatter_flagged += int(np.count_nonzero(scattered))
         return rows
 
     def _estimate(self, lock: _Lock, starts: np.ndarray, smoothed: np.ndarray, periods: np.ndarray, si: np.ndarray,
-                  ch: ChannelEstimates, frame_index: np.ndarray, phases: np.ndarray) -> FrameBatch:
-        """CFO estimates (eq. 5-8 and PN), flags and the rows of a batch; carries state to the next batch."""
+                  ch: ChannelEstimates, frame_index: np.ndarray, phases: np.ndarray) -> tuple[FrameBatch, np.ndarray]:
+        """CFO estimates (eq. 5-8 and PN), flags and the rows of a batch; carries state to the next batch.
+
+        Also returns which frames are flagged for their SI phase scatter.
+        """
         count = len(starts)
         delta = starts - smoothed
         first_of_lock = lock.prev_si is None
@@ -636,7 +640,6 @@ class Receiver:
         reference_snr = np.minimum(np.minimum(si_snr, np.median(si_snr)), SCATTER_SNR_CEILING_DB)
         expected = expected_phase_variance(reference_snr)
         scattered = phase_var > self.config.cfo_scatter_limit * expected
-        self.scatter_flagged += int(np.count_nonzero(scattered))
         weak = (ch.peak_metric < self.config.track_threshold) | scattered
         flags = np.where(weak, FrameFlag.LOW_QUALITY, 0).astype(np.uint8)
         if first_of_lock:
@@ -654,7 +657,7 @@ class Receiver:
             t_s=starts / SYMBOL_RATE_HZ, sample_index=self.resampler.input_index(starts), frame_index=frame_index,
             pn_phase=phases.astype(np.int32), cfo_hz=cfo, cfo_pn_hz=cfo_pn, doppler_hz=nan, velocity_mps=nan.copy(),
             range_change_m=nan.copy(), snr_db=ch.snr_db, si_snr_db=si_snr, peak_metric=ch.peak_metric, flags=flags,
-            segment_id=np.full(count, len(self.acquisitions) - 1, dtype=np.int32))
+            segment_id=np.full(count, len(self.acquisitions) - 1, dtype=np.int32)), scattered
 
 
 def receive_stream(chunks: Iterable[np.ndarray], sample_rate_hz: float, carrier_hz: float,
