@@ -735,9 +735,10 @@ def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, con
         identity[schema.CAPTURE_SEED_ATTR] = seed
     rx = Receiver(capture.sample_rate_hz, carrier, config)
     sink = FrameSink(out_path, csv_path)
-    attrs = receive_into_sink(rx, read_ahead(capture.chunks(chunk_samples)), sink, source=str(capture.path),
-                              total_samples=capture.num_samples, progress=progress, attrs=identity,
-                              keep_on_input_error=capture.is_stream)
+    # A pipe's bytes cannot be read again: on SIGINT/SIGTERM what was read ahead is received too.
+    chunks = read_ahead(capture.chunks(chunk_samples), keep_read_on_stop=capture.is_stream)
+    attrs = receive_into_sink(rx, chunks, sink, source=str(capture.path), total_samples=capture.num_samples,
+                              progress=progress, attrs=identity, keep_on_input_error=capture.is_stream)
     return sink, attrs
 
 

@@ -5,6 +5,12 @@ loops) both release the GIL, so on a second core they overlap the
 receiver's kernels; on one core they cost what they cost without the thread.
 The queue between the two is bounded, so at most ``depth`` converted blocks
 wait in memory whatever the capture's length.
+
+A stop request (SIGINT, SIGTERM: :class:`dtmbnav.core.interrupt.DeferredStop`)
+ends the reading. For a stream it does not end the hand-off: the blocks
+already read are still yielded (a pipe's bytes cannot be read again), then
+the iterator ends; a file's reader is cut short at once (its blocks can be
+read again from the sample the receiver reports).
 """
 
 from __future__ import annotations
@@ -14,6 +20,8 @@ import threading
 from collections.abc import Iterable, Iterator
 
 import numpy as np
+
+from dtmbnav.core.interrupt import stop_requested
 
 #: Blocks read ahead of the one the receiver is working on.
 READ_AHEAD_BLOCKS = 2
@@ -26,7 +34,30 @@ class _End:
         self.error = error
 
 
-def read_ahead(blocks: Iterable[np.ndarray], depth: int = READ_AHEAD_BLOCKS) -> Iterator[np.ndarray]:
+class ReadAhead(Iterator[np.ndarray]):
+    """The iterator :func:`read_ahead` returns; it ends by itself on a stop request, after what was read.
+
+    Attributes
+    ----------
+    ends_on_stop : bool
+        True tells :meth:`dtmbnav.core.interrupt.DeferredStop.until_stopped`
+        to drain it rather than cut it short.
+    """
+
+    def __init__(self, items: Iterator[np.ndarray], ends_on_stop: bool) -> None:
+        self._items = items
+        self.ends_on_stop = ends_on_stop
+
+    def __next__(self) -> np.ndarray:
+        return next(self._items)
+
+    def close(self) -> None:
+        """Stop the reading thread (the consumer has gone)."""
+        self._items.close()
+
+
+def read_ahead(blocks: Iterable[np.ndarray], depth: int = READ_AHEAD_BLOCKS, *,
+               keep_read_on_stop: bool = True) -> ReadAhead:
     """Yield the items of ``blocks``, produced on a background thread up to ``depth`` items ahead.
 
     An exception raised by ``blocks`` is re-raised here, in the consumer, at
@@ -40,9 +71,17 @@ def read_ahead(blocks: Iterable[np.ndarray], depth: int = READ_AHEAD_BLOCKS) -> 
         E.g. :meth:`receiver.capture.CaptureSource.chunks`.
     depth : int
         Items the thread may produce ahead of the consumer (>= 1).
+    keep_read_on_stop : bool
+        On a stop request, yield the blocks already read before ending (a
+        stream's); False cuts the iterator short (a file's: module docstring).
     """
     if depth < 1:
         raise ValueError(f"depth must be >= 1, got {depth}")
+    return ReadAhead(_handed_off(blocks, depth), keep_read_on_stop)
+
+
+def _handed_off(blocks: Iterable[np.ndarray], depth: int) -> Iterator[np.ndarray]:
+    """:func:`read_ahead`'s generator."""
     handoff: queue.Queue[np.ndarray | _End] = queue.Queue(maxsize=depth)
     stop = threading.Event()
 
@@ -58,7 +97,13 @@ def read_ahead(blocks: Iterable[np.ndarray], depth: int = READ_AHEAD_BLOCKS) -> 
 
     def produce() -> None:
         try:
-            for block in blocks:
+            source = iter(blocks)
+            # A stop request ends the reading; what was read is handed on (module docstring).
+            while not stop_requested():
+                try:
+                    block = next(source)
+                except StopIteration:
+                    break
                 if not offer(block):
                     return
             offer(_End())

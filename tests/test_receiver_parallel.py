@@ -3,8 +3,11 @@ read-ahead yields the stream as it was (errors where they happened), decoding in
 buffer equals decoding, the block writer writes every row, the folded PN595 acquisition
 metric equals the direct one, and ``dtmbnav receive`` imports only the receiver."""
 
+import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import h5py
@@ -17,6 +20,7 @@ from receiver_signals import make_signal
 from dtmbnav.cli import EXIT_OK, main
 from dtmbnav.core import gb20600, iqformat, schema
 from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
+from dtmbnav.core.interrupt import DeferredStop
 from dtmbnav.core.records import FRAME_COLUMN_DTYPES, PATH_COLUMN_DTYPES, FrameBatch, PathBatch
 from receiver import writer
 from receiver.acquisition import differential_grid_metric, window_length
@@ -121,6 +125,28 @@ def test_read_ahead_stops_reading_when_the_consumer_stops():
     stream.close()
     # The producer may have been one hand-off ahead when it was told to stop; never much further.
     assert len(read) <= 5
+
+
+def test_read_ahead_hands_on_every_block_it_read_when_a_stop_is_requested():
+    """SIGTERM while blocks wait in the queue: they were read (from a pipe: gone from it), so they are received."""
+    read = []
+
+    def source():
+        for i in range(1000):
+            read.append(i)
+            yield np.full(1, i, np.complex64)
+
+    with DeferredStop() as stop:
+        blocks = stop.until_stopped(read_ahead(source(), depth=3))
+        received = [next(blocks)]
+        deadline = time.monotonic() + 10
+        while len(read) < 4 and time.monotonic() < deadline:  # the queue fills behind the consumer
+            time.sleep(0.01)
+        os.kill(os.getpid(), signal.SIGTERM)
+        received += list(blocks)
+    assert stop.signum == signal.SIGTERM
+    assert 4 <= len(read) < 1000  # the reading stopped ...
+    assert [int(b[0].real) for b in received] == read  # ... and every block it had read was handed on, in order
 
 
 @pytest.mark.parametrize("fmt", ["cu8", "ci8", "ci16", "cf32"])

@@ -120,7 +120,16 @@ class DeferredStop:
         self.signum = signum
 
     def until_stopped(self, items: Iterable[Any]) -> Iterator[Any]:
-        """Yield ``items`` until a stop is requested (checked before each item is asked for)."""
+        """Yield ``items`` until a stop is requested (checked before each item is asked for).
+
+        An input whose ``ends_on_stop`` attribute is true ends by itself on a
+        stop request after handing on what it had already read (e.g.
+        :func:`receiver.reader.read_ahead`'s queue of blocks read from a pipe,
+        which cannot be read again): it is drained, not cut short.
+        """
+        if getattr(items, "ends_on_stop", False):
+            yield from items
+            return
         iterator = iter(items)
         while self.signum is None:
             try:
