@@ -27,7 +27,7 @@ import numpy as np
 from dtmbnav.chain import ranges_from_frames
 from dtmbnav.core.iqformat import decode, get_format
 from dtmbnav.core.records import FrameBatch, RangeSeries, Track
-from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
+from receiver.pipeline import ReceiverConfig, receive_stream
 from sim.obs_range import ObsRangeConfig
 from sim.rf import CaptureGenerator
 from sim.scenario import Scenario

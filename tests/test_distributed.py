@@ -35,7 +35,7 @@ def test_results_in_task_order_and_failures_named(cluster):
 
 
 def test_two_seed_evaluate_on_a_two_worker_local_cluster_matches_in_process():
-    kwargs = dict(seeds=2, filters=("pf", "ukf"), config=FusionConfig(n_particles=300))
+    kwargs = {"seeds": 2, "filters": ("pf", "ukf"), "config": FusionConfig(n_particles=300)}
     here = ev.evaluate_many([TINY], **kwargs)
     dask = ev.evaluate_many([TINY], cluster=THREADS_2, **kwargs)
     assert not here.failures and not dask.failures
@@ -44,7 +44,7 @@ def test_two_seed_evaluate_on_a_two_worker_local_cluster_matches_in_process():
 
 
 def test_a_walk_depends_on_its_seed_only():
-    kwargs = dict(filters=("ukf",), config=FusionConfig(n_particles=300))
+    kwargs = {"filters": ("ukf",), "config": FusionConfig(n_particles=300)}
     both = ev.run_seeds(TINY, seeds=2, **kwargs)[1]
     second = ev.run_seeds(TINY, seeds=1, first_seed=ev.REPORTING_SEEDS.start + 1, **kwargs)[1]
     assert second[0].errors_m["ukf"].tolist() == both[1].errors_m["ukf"].tolist()

@@ -1,5 +1,7 @@
 """Per-seed geometry variation: the scene turns as a whole, the tower moves within its ranges, blockage stays."""
 
+from itertools import pairwise
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -80,7 +82,7 @@ def test_tower_draws_cover_their_documented_ranges():
 def blocked_share(scn) -> float:
     """Share of the waypoint polyline (sampled every metre) from which the buildings block the tower."""
     pts = np.asarray(scn.walk.waypoints_m, dtype=float)
-    xy = np.concatenate([np.linspace(a, b, max(int(np.hypot(*(b - a))), 2)) for a, b in zip(pts[:-1], pts[1:])])
+    xy = np.concatenate([np.linspace(a, b, max(int(np.hypot(*(b - a))), 2)) for a, b in pairwise(pts)])
     loss = blocking_loss_db(xy[:, 0], xy[:, 1], scn.tower.x_m, scn.tower.y_m, scn.channel.buildings)
     return float(np.mean(loss > 0))
 
