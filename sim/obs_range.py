@@ -14,8 +14,13 @@ carriers per frame, not the samples they come from.
   each signal frame, ``Y_m(k) = H_m(k) X(k) + W_m(k)``, with the composite
   channel ``H_m(k) = sum_p c_p(t_m) exp(-j 2 pi f_k tau_p(t_m))`` (``c_p`` the
   path coefficient at the carrier, ``f_k`` the SI carrier's baseband
-  frequency) and white noise of variance ``10^(-C/N / 10)`` per carrier
-  (amplitudes relative to the unobstructed direct path). The SI symbols
+  frequency) and white noise (amplitudes relative to the unobstructed
+  direct path). The scenario's C/N is that of the whole signal, whose mean
+  power the boosted PN headers raise above the body's
+  (:func:`sim.frontend.mean_signal_power`), so the noise on a carrier is that
+  mean power over the C/N, as in the IQ front end; the SI carriers have
+  ``tower.si_power_db`` relative to data, less the receiver's implementation
+  loss (``implementation_loss_db``). The SI symbols
   ``X(k)`` repeat frame to frame and have unit modulus, so they cancel in
   everything below and are left out. In line of sight the composite phase
   ripples by centimetres around the direct path's; where buildings attenuate
@@ -38,7 +43,7 @@ carriers per frame, not the samples they come from.
   coarse error. The coarse estimate here is the clock's offset at the first
   frame plus a Gaussian error with the standard deviation of the
   acquisition's lag-P estimator (:func:`coarse_cfo_sigma_hz`) at the
-  whole-band SNR of the first frame. (The tuner's constant offset is removed
+  header SNR of the first frame. (The tuner's constant offset is removed
   by the coarse estimate as it is added, so it is left out.) Like the
   receiver (eq. 9-10), f_s is the mean frequency over the start-still window
   (minus a guard before the walker moves) and is removed; what remains is
@@ -53,9 +58,10 @@ carriers per frame, not the samples they come from.
   per-frame spread the fusion's fading (Rician K) rule sees on the real
   receiver, not the exact channel power.
 - **Validity.** The receiver flags a frame whose header peak metric
-  ``S / (S + N)`` (whole-band signal over received power) is below its track
-  threshold; here the whole-band SNR is the C/N times the summed power of the
-  paths, and frames below ``min_header_snr_db`` are invalid.
+  ``S / (S + N)`` (header signal over received power) is below its track
+  threshold; here the header SNR is the header symbols' power times the
+  summed power of the paths over the noise, and frames below
+  ``min_header_snr_db`` are invalid.
 
 Every frame is simulated (1800 frames/s for PN420) in blocks of
 :data:`BLOCK_FRAMES`; one sample every ``decimation`` frames is returned
@@ -80,6 +86,8 @@ from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
 from dtmbnav.core.gb20600 import PnMode
 from dtmbnav.core.records import RangeSeries, Track
 from sim.channel import Channel
+from sim.frames import FrameConfig
+from sim.frontend import mean_signal_power
 from sim.oscillator import scenario_oscillator
 from sim.rf import STREAM_CHANNEL, STREAM_CLOCK
 from sim.scenario import Scenario
@@ -106,7 +114,7 @@ class ObsRangeConfig:
     decimation : int
         Output one sample every ``decimation`` signal frames.
     min_header_snr_db : float
-        Whole-band SNR below which a frame is invalid, dB: the receiver's
+        Header SNR below which a frame is invalid, dB: the receiver's
         track threshold of 0.15 on the header peak metric ``S / (S + N)``
         (``receiver.pipeline.ReceiverConfig.track_threshold``) is an SNR of
         ``10 log10(0.15 / 0.85)``.
@@ -119,9 +127,9 @@ class ObsRangeConfig:
         (``receiver.pipeline.ReceiverConfig.acquisition_frames``).
     implementation_loss_db : float
         How far the receiver's SI carriers fall below the channel's power,
-        dB: the IQ receiver's per-frame phase steps are as noisy, and its SI
-        SNR estimate as low, as a channel this much weaker would give (the
-        calibration against the IQ receiver, ``dtmbnav/obs_vs_iq.py``).
+        dB: the IQ receiver's per-frame phase steps are as noisy as a channel
+        this much weaker would make them (the calibration against the IQ
+        receiver, ``dtmbnav/obs_vs_iq.py``).
     calibration_guard_s : float
         End the f_s calibration this long before the walker starts, s.
     noise_draw : int
@@ -135,7 +143,7 @@ class ObsRangeConfig:
     min_header_snr_db: float = -7.5
     noise_bins: int = 191
     acquisition_frames: int = 16
-    implementation_loss_db: float = 0.5
+    implementation_loss_db: float = 0.1
     calibration_guard_s: float = 1.0
     noise_draw: int = 0
 
@@ -152,7 +160,7 @@ def coarse_cfo_sigma_hz(header_snr: float, mode: PnMode, acquisition_frames: int
     Parameters
     ----------
     header_snr : float
-        Whole-band SNR (linear) during acquisition.
+        SNR of the header samples (linear) during acquisition.
     mode : PnMode
         Header mode (its length and m-sequence period P).
     acquisition_frames : int
@@ -269,7 +277,9 @@ def simulate_obs_range(scenario: Scenario, truth: Track, config: ObsRangeConfig 
         raise ValueError(f"ObsRangeConfig.decimation must be >= 1, got {config.decimation}")
     if block_frames < 1:
         raise ValueError(f"block_frames must be >= 1, got {block_frames}")
-    frame_s = PnMode.parse(scenario.tower.pn_mode).value.frame_duration_s
+    tower = scenario.tower
+    mode = PnMode.parse(tower.pn_mode)
+    frame_s = mode.value.frame_duration_s
     t_s = np.arange(truth.t_s[0], truth.t_s[-1], frame_s)
     # f_s calibration window (eq. 9): the start-still time minus a guard before the walker moves.
     cal_end = max(scenario.walk.start_still_s - config.calibration_guard_s, 10 * frame_s * config.decimation)
@@ -281,18 +291,20 @@ def simulate_obs_range(scenario: Scenario, truth: Track, config: ObsRangeConfig 
     first_hz, spacing_hz, count = si_carrier_grid_hz()
     carrier_rng = np.random.default_rng([scenario.seed, _STREAM_CARRIER_NOISE, config.noise_draw])
     estimate_rng = np.random.default_rng([scenario.seed, _STREAM_NOISE_ESTIMATE, config.noise_draw])
-    noise_var = 10.0 ** (-scenario.receiver.cn_db / 10.0)
+    # Noise per sample (and per carrier) relative to a unit-power data symbol through the unobstructed path.
+    noise_var = (mean_signal_power(FrameConfig(pn_mode=mode, si_power_db=tower.si_power_db))
+                 / 10.0 ** (scenario.receiver.cn_db / 10.0))
+    si_amplitude = 10.0 ** ((tower.si_power_db - config.implementation_loss_db) / 20.0)
 
     # The coarse CFO: the clock's offset when the receiver acquires, plus the estimator's error.
-    fc = scenario.tower.carrier_hz
+    fc = tower.carrier_hz
     oscillator = scenario_oscillator(scenario, float(truth.t_s[-1]) + 1.0, scenario.seed, STREAM_CLOCK)
     t0 = t_s[:1]
-    first_snr = float(np.sum(np.abs(channel.state(t0).coef) ** 2)) / noise_var
-    coarse_sigma = coarse_cfo_sigma_hz(first_snr, PnMode.parse(scenario.tower.pn_mode), config.acquisition_frames)
+    header_snr = mode.value.header_power_ratio * float(np.sum(np.abs(channel.state(t0).coef) ** 2)) / noise_var
+    coarse_sigma = coarse_cfo_sigma_hz(header_snr, mode, config.acquisition_frames)
     coarse_rng = np.random.default_rng([scenario.seed, _STREAM_COARSE_CFO, config.noise_draw])
     coarse_hz = float(oscillator.clock_offset_hz(t0, fc)[0]) + coarse_sigma * coarse_rng.standard_normal()
 
-    loss_amplitude = 10.0 ** (-config.implementation_loss_db / 20.0)
     steps = np.empty(len(t_s))
     snr_est = np.empty(len(t_s))
     header_power = np.empty(len(t_s))
@@ -304,7 +316,7 @@ def simulate_obs_range(scenario: Scenario, truth: Track, config: ObsRangeConfig 
         # Clock phase less the coarse derotation, in cycles first (both are thousands of cycles over a walk).
         cycles = fc * oscillator.time_error_s(t_s[lo:hi]) + coarse_hz * (t_s[lo:hi] - t0)
         common = -2.0 * np.pi * (cycles - np.floor(cycles))
-        steps[lo:hi], power = si_frames_kernel(state.coef * loss_amplitude, state.delay_s, common, first_hz,
+        steps[lo:hi], power = si_frames_kernel(state.coef * si_amplitude, state.delay_s, common, first_hz,
                                                spacing_hz, count, noise * np.sqrt(noise_var / 2.0), previous)
         # The receiver's noise-power estimate: mean power of 2 * noise_bins real Gaussian components.
         dof = 2 * config.noise_bins
@@ -320,6 +332,6 @@ def simulate_obs_range(scenario: Scenario, truth: Track, config: ObsRangeConfig 
     corrected = phase - phase[0] - 2.0 * np.pi * f_s_hz * (t_s - t_s[0])
     wavelength_m = SPEED_OF_LIGHT_MPS / fc
     out = slice(None, None, config.decimation)
-    header_snr_db = 10.0 * np.log10(header_power[out] / noise_var)
+    header_snr_db = 10.0 * np.log10(mode.value.header_power_ratio * header_power[out] / noise_var)
     return RangeSeries(t_s=t_s[out], range_change_m=-wavelength_m * corrected[out] / (2.0 * np.pi),
                        snr_db=10.0 * np.log10(snr_est[out]), valid=header_snr_db >= config.min_header_snr_db)
