@@ -41,6 +41,7 @@ examples:
   dtmbnav run captures/                          # the whole chain on the bundled capture set
   dtmbnav report out/results.h5 -o out/report
   dtmbnav evaluate park-loop --seeds 20 --json table.json
+  dtmbnav evaluate all --level iq --seeds 10      # IQ-level Monte Carlo on a local Dask cluster
   dtmbnav bench --json bench.json
 """
 
