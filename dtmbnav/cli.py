@@ -159,21 +159,20 @@ def cmd_fuse(args: argparse.Namespace) -> int:
 
 def cmd_run(args: argparse.Namespace) -> int:
     from dtmbnav.chain import run_directory
-    from dtmbnav.distributed import IN_PROCESS, Task, run_tasks
+    from dtmbnav.distributed import Task, run_tasks
 
     folders = args.directory or [Path("captures")]
-    if len(folders) == 1:
-        outputs = [args.output]
-    else:
-        outputs = [args.output / folder.resolve().name for folder in folders]
-        if len(set(outputs)) < len(outputs):
-            raise ValueError("run: capture-set folders must have different names (each gets OUTPUT/NAME)")
-    cluster = _cluster(args)
     if len(folders) == 1 and args.scheduler is None and args.workers is None:
-        cluster = IN_PROCESS  # one capture set: no cluster to start
-    tasks = [Task(str(folder), run_directory, (folder, out, args.filters, cluster.in_process and not args.quiet))
+        outcome = run_directory(folders[0], args.output, filters=args.filters, progress=not args.quiet)
+        print(outcome.summary, file=sys.stderr if args.json else sys.stdout)
+        return EXIT_OK
+    outputs = [args.output / folder.resolve().name for folder in folders]
+    if len(set(outputs)) < len(outputs):
+        raise ValueError("run: capture-set folders must have different names (each gets OUTPUT/NAME)")
+    cluster = _cluster(args)
+    tasks = [Task(str(folder), run_directory, (folder, out, args.filters, False))
              for folder, out in zip(folders, outputs)]
-    outcome = run_tasks(tasks, cluster, progress=len(tasks) > 1 and not args.quiet, description="run")
+    outcome = run_tasks(tasks, cluster, progress=not args.quiet, description="run")
     for result in outcome.results:
         if result is not None:
             print(result.summary, file=sys.stderr if args.json else sys.stdout)
@@ -336,7 +335,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="folders, each with one capture and its sensors/truth file (default: captures/); "
                         "several run as Dask tasks")
     p.add_argument("-o", "--output", type=Path, default=Path("out/run"),
-                   help="output folder (default out/run; OUTPUT/NAME per folder when several)")
+                   help="output folder (default out/run; OUTPUT/NAME per folder when several or on Dask)")
     p.add_argument("--filters", type=_filter_list(FILTER_NAMES), default=FILTER_NAMES, help=FILTERS_HELP)
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     _add_cluster_options(p)
