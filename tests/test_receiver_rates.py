@@ -66,10 +66,19 @@ def assert_identical(a: FrameBatch, b: FrameBatch) -> None:
 def assert_sane(rows: FrameBatch, rx: Receiver) -> None:
     """Every column finite (but the CFO of a lock's first frame), SI SNRs of a 15 dB link, the word sent."""
     first = (rows.flags & FrameFlag.LOCK_START) > 0
+    # The path tracker's columns hold their fill (NaN, -1, 0) where it has no first path: finite where it has.
+    found = rows.first_path_id >= 0
     for name, column in rows.columns().items():
         finite = np.isfinite(column)
-        assert finite[~first].all() if name in ("cfo_hz", "cfo_pn_hz", "doppler_hz", "velocity_mps") \
-            else finite.all(), name
+        if name in ("first_path_cfo_hz", "first_path_range_change_m"):
+            assert finite[found & ~first].all(), name
+        elif name in ("first_path_delay_s", "first_path_snr_db"):
+            assert finite[found].all() and not finite[~found].any(), name
+        elif name in ("range_difference_change_1_m", "range_difference_change_2_m"):
+            assert not finite[rows.tower_count < 2].any(), name  # one tower: no difference
+        else:
+            assert finite[~first].all() if name in ("cfo_hz", "cfo_pn_hz", "doppler_hz", "velocity_mps") \
+                else finite.all(), name
     assert np.all(rows.si_snr_db < 25.0) and np.median(rows.si_snr_db) > 10.0
     assert rx.si_index == 15
 
