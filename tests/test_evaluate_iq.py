@@ -25,8 +25,17 @@ def test_iq_level_table_on_the_tiny_walk(capsys):
 
 @pytest.mark.slow
 def test_iq_range_follows_the_walk():
-    """The receiver's range of the tiny walk's varied layout against the true distance change."""
-    scn = ev.seed_scenario(ev.load_scenario(TINY), 0)
+    """The receiver's range of the tiny walk's varied layout against the true distance change.
+
+    The channel here has the direct path, the ground reflection and no diffuse
+    scattering. With the tiny walk's diffuse scattering (Rician K = 10 dB,
+    Doppler spread 3 Hz about the receiver) the SI-carrier frequency (eq. 8) is
+    the power-weighted mean of the direct path's and the scattering's, so it
+    shrinks the Doppler by up to 1 / (1 + K) = 9 %: a physical bias of the
+    estimator, not the chain's (0.25 m on this walk), which the observation
+    level models and ``test_obs_vs_iq`` compares.
+    """
+    scn = ev.seed_scenario(ev.load_scenario(TINY), 0).replace(channel={"rician_k_db": None})
     truth = simulate_walk(scn).track
     ranges = iq_ranges(scn, truth)
     assert ranges.t_s[0] < 0.1 and ranges.t_s[-1] > truth.t_s[-1] - 0.1  # the whole walk, frame by frame
@@ -36,8 +45,8 @@ def test_iq_range_follows_the_walk():
     d = np.hypot(np.hypot(x - tower.x_m, y - tower.y_m), tower.height_m - scn.channel.antenna_height_m)
     error = ranges.range_change_m - (d - d[0])
     assert ranges.valid.mean() > 0.95
-    # Line of sight over a 12 m walk: the range change follows the geometry to well under a wavelength.
-    assert np.percentile(np.abs(error), 95) < 0.2 and np.ptp(d) > 3.0  # the L is at least 4 m wide
+    # Line of sight over a 12 m walk: the range change follows the geometry to a fifth of a wavelength.
+    assert np.percentile(np.abs(error), 95) < 0.1 and np.ptp(d) > 3.0  # the L is at least 4 m wide
 
 
 def test_iq_source_is_the_level_source():
