@@ -36,6 +36,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from dtmbnav.errors import NoResult, UsageError
+from dtmbnav.seeds import LEVELS, REPORTING_SEEDS, TUNING_SEEDS
 from fusion import DEFAULT_PARTICLES, FILTER_NAMES, FOOT_INS
 from receiver import DEFAULT_STATIC_WINDOW_S
 
@@ -63,6 +64,7 @@ examples:
   dtmbnav run captures/                          # the whole chain on the bundled capture set
   dtmbnav report out/results.h5 -o out/report
   dtmbnav evaluate park-loop --seeds 20 --json table.json
+  dtmbnav evaluate all --level iq --seeds 10      # IQ-level Monte Carlo on a local Dask cluster
   dtmbnav bench --json bench.json
 """
 
@@ -109,6 +111,10 @@ def _positive_int(text: str) -> int:
 
 
 def _seed(text: str) -> int:
+    return _whole(text, 0)
+
+
+def _index(text: str) -> int:
     return _whole(text, 0)
 
 
@@ -329,11 +335,44 @@ def cmd_fuse(args: argparse.Namespace) -> int:
 
 def cmd_run(args: argparse.Namespace) -> int:
     from dtmbnav.chain import run_directory
+    from dtmbnav.distributed import Task, run_tasks
 
-    outcome = run_directory(args.directory, args.output, filters=args.filters,
-                            progress=not args.quiet)
-    print(outcome.summary, file=sys.stderr if args.json else sys.stdout)
-    return EXIT_OK if outcome.found else EXIT_NO_RESULT
+    folders = args.directory or [Path("captures")]
+    if len(folders) == 1 and args.scheduler is None and args.workers is None:
+        outcome = run_directory(folders[0], args.output, filters=args.filters, progress=not args.quiet)
+        print(outcome.summary, file=sys.stderr if args.json else sys.stdout)
+        return EXIT_OK if outcome.found else EXIT_NO_RESULT
+    outputs = [args.output / folder.resolve().name for folder in folders]
+    if len(set(outputs)) < len(outputs):
+        raise UsageError("run: capture-set folders must have different names (each gets OUTPUT/NAME)")
+    cluster = _cluster(args)
+    tasks = [Task(str(folder), run_directory, (folder, out, args.filters, False))
+             for folder, out in zip(folders, outputs)]
+    outcome = run_tasks(tasks, cluster, progress=not args.quiet, description="run")
+    for result in outcome.results:
+        if result is not None:
+            print(result.summary, file=sys.stderr if args.json else sys.stdout)
+    for f in outcome.failures:
+        print(f"dtmbnav run: {f.label} failed: {f.error}\n  re-run it alone: dtmbnav run {f.label} -o "
+              f"{outputs[f.index]}", file=sys.stderr)
+    return EXIT_NO_RESULT if outcome.failures else EXIT_OK
+
+
+def _cluster(args: argparse.Namespace):
+    from dtmbnav.distributed import ClusterConfig
+
+    return ClusterConfig(workers=args.workers, scheduler=args.scheduler)
+
+
+def _rerun_walk(args: argparse.Namespace, failure) -> str:
+    """The command that runs one failed Monte Carlo walk alone, in this process."""
+    options = [f"--seeds 1 --first-seed {failure.first_seed + failure.k}", f"--level {args.level}",
+               f"--filters {','.join(args.filters)}", "--workers 0"]
+    if args.particles is not None:
+        options.append(f"--particles {args.particles}")
+    if not args.vary_geometry:
+        options.append("--no-vary-geometry")
+    return f"dtmbnav evaluate {failure.argument} {' '.join(options)}"
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -360,20 +399,23 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print(pdr_table(scenarios))
         return EXIT_OK
     config = FusionConfig() if args.particles is None else FusionConfig(n_particles=args.particles)
-    rows: list[evaluate.EvaluationRow] = []
-    for name in scenarios:
-        rows.extend(evaluate.evaluate(name, args.seeds, args.filters, config=config))
-        print(f"evaluated {name}", file=sys.stderr)
+    outcome = evaluate.evaluate_many(scenarios, args.seeds, args.filters, level=args.level, config=config,
+                                     first_seed=args.first_seed, vary_geometry=args.vary_geometry,
+                                     cluster=_cluster(args), progress=not args.quiet)
+    for f in outcome.failures:
+        print(f"dtmbnav evaluate: {f.scenario} walk k={f.k} (seed {f.seed}) failed: {f.error}\n"
+              f"  re-run it alone: {_rerun_walk(args, f)}", file=sys.stderr)
+    rows = outcome.rows
     table = evaluate.format_table(rows)
     if args.json == "-":
         print(evaluate.rows_to_json(rows))
         print(table, file=sys.stderr)
-        return EXIT_OK
-    print(table)
-    if args.json:
-        with atomic_path(args.json) as tmp:
-            tmp.write_text(evaluate.rows_to_json(rows))
-    return EXIT_OK
+    else:
+        print(table)
+        if args.json:
+            with atomic_path(args.json) as tmp:
+                tmp.write_text(evaluate.rows_to_json(rows))
+    return EXIT_NO_RESULT if outcome.failures else EXIT_OK
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -441,6 +483,13 @@ def _add_pdr_options(p: argparse.ArgumentParser) -> None:
                         "attribute, else the frequency model is used")
 
 
+def _add_cluster_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("Dask")
+    g.add_argument("--workers", type=_index, metavar="N",
+                   help="local Dask worker processes (default: one per CPU core; 0: in this process, no Dask)")
+    g.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="use an existing Dask cluster")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="dtmbnav", description="DTMB (GB 20600) Doppler-ranging receiver and PDR fusion for pedestrian "
@@ -502,12 +551,15 @@ def build_parser() -> argparse.ArgumentParser:
     _add_pdr_options(p)
     p.set_defaults(handler=cmd_fuse)
 
-    p = command("run", "the whole chain (receive, PDR, fuse, report) on one capture set")
-    p.add_argument("directory", nargs="?", default="captures", type=Path,
-                   help="folder with one capture and its sensors/truth file (default: captures/)")
-    p.add_argument("-o", "--output", type=Path, default=Path("out/run"), help="output folder (default out/run)")
+    p = command("run", "the whole chain (receive, PDR, fuse, report) on capture sets")
+    p.add_argument("directory", nargs="*", type=Path,
+                   help="folders, each with one capture and its sensors/truth file (default: captures/); "
+                        "several run as Dask tasks")
+    p.add_argument("-o", "--output", type=Path, default=Path("out/run"),
+                   help="output folder (default out/run; OUTPUT/NAME per folder when several or on Dask)")
     p.add_argument("--filters", type=_filter_list(FILTER_NAMES), default=FILTER_NAMES, help=FILTERS_HELP)
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    _add_cluster_options(p)
     p.set_defaults(handler=cmd_run)
 
     p = command("report", "plots and a summary table from a results file")
@@ -524,6 +576,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--particles", type=_positive_int, help=f"particle-filter Np (default {DEFAULT_PARTICLES})")
     p.add_argument("--json", metavar="FILE", help="also write the table as JSON ('-' for stdout)")
     p.add_argument("--pdr", action="store_true", help="only the PDR figures (steps, step length, drift, error)")
+    p.add_argument("--first-seed", type=_index, default=REPORTING_SEEDS.start, metavar="N",
+                   help=f"first Monte Carlo index (default {REPORTING_SEEDS.start}: the reporting range "
+                        f"{REPORTING_SEEDS.start}-{REPORTING_SEEDS[-1]}; tuning range "
+                        f"{TUNING_SEEDS.start}-{TUNING_SEEDS[-1]})")
+    p.add_argument("--level", choices=LEVELS, default="obs",
+                   help="range from the observation-level model (obs, default) or the IQ transmitter, channel "
+                        "and receiver (iq)")
+    p.add_argument("--vary-geometry", action=argparse.BooleanOptionalAction, default=True,
+                   help="each walk gets its own scene orientation and tower bearing and distance (default on)")
+    _add_cluster_options(p)
     p.set_defaults(handler=cmd_evaluate)
 
     p = command("bench", "throughput of every kernel next to its plain-numpy reference")

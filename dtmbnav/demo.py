@@ -17,35 +17,27 @@ from pathlib import Path
 
 from dtmbnav.chain import fuse_files
 from dtmbnav.core import schema
-from dtmbnav.core.iqformat import decode, get_format
+from dtmbnav.iq_range import generated_chunks, simulated_receiver_config
 from dtmbnav.report import write_report
 from dtmbnav.simulation import simulate_capture_set
 from fusion.pdr import PdrConfig
 from fusion.run import FILTERS
-from receiver.pipeline import Receiver, ReceiverConfig, receive_into_sink
+from receiver.pipeline import Receiver, receive_into_sink
 from receiver.writer import FrameSink
 from sim.rf import CaptureGenerator
 from sim.scenario import load_scenario
 from sim.walk import simulate_walk
 
-#: Samples generated and received per step of the stream.
-CHUNK_SAMPLES = 1 << 20
-#: The f_s window ends this long before the walker sets off (the first step starts a little early), s.
-STATIC_MARGIN_S = 0.5
-
 
 def stream_receive(scenario, seconds: float | None, rx_path: Path, progress: bool) -> int:
     """Generate the scenario's capture and receive it on the fly; returns the frame count."""
     generator = CaptureGenerator(scenario, simulate_walk(scenario).track, seconds=seconds)
-    fmt = get_format(generator.sample_format)
     # The walker stands still for start_still_s: that is the f_s calibration window (eq. 9-10).
-    config = ReceiverConfig(static_window_s=max(scenario.walk.start_still_s - STATIC_MARGIN_S, 0.5))
-    receiver = Receiver(generator.sample_rate_hz, generator.carrier_hz, config)
+    receiver = Receiver(generator.sample_rate_hz, generator.carrier_hz, simulated_receiver_config(scenario))
     sink = FrameSink(rx_path)
-    receive_into_sink(receiver, (decode(rails, fmt) for rails in generator.quantised_chunks(CHUNK_SAMPLES)), sink,
-                      source=f"simulated {scenario.name} (streamed)", total_samples=generator.num_samples,
-                      progress=progress, attrs={schema.CAPTURE_SCENARIO_ATTR: scenario.name,
-                                                schema.CAPTURE_SEED_ATTR: generator.seed})
+    receive_into_sink(receiver, generated_chunks(generator), sink, source=f"simulated {scenario.name} (streamed)",
+                      total_samples=generator.num_samples, progress=progress,
+                      attrs={schema.CAPTURE_SCENARIO_ATTR: scenario.name, schema.CAPTURE_SEED_ATTR: generator.seed})
     return sink.frames
 
 

@@ -1,10 +1,15 @@
 """Monte Carlo accuracy evaluation of every filter against truth, next to the paper's figures.
 
-For each reference walk and each Monte Carlo seed, the whole chain runs:
-scenario (with the seed) -> walk -> phone IMU -> PDR, and a range source
-(observation level by default, :mod:`sim.obs_range`; the IQ-level pipeline
-plugs in through ``range_source``) -> :func:`fusion.run.fuse` -> error of
-every filter against the truth at the PDR step times.
+For each reference walk and each Monte Carlo walk k, the whole chain runs:
+scenario (with the walk's seed, :mod:`dtmbnav.seeds`, and by default its own
+layout, :func:`sim.variation.vary_scenario`) -> walk -> phone IMU -> PDR, and
+a range source -> :func:`fusion.run.fuse` -> error of every filter against
+the truth at the PDR step times. The range comes from the observation-level
+model (``level="obs"``, :mod:`sim.obs_range`) or from the IQ transmitter,
+channel and receiver (``level="iq"``, :mod:`dtmbnav.iq_range`). Each walk is
+one task of :mod:`dtmbnav.distributed` (in this process, or on a Dask
+cluster); a walk depends only on its seed, so the table does not depend on
+where it ran.
 
 Figures, as the paper reports them (``docs/method.md`` §6):
 
@@ -25,8 +30,9 @@ the last GNSS fix P0, and its initial heading is what eq. 15 solves), so
 column ``red@fix`` is the closer match to the paper's reduction; column
 ``95%red`` measures against the stricter true-start, true-heading PDR.
 
-``dtmbnav evaluate all --seeds 20`` prints the table for the four reference
-walks; ``--json FILE`` also writes it (``-`` for stdout). The protocol is
+``dtmbnav evaluate all --seeds 50`` prints the table for the four reference
+walks on the reporting seeds (``--first-seed 100`` for the tuning seeds);
+``--json FILE`` also writes it (``-`` for stdout). The protocol is
 ``docs/evaluation.md``.
 """
 
@@ -39,7 +45,9 @@ from typing import Callable
 import numpy as np
 
 from dtmbnav.core.records import ImuLog, PdrSteps, RangeSeries, Track
+from dtmbnav.distributed import IN_PROCESS, ClusterConfig, Task, run_tasks
 from dtmbnav.paper import paper_figures
+from dtmbnav.seeds import LEVELS, REPORTING_SEEDS, TUNING_SEEDS, monte_carlo_seed, seed_range_name
 from dtmbnav.simulation import calibration_walk_k_m
 from fusion import FILTER_NAMES, FOOT_INS
 from fusion.foot_ins import ZuptInsRankKf
@@ -51,6 +59,7 @@ from sim.gnss import simulate_start_fix
 from sim.imu import simulate_imu
 from sim.obs_range import simulate_obs_range
 from sim.scenario import Scenario, load_scenario
+from sim.variation import vary_scenario
 from sim.walk import simulate_walk
 
 #: The four reference walks, and the names that stand for groups of them here.
@@ -90,10 +99,32 @@ RangeSource = Callable[[Scenario, Track], RangeSeries]
 Chain = Callable[[Scenario, RangeSource, bool], ChainOutput]
 
 
-
 def obs_range_source(scenario: Scenario, truth: Track) -> RangeSeries:
     """Observation-level receiver range (:func:`sim.obs_range.simulate_obs_range`)."""
     return simulate_obs_range(scenario, truth)
+
+
+def level_range_source(level: str) -> RangeSource:
+    """The range source of a level (:data:`LEVELS`); the IQ level's imports the receiver only when asked for."""
+    if level == "obs":
+        return obs_range_source
+    if level == "iq":
+        from dtmbnav.iq_range import iq_range_source
+
+        return iq_range_source
+    raise ValueError(f"evaluate: level must be one of {LEVELS}, got {level!r}")
+
+
+def seed_scenario(scenario: Scenario, k: int, first_seed: int = REPORTING_SEEDS.start,
+                  vary_geometry: bool = True) -> Scenario:
+    """The scenario of Monte Carlo walk ``k``: its seed, and with ``vary_geometry`` its own layout.
+
+    The layout (:func:`sim.variation.vary_scenario`) is drawn from the walk's
+    seed, so a walk is the same whichever process runs it.
+    """
+    seed = monte_carlo_seed(scenario.seed, k, first_seed)
+    seeded = scenario.replace(seed=seed)
+    return vary_scenario(seeded, seed) if vary_geometry else seeded
 
 
 def calibrated_pdr_config(scenario: Scenario) -> PdrConfig:
@@ -190,9 +221,22 @@ class EvaluationRow:
     paper_p95_m: float | None = None
     paper_max_m: float | None = None
     paper_reduction_95: float | None = None
+    first_seed: int = REPORTING_SEEDS.start
+    level: str = "obs"
+    geometry_varied: bool = True
 
 
-def summarise(scenario_name: str, results: list[SeedResult]) -> list[EvaluationRow]:
+@dataclass(frozen=True)
+class RunSettings:
+    """How a scenario's walks were drawn: first Monte Carlo index, range level, per-walk layout or not."""
+
+    first_seed: int = REPORTING_SEEDS.start
+    level: str = "obs"
+    vary_geometry: bool = True
+
+
+def summarise(scenario_name: str, results: list[SeedResult], settings: RunSettings = RunSettings()
+              ) -> list[EvaluationRow]:
     """Table rows of one scenario from its per-seed results."""
     heading_median = float(np.rad2deg(np.median([r.heading_error_rad for r in results])))
     paper = paper_figures(scenario_name)
@@ -211,69 +255,181 @@ def summarise(scenario_name: str, results: list[SeedResult]) -> list[EvaluationR
             heading_error_median_deg=heading_median,
             paper_p68_m=reference[0] if reference else None, paper_p95_m=reference[1] if reference else None,
             paper_max_m=reference[2] if reference else None,
-            paper_reduction_95=paper.reduction_95 if paper and name == "pf" else None))
+            paper_reduction_95=paper.reduction_95 if paper and name == "pf" else None,
+            first_seed=settings.first_seed, level=settings.level, geometry_varied=settings.vary_geometry))
     return rows
+
+
+def run_walk(scenario: Scenario, k: int, first_seed: int, vary_geometry: bool, filters: tuple[str, ...],
+             config: FusionConfig, level: str, range_source: RangeSource | None, chain: Chain) -> SeedResult:
+    """Monte Carlo walk ``k`` of a scenario (:func:`seed_scenario`) through :func:`run_seed`: one task.
+
+    Everything it draws comes from the walk's seed, so it gives the same
+    result in any process (:mod:`dtmbnav.distributed`).
+    """
+    source = range_source or level_range_source(level)
+    return run_seed(seed_scenario(scenario, k, first_seed, vary_geometry), filters, config, source, chain)
+
+
+@dataclass(frozen=True)
+class WalkFailure:
+    """A Monte Carlo walk that raised.
+
+    Attributes
+    ----------
+    scenario : str
+        Scenario name.
+    argument : str
+        The scenario as it was given (name or file path), to run the walk again.
+    k, first_seed, seed : int
+        Monte Carlo index, first index of the run, scenario seed of the walk.
+    error : str
+        ``ExceptionType: message``.
+    """
+
+    scenario: str
+    argument: str
+    k: int
+    first_seed: int
+    seed: int
+    error: str
+
+
+@dataclass
+class EvaluationOutcome:
+    """The table rows of the scenarios whose walks all ran, and the walks that failed."""
+
+    rows: list[EvaluationRow]
+    failures: list[WalkFailure]
+
+
+def _check(seeds: int, level: str, first_seed: int) -> None:
+    if seeds < 1:
+        raise ValueError(f"evaluate: seeds must be >= 1, got {seeds}")
+    if level not in LEVELS:
+        raise ValueError(f"evaluate: level must be one of {LEVELS}, got {level!r}")
+    for k in (0, seeds - 1):
+        monte_carlo_seed(0, k, first_seed)
+
+
+def evaluate_many(scenarios: list[str | Scenario], seeds: int = 20, filters: tuple[str, ...] = FILTER_NAMES,
+                  level: str = "obs", range_source: RangeSource | None = None, config: FusionConfig = FusionConfig(),
+                  first_seed: int = REPORTING_SEEDS.start, chain: Chain = simulated_chain, vary_geometry: bool = True,
+                  cluster: ClusterConfig = IN_PROCESS, progress: bool = False) -> EvaluationOutcome:
+    """Monte Carlo evaluation of several scenarios, every walk a task (:mod:`dtmbnav.distributed`).
+
+    Parameters
+    ----------
+    scenarios : list of str or Scenario
+        Scenario names, files or objects.
+    seeds : int
+        Monte Carlo walks per scenario; walk k runs seed
+        :func:`dtmbnav.seeds.monte_carlo_seed` ``(scenario.seed, k, first_seed)``.
+    filters : tuple of str
+        Filters to run (:data:`fusion.FILTER_NAMES`, and :data:`FOOT_INS`).
+    level : {"obs", "iq"}
+        Where the receiver range comes from (:data:`LEVELS`).
+    range_source : callable, optional
+        Replaces the level's range source (scenario, truth -> RangeSeries).
+    config : FusionConfig
+    first_seed : int
+        First Monte Carlo index (:data:`REPORTING_SEEDS`, :data:`TUNING_SEEDS`).
+    chain : callable
+        Walk simulation (replaceable for tests).
+    vary_geometry : bool
+        Each walk gets its own layout (:func:`sim.variation.vary_scenario`).
+    cluster : ClusterConfig
+        Where the walks run (default: in this process).
+    progress : bool
+        Progress bar on stderr.
+
+    Returns
+    -------
+    EvaluationOutcome
+        Rows in the order of ``scenarios`` (each: the PDR rows, then the
+        filters), for the scenarios whose walks all ran; the failed walks.
+    """
+    _check(seeds, level, first_seed)
+    loaded = [s if isinstance(s, Scenario) else load_scenario(s) for s in scenarios]
+    tasks = [Task(f"{scn.name} k={k} (seed {monte_carlo_seed(scn.seed, k, first_seed)})", run_walk,
+                  (scn, k, first_seed, vary_geometry, filters, config, level, range_source, chain))
+             for scn in loaded for k in range(seeds)]
+    outcome = run_tasks(tasks, cluster, progress=progress, description=f"evaluate ({level} level)")
+    failed = {f.index: f for f in outcome.failures}
+    rows: list[EvaluationRow] = []
+    failures: list[WalkFailure] = []
+    for i, scn in enumerate(loaded):
+        span = range(i * seeds, (i + 1) * seeds)
+        for j in span:
+            if j in failed:
+                k = j - span.start
+                argument = scenarios[i] if isinstance(scenarios[i], str) else scn.name
+                failures.append(WalkFailure(scn.name, argument, k, first_seed,
+                                            monte_carlo_seed(scn.seed, k, first_seed), failed[j].error))
+        if not any(j in failed for j in span):
+            rows.extend(summarise(scn.name, [outcome.results[j] for j in span],
+                                  RunSettings(first_seed, level, vary_geometry)))
+    return EvaluationOutcome(rows, failures)
 
 
 def run_seeds(scenario: str | Scenario, seeds: int = 20, filters: tuple[str, ...] = FILTER_NAMES,
               level: str = "obs", range_source: RangeSource | None = None, config: FusionConfig = FusionConfig(),
-              first_seed: int = 0, chain: Chain = simulated_chain) -> tuple[str, list[SeedResult]]:
-    """Monte Carlo walks of one scenario; returns its name and the per-walk results.
+              first_seed: int = REPORTING_SEEDS.start, chain: Chain = simulated_chain,
+              vary_geometry: bool = True) -> tuple[str, list[SeedResult]]:
+    """Monte Carlo walks of one scenario in this process; returns its name and the per-walk results.
 
-    Parameters
-    ----------
-    scenario : str or Scenario
-        Scenario name, file path or object.
-    seeds : int
-        Number of Monte Carlo walks; walk k uses scenario seed
-        ``1000 * scenario.seed + first_seed + k``.
-    filters : tuple of str
-        Filters to run (:data:`fusion.FILTER_NAMES`, and :data:`FOOT_INS`).
-    level : {"obs", "iq"}
-        Where the receiver range comes from: the observation-level model, or
-        ``range_source`` (the IQ pipeline: scenario, truth -> RangeSeries).
-    range_source : callable, optional
-        Required for ``level="iq"``; overrides the observation model otherwise.
-    config : FusionConfig
-    first_seed : int
-    chain : callable
-        Walk simulation (replaceable for tests).
+    Arguments as :func:`evaluate_many`.
     """
-    if seeds < 1:
-        raise ValueError(f"evaluate: seeds must be >= 1, got {seeds}")
-    if level not in ("obs", "iq"):
-        raise ValueError(f"evaluate: level must be 'obs' or 'iq', got {level!r}")
-    if level == "iq" and range_source is None:
-        raise ValueError("evaluate: level='iq' needs a range_source (the IQ receiver pipeline)")
+    _check(seeds, level, first_seed)
     scn = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    source = range_source or obs_range_source
-    return scn.name, [run_seed(scn.replace(seed=1000 * scn.seed + first_seed + k), filters, config, source, chain)
+    return scn.name, [run_walk(scn, k, first_seed, vary_geometry, filters, config, level, range_source, chain)
                       for k in range(seeds)]
 
 
 def evaluate(scenario: str | Scenario, seeds: int = 20, filters: tuple[str, ...] = FILTER_NAMES,
              level: str = "obs", range_source: RangeSource | None = None, config: FusionConfig = FusionConfig(),
-             first_seed: int = 0, chain: Chain = simulated_chain) -> list[EvaluationRow]:
-    """Monte Carlo evaluation of one scenario (arguments as :func:`run_seeds`).
+             first_seed: int = REPORTING_SEEDS.start, chain: Chain = simulated_chain, vary_geometry: bool = True,
+             cluster: ClusterConfig = IN_PROCESS) -> list[EvaluationRow]:
+    """Monte Carlo evaluation of one scenario (arguments as :func:`evaluate_many`).
 
     Returns
     -------
     list of EvaluationRow
-        The PDR row first, then one row per filter.
+        The PDR rows first, then one row per filter.
+
+    Raises
+    ------
+    RuntimeError
+        When a walk fails (the message names its seed and the error).
     """
-    return summarise(*run_seeds(scenario, seeds, filters, level, range_source, config, first_seed, chain))
+    outcome = evaluate_many([scenario], seeds, filters, level, range_source, config, first_seed, chain,
+                            vary_geometry, cluster)
+    if outcome.failures:
+        f = outcome.failures[0]
+        raise RuntimeError(f"evaluate {f.scenario}: walk k={f.k} (seed {f.seed}) failed: {f.error}")
+    return outcome.rows
 
 
 def _fmt(value: float | None, spec: str) -> str:
     return "-" if value is None else format(value, spec)
 
 
+def describe_seeds(first_seed: int, seeds: int, level: str, geometry_varied: bool) -> str:
+    """One line saying which walks a table row averages: indices, named seed ranges, level, layouts."""
+    layout = "a layout per walk" if geometry_varied else "the scenario file's layout"
+    return (f"Monte Carlo indices {first_seed}-{first_seed + seeds - 1} ({seed_range_name(first_seed, seeds)}; "
+            f"reporting range {REPORTING_SEEDS.start}-{REPORTING_SEEDS[-1]}, tuning range "
+            f"{TUNING_SEEDS.start}-{TUNING_SEEDS[-1]}), {level} level, "
+            f"{layout}")
+
+
 def format_table(rows: list[EvaluationRow]) -> str:
-    """A fixed-width text table, our figures next to the paper's."""
+    """A fixed-width text table, our figures next to the paper's, under a line naming the walks."""
+    runs = dict.fromkeys((r.first_seed, r.seeds, r.level, r.geometry_varied) for r in rows)
     header = (f"{'scenario':<15} {'filter':<12} {'seeds':>5}  {'68%':>6} {'95%':>6} {'max':>6}  {'95%red':>6} "
               f"{'red@fix':>7}  "
               f"{'hdg_err':>7}  | paper {'68%':>6} {'95%':>6} {'max':>6} {'red':>5}")
-    lines = [header, "-" * len(header)]
+    lines = [describe_seeds(*run) for run in runs] + [header, "-" * len(header)]
     for r in rows:
         lines.append(
             f"{r.scenario:<15} {r.filter:<12} {r.seeds:>5}  {r.p68_m:6.2f} {r.p95_m:6.2f} {r.max_m:6.2f}  "

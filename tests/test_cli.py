@@ -150,7 +150,7 @@ def test_run_on_a_capture_set(tiny_sim, tmp_path, capsys):
 def test_evaluate_one_seed(tmp_path):
     table = tmp_path / "table.json"
     assert main(["evaluate", "park-loop-cw", "--seeds", "1", "--filters", "pf", "--particles", "300",
-                 "--json", str(table)]) == EXIT_OK
+                 "--json", str(table), "--workers", "0"]) == EXIT_OK
     rows = json.loads(table.read_text())
     assert {r["filter"] for r in rows} >= {"pdr", "pf"}
 

@@ -24,8 +24,9 @@ def synthetic_chain(scenario, range_source, foot_imu=False):
 
 @pytest.fixture(scope="module")
 def park_rows():
+    """Two walks on the scenario file's layout (whose geometry the assertions below rely on)."""
     return ev.evaluate("park-loop-ccw", seeds=2, filters=("pf", "ukf"), config=FusionConfig(n_particles=500),
-                       chain=synthetic_chain)
+                       chain=synthetic_chain, vary_geometry=False)
 
 
 def test_rows_hold_pdr_then_filters_with_paper_figures(park_rows):
@@ -45,7 +46,7 @@ def test_pdr_row_is_the_true_start_true_heading_baseline(park_rows):
     scn = ev.load_scenario("park-loop-ccw")
     p95 = []
     for k in range(2):
-        out = synthetic_chain(scn.replace(seed=1000 * scn.seed + k), ev.obs_range_source)
+        out = synthetic_chain(ev.seed_scenario(scn, k, vary_geometry=False), ev.obs_range_source)
         placed = place_pdr(out.pdr, 0.0, 0.0, true_initial_heading_rad(out.truth, out.walk_start_t_s))
         p95.append(error_stats(position_errors_m(placed, out.truth)).p95_m)
     assert park_rows[0].p95_m == pytest.approx(np.mean(p95))
@@ -57,19 +58,39 @@ def test_fusion_beats_the_pdr_on_a_gain_error(park_rows):
     assert pf.heading_error_median_deg < 5.0
 
 
+def test_walks_come_from_the_reporting_seeds_with_their_own_layout(park_rows):
+    scn = ev.load_scenario("park-loop-ccw")
+    assert ev.monte_carlo_seed(scn.seed, 1) == 1000 * scn.seed + ev.REPORTING_SEEDS.start + 1
+    walk = ev.seed_scenario(scn, 1)
+    assert walk.seed == ev.monte_carlo_seed(scn.seed, 1) and walk.tower != scn.tower
+    assert walk.walk.waypoints_m[0] == scn.walk.waypoints_m[0] and walk.walk.waypoints_m != scn.walk.waypoints_m
+    assert ev.seed_scenario(scn, 1, vary_geometry=False) == scn.replace(seed=walk.seed)
+    assert all(r.first_seed == ev.REPORTING_SEEDS.start and r.level == "obs" and not r.geometry_varied
+               for r in park_rows)
+
+
 def test_table_and_json(park_rows):
     table = ev.format_table(park_rows)
     assert "park-loop-ccw" in table and "9.19" in table and "41%" in table
+    first, last = ev.REPORTING_SEEDS.start, ev.REPORTING_SEEDS[-1]
+    assert table.splitlines()[0].startswith(f"Monte Carlo indices {first}-{first + 1} (reporting range; "
+                                            f"reporting range {first}-{last}, tuning range "
+                                            f"{ev.TUNING_SEEDS.start}-{ev.TUNING_SEEDS[-1]}), obs level, "
+                                            "the scenario file's layout")
     # Reductions carry a decimal: a 40.5 % cut must not print as the paper's 41 %.
     assert f"{100 * park_rows[2].reduction_95:5.1f}%" in table
     decoded = json.loads(ev.rows_to_json(park_rows))
     assert decoded[2]["filter"] == "pf" and decoded[2]["p95_m"] == pytest.approx(park_rows[2].p95_m)
+    assert decoded[2]["first_seed"] == first and decoded[2]["level"] == "obs"
+    assert decoded[2]["geometry_varied"] is False
 
 
 def test_arguments_are_checked():
-    with pytest.raises(ValueError, match="range_source"):
-        ev.evaluate("park-loop-cw", seeds=1, level="iq")
+    with pytest.raises(ValueError, match="level"):
+        ev.evaluate("park-loop-cw", seeds=1, level="rf")
     with pytest.raises(ValueError, match="seeds"):
         ev.evaluate("park-loop-cw", seeds=0)
+    with pytest.raises(ValueError, match="Monte Carlo index"):
+        ev.evaluate("park-loop-cw", seeds=2, first_seed=999)
     assert ev.expand_scenarios(["street", "x.toml"]) == ["street-out", "street-back", "x.toml"]
     assert ev.paper_figures("street-back").reduction_95 == 0.30 and ev.paper_figures("custom") is None

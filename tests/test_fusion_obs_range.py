@@ -3,12 +3,17 @@
 import numpy as np
 import pytest
 from fusion_synth import polyline_truth
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from dtmbnav.core.gb20600 import PnMode
 from fusion.metrics import interpolate_track
 from fusion.model import Geometry
 from sim.channel import segment_crosses_polygon
-from sim.obs_range import ObsRangeConfig, si_phase_steps_kernel, si_phase_steps_reference, simulate_obs_range
+from sim.obs_range import (ObsRangeConfig, coarse_cfo_sigma_hz, si_carrier_grid_hz, si_frames_kernel,
+                           si_frames_reference, simulate_obs_range)
+from sim.frames import FrameConfig
+from sim.frontend import mean_signal_power
 from sim.scenario import load_scenario
 
 
@@ -30,7 +35,15 @@ def test_line_of_sight_range_follows_the_geometry(park):
     scn, truth, rs = park
     err = rs.range_change_m - true_range_change(scn, truth, rs.t_s)
     still = rs.t_s < scn.walk.start_still_s
-    assert np.abs(err[still]).max() < 0.05      # calibrated f_s: no drift while standing
+    wavelength = 299792458.0 / scn.tower.carrier_hz
+    # The diffuse component (K = 10 dB) ripples the composite phase by up to asin(10^(-K/20)) rad.
+    ripple_m = np.arcsin(10.0 ** (-scn.channel.rician_k_db / 20.0)) * wavelength / (2.0 * np.pi)
+    # Calibrated f_s: the error at the end of the calibration window is back at the start's, up to the ripple.
+    cal_end = np.searchsorted(rs.t_s, scn.walk.start_still_s - ObsRangeConfig().calibration_guard_s)
+    assert abs(err[cal_end] - err[0]) < 2.0 * ripple_m
+    # In between, eq. 8's noise-times-noise term (which does not telescope) random-walks: about
+    # 1 / (sqrt(72) snr) rad a frame, a bridge of ~2 cm (1 sigma) over the standstill, plus the ripple.
+    assert np.abs(err[still]).max() < 0.1
     assert np.abs(err).max() < 0.5              # LOS: centimetre ripple + sub-metre clock wander
     assert rs.valid.mean() > 0.95
     assert np.median(rs.snr_db) == pytest.approx(scn.receiver.cn_db, abs=1.5)
@@ -85,13 +98,87 @@ def test_blocked_line_of_sight_biases_range_and_lowers_snr():
     assert np.abs(err[blocked]).max() > 2.0
 
 
-def test_si_phase_kernel_matches_reference():
+def test_si_frames_kernel_matches_reference():
     rng = np.random.default_rng(0)
     coef = rng.normal(size=(4, 300)) + 1j * rng.normal(size=(4, 300))
     delay = 1e-5 + rng.uniform(0, 2e-6, (4, 300))
-    baseband = np.linspace(-36e3, 36e3, 36)
-    for a, b in zip(si_phase_steps_kernel(coef, delay, baseband), si_phase_steps_reference(coef, delay, baseband)):
+    common = rng.uniform(-np.pi, np.pi, 300)
+    noise = 0.3 * (rng.normal(size=(300, 36)) + 1j * rng.normal(size=(300, 36)))
+    first = 0.2 * (rng.normal(size=36) + 1j * rng.normal(size=36))
+    prev_kernel, prev_reference = first.copy(), first.copy()
+    first_hz, spacing_hz, count = si_carrier_grid_hz()
+    kernel = si_frames_kernel(coef, delay, common, first_hz, spacing_hz, count, noise, prev_kernel)
+    reference = si_frames_reference(coef, delay, common, first_hz, spacing_hz, count, noise, prev_reference)
+    for a, b in zip(kernel, reference, strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(prev_kernel, prev_reference, rtol=1e-9)  # both carry the last frame on
+
+
+def test_si_carriers_are_36_consecutive_carriers():
+    first_hz, spacing_hz, count = si_carrier_grid_hz()
+    assert count == 36 and spacing_hz == pytest.approx(7.56e6 / 3780) and first_hz == pytest.approx(-18 * spacing_hz)
+
+
+@settings(max_examples=5, deadline=None)
+@given(st.integers(1, 3000))
+def test_output_does_not_depend_on_the_block_length(block_frames):
+    scn = load_scenario("street-out").replace(walk={"start_still_s": 1.5})
+    truth = polyline_truth([[0.0, 0.0], [0.0, 2.0]], still_s=1.5)
+    a = simulate_obs_range(scn, truth)
+    b = simulate_obs_range(scn, truth, block_frames=block_frames)
+    # The same draws frame by frame; numpy's vector and scalar paths may round the last bit differently.
+    for name, column in a.columns().items():
+        np.testing.assert_allclose(column, getattr(b, name), rtol=1e-12, atol=1e-12, err_msg=name)
+
+
+def test_si_snr_carries_the_receivers_estimation_noise():
+    """A steady channel: the per-frame SI SNR estimate spreads as 36 noisy carriers over a noisy noise estimate."""
+    config = ObsRangeConfig(decimation=1)
+    scn = load_scenario("park-loop-cw").replace(channel={"ground_reflection": False, "rician_k_db": None},
+                                                walk={"start_still_s": 8.0})
+    truth = polyline_truth([[0.0, 0.0], [0.0, 1.0]], still_s=8.0)
+    rs = simulate_obs_range(scn, truth, config)
+    # The C/N is of the whole signal, whose boosted headers raise its mean power above the body's.
+    mean_power = mean_signal_power(FrameConfig(pn_mode=PnMode.PN420))
+    assert mean_power == pytest.approx((420 * 2 + 3780) / 4200)
+    snr = 10.0 ** ((scn.receiver.cn_db - config.implementation_loss_db) / 10.0) / mean_power
+    dof = 2 * config.noise_bins
+    # mean |Y|^2 / sigma^2 over 36 carriers: mean snr + 1, variance (2 snr + 1) / 36; sigma_hat^2 / sigma^2:
+    # mean 1, variance 2 / dof (to first order in both).
+    expected_std = np.sqrt((2.0 * snr + 1.0) / 36.0 + (snr + 1.0) ** 2 * 2.0 / dof)
+    estimate = 10.0 ** (rs.snr_db / 10.0)
+    assert np.mean(estimate) == pytest.approx(snr * (1.0 + 2.0 / dof), rel=0.02)
+    assert np.std(estimate) == pytest.approx(expected_std, rel=0.1)
+    assert np.median(rs.snr_db) < scn.receiver.cn_db  # the implementation loss
+
+
+def test_coarse_cfo_spread_is_that_of_the_lag_p_product():
+    """The angle of a sum of N products of two noisy copies of the same samples, simulated directly."""
+    mode = PnMode.PN420
+    rng = np.random.default_rng(1)
+    n = mode.value.cyclic_length * 16
+    for snr in (3.0, 30.0):
+        s = np.exp(2j * np.pi * rng.uniform(size=(400, n)))
+        noise = lambda: (rng.normal(size=s.shape) + 1j * rng.normal(size=s.shape)) / np.sqrt(2.0 * snr)  # noqa: E731
+        angles = np.angle(np.sum(np.conj(s + noise()) * (s + noise()), axis=1))
+        sigma_hz = np.std(angles) * 7.56e6 / (2.0 * np.pi * mode.value.period)
+        assert coarse_cfo_sigma_hz(snr, mode, 16) == pytest.approx(sigma_hz, rel=0.1)
+    with pytest.raises(ValueError, match="cyclic"):
+        coarse_cfo_sigma_hz(10.0, PnMode.PN595, 16)
+
+
+def test_noise_draws_share_the_walk_and_differ_in_noise(park):
+    scn, truth, rs = park
+    other = simulate_obs_range(scn, truth, ObsRangeConfig(noise_draw=1))
+    assert not np.array_equal(rs.snr_db, other.snr_db) and not np.array_equal(rs.range_change_m, other.range_change_m)
+    # The same channel: the SNR's fading is the same in both draws. Per frame an estimate carries about 10 %
+    # of noise on this link (36 carriers, 191 noise bins), so the means of two draws over the 225 frames of a
+    # second differ by about 1 % (0.04 dB, 1 sigma).
+    second = np.floor(rs.t_s).astype(int)
+    full = second < second[-1]
+    means = [10.0 * np.log10(np.bincount(second[full], 10.0 ** (r.snr_db[full] / 10.0)) / np.bincount(second[full]))
+             for r in (rs, other)]
+    assert np.ptp(means[0]) > 1.0 and np.abs(means[0] - means[1]).max() < 0.2
 
 
 def test_segment_polygon_crossing():

@@ -1,0 +1,88 @@
+"""IQ-level range: a scenario's capture generated and streamed through the real receiver.
+
+The transmitter, channel and front end of :class:`sim.rf.CaptureGenerator`
+produce the capture chunk by chunk; each chunk is quantised to the scenario's
+sample format and decoded back, as a file would be, and fed to
+:class:`receiver.pipeline.Receiver`; the receiver's frames become the
+:class:`~dtmbnav.core.records.RangeSeries` the fusion consumes through
+:func:`dtmbnav.chain.ranges_from_frames`, batch by batch, so nothing
+sample-sized is kept (memory stays flat over a whole walk).
+
+The receiver measures f_s while the walker stands at the start
+(docs/method.md §2, eq. 9): its static window is the scenario's
+``walk.start_still_s`` less the same guard the observation-level model uses
+(:class:`sim.obs_range.ObsRangeConfig`), so both levels calibrate on the same
+stretch.
+
+This is the range source of ``dtmbnav evaluate --level iq``
+(:func:`iq_range_source`) and of the demo.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+
+from dtmbnav.chain import ranges_from_frames
+from dtmbnav.core.iqformat import decode, get_format
+from dtmbnav.core.records import FrameBatch, RangeSeries, Track
+from receiver.pipeline import ReceiverConfig, receive_stream
+from sim.obs_range import ObsRangeConfig
+from sim.rf import CaptureGenerator
+from sim.scenario import Scenario
+
+#: Samples generated and received per step of the stream.
+CHUNK_SAMPLES = 1 << 20
+#: Shortest static window the receiver is given, s.
+MIN_STATIC_WINDOW_S = 0.5
+
+
+def simulated_receiver_config(scenario: Scenario) -> ReceiverConfig:
+    """Receiver settings for a simulated capture: the static window is the walker's standstill less the guard."""
+    guard_s = ObsRangeConfig().calibration_guard_s
+    return ReceiverConfig(static_window_s=max(scenario.walk.start_still_s - guard_s, MIN_STATIC_WINDOW_S))
+
+
+def generated_chunks(generator: CaptureGenerator, chunk_samples: int = CHUNK_SAMPLES) -> Iterator[np.ndarray]:
+    """The generator's capture, quantised to its sample format and decoded back (what a file would give)."""
+    fmt = get_format(generator.sample_format)
+    return (decode(rails, fmt) for rails in generator.quantised_chunks(chunk_samples))
+
+
+def iq_frame_batches(scenario: Scenario, track: Track, seconds: float | None = None,
+                     start_s: float = 0.0) -> Iterator[FrameBatch]:
+    """Receiver frame batches of the scenario's capture (or a segment of it), as they complete.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    track : Track
+        The walk's true trajectory (``simulate_walk(scenario).track``).
+    seconds, start_s : float
+        Segment of the capture, s (:class:`sim.rf.CaptureGenerator`); default the whole walk.
+    """
+    generator = CaptureGenerator(scenario, track, seconds=seconds, start_s=start_s)
+    yield from receive_stream(generated_chunks(generator), generator.sample_rate_hz, generator.carrier_hz,
+                              simulated_receiver_config(scenario))
+
+
+def iq_ranges(scenario: Scenario, track: Track, seconds: float | None = None) -> RangeSeries:
+    """The receiver's range series of the scenario's capture (its first ``seconds``, default the whole walk).
+
+    Raises
+    ------
+    RuntimeError
+        When the receiver finds no DTMB signal in the capture.
+    """
+    parts = [ranges_from_frames(batch.columns()) for batch in iq_frame_batches(scenario, track, seconds)]
+    if not parts:
+        raise RuntimeError(f"{scenario.name} (seed {scenario.seed}): the receiver found no DTMB signal in the "
+                           "simulated capture")
+    return RangeSeries(**{name: np.concatenate([getattr(p, name) for p in parts])
+                          for name in RangeSeries.__dataclass_fields__})
+
+
+def iq_range_source(scenario: Scenario, truth: Track) -> RangeSeries:
+    """IQ-level receiver range of the whole walk (a :data:`dtmbnav.evaluate.RangeSource`)."""
+    return iq_ranges(scenario, truth)

@@ -1,0 +1,260 @@
+"""The observation-level range model against the IQ receiver, on the same walks.
+
+For each case (a scenario, optionally changed) and each Monte Carlo seed, the
+same walk goes through both range sources: the observation-level model
+(:func:`sim.obs_range.simulate_obs_range`) and the IQ level (the capture
+generated and received, :func:`dtmbnav.iq_range.iq_ranges`). Both see the
+same channel and clock (same seed); the receiver's processing and its noise
+differ. With ``e(t) = range_change_m(t) - (d(t) - d(t_0))`` the error of a
+level's range against the true 3-D distance ``d`` to the tower (``t_0`` its
+first sample), two error distributions are compared, each over the samples
+while the walker walks (after ``walk.start_still_s``) and before the
+segment's end:
+
+- **integrated**: ``|e(t)|``, what the range has accumulated since the start
+  (f_s calibration, multipath, and the jumps of deep fades);
+- **change**: ``|e(t) - e(t - CHANGE_WINDOW_S)|``, the error of the range
+  change over :data:`CHANGE_WINDOW_S`: the receiver's per-frame estimation
+  in fades and multipath, with every fade seen in many windows, so a few
+  walks give a stable median and 95 %.
+
+The errors of all seeds of a case are pooled (the observation level's over
+``obs_draws`` draws of the receiver noise per walk, which only narrows its
+own spread), and each distribution is summarised by its median and 95th
+percentile.
+
+``python -m dtmbnav.obs_vs_iq`` prints the comparison (``--help``: segment
+length, seeds, cases, Dask workers); ``tests/test_obs_vs_iq.py`` runs short
+segments and holds the change statistics within :data:`AGREEMENT` of each
+other.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from dtmbnav.core.records import RangeSeries, Track
+from dtmbnav.distributed import IN_PROCESS, ClusterConfig, Task, run_tasks
+from dtmbnav.iq_range import iq_ranges
+from dtmbnav.seeds import REPORTING_SEEDS, monte_carlo_seed
+from fusion.metrics import interpolate_track
+from sim.obs_range import ObsRangeConfig, simulate_obs_range
+from sim.scenario import Scenario, load_scenario
+from sim.walk import simulate_walk
+
+#: Largest relative difference of a statistic between the levels that counts as agreement.
+AGREEMENT = 0.25
+#: Span of the range changes whose error is compared, s.
+CHANGE_WINDOW_S = 0.1
+#: Truth kept past the segment's end for the observation level, s (the track's spline needs no edge there).
+TRACK_MARGIN_S = 2.0
+#: Draws of the receiver noise per walk at the observation level.
+OBS_DRAWS = 4
+
+
+@dataclass(frozen=True)
+class Case:
+    """A walk to compare on: a reference scenario and what is changed in it.
+
+    Attributes
+    ----------
+    label : str
+        Name in the table.
+    scenario : str
+        Scenario name or file.
+    change : callable
+        Scenario -> Scenario (e.g. the buildings removed).
+    """
+
+    label: str
+    scenario: str
+    change: Callable[[Scenario], Scenario]
+
+    def build(self, still_s: float | None = None) -> Scenario:
+        """The case's scenario; ``still_s`` replaces the standstill before the walk (shorter calibration)."""
+        scn = self.change(load_scenario(self.scenario))
+        return scn if still_s is None else scn.replace(walk={"start_still_s": still_s})
+
+
+def _unchanged(scn: Scenario) -> Scenario:
+    return scn
+
+
+def _no_buildings(scn: Scenario) -> Scenario:
+    return scn.replace(channel={"buildings": []})
+
+
+#: The cases: the street walk as it is (its first half in the buildings' shadow), the same street with the
+#: buildings taken away (line of sight, the walls' reflections kept), and the open park loop.
+CASES = (Case("street-out blocked", "street-out", _unchanged),
+         Case("street-out LOS", "street-out", _no_buildings),
+         Case("park-loop-cw", "park-loop-cw", _unchanged))
+
+
+@dataclass(frozen=True)
+class ErrorStats:
+    """Median and 95th percentile of pooled absolute range errors, m, and how many samples they pool."""
+
+    median_m: float
+    p95_m: float
+    samples: int
+
+    @classmethod
+    def of(cls, errors_m: np.ndarray) -> ErrorStats:
+        return cls(float(np.median(errors_m)), float(np.percentile(errors_m, 95)), len(errors_m))
+
+
+@dataclass(frozen=True)
+class LevelErrors:
+    """One walk's errors at one level: integrated and change over :data:`CHANGE_WINDOW_S` (module docstring)."""
+
+    integrated_m: np.ndarray
+    change_m: np.ndarray
+
+    @classmethod
+    def pool(cls, parts: Sequence[LevelErrors]) -> LevelErrors:
+        return cls(np.concatenate([p.integrated_m for p in parts]), np.concatenate([p.change_m for p in parts]))
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Both levels' range errors on one case (statistics of the pooled errors)."""
+
+    label: str
+    seeds: tuple[int, ...]
+    seconds: float
+    obs_integrated: ErrorStats
+    iq_integrated: ErrorStats
+    obs_change: ErrorStats
+    iq_change: ErrorStats
+
+    def ratios(self, metric: str = "change") -> tuple[float, float]:
+        """Observation level over IQ level of ``metric`` (``"change"`` or ``"integrated"``): (median, 95 %)."""
+        obs, iq = getattr(self, f"obs_{metric}"), getattr(self, f"iq_{metric}")
+        return obs.median_m / iq.median_m, obs.p95_m / iq.p95_m
+
+    def agrees(self, metric: str = "change", tolerance: float = AGREEMENT) -> bool:
+        """Whether both statistics of ``metric`` are within ``tolerance`` (relative to the IQ level's)."""
+        return all(abs(r - 1.0) <= tolerance for r in self.ratios(metric))
+
+
+def range_errors(scenario: Scenario, truth: Track, ranges: RangeSeries, end_s: float) -> LevelErrors:
+    """A level's integrated and change errors while walking, before ``end_s`` (module docstring)."""
+    at = interpolate_track(truth, ranges.t_s)
+    tower = scenario.tower
+    true_m = np.hypot(np.hypot(at.x_m - tower.x_m, at.y_m - tower.y_m),
+                      tower.height_m - scenario.channel.antenna_height_m)
+    error = ranges.range_change_m - (true_m - true_m[0])
+    walk_start = truth.t_s[0] + scenario.walk.start_still_s
+    walking = (ranges.t_s >= walk_start) & (ranges.t_s < end_s)
+    earlier = np.searchsorted(ranges.t_s, ranges.t_s - CHANGE_WINDOW_S)
+    changing = walking & (ranges.t_s - CHANGE_WINDOW_S >= walk_start)
+    return LevelErrors(np.abs(error[walking]), np.abs(error - error[earlier])[changing])
+
+
+def walk_errors(scenario: Scenario, seconds: float, obs_draws: int = OBS_DRAWS
+                ) -> tuple[list[LevelErrors], LevelErrors]:
+    """The observation level's errors (one per noise draw) and the IQ level's on the scenario's first ``seconds``."""
+    truth = simulate_walk(scenario).track
+    end_s = float(truth.t_s[0]) + seconds
+    short = truth.select(truth.t_s <= end_s + TRACK_MARGIN_S)
+    obs = [range_errors(scenario, short, simulate_obs_range(scenario, short, ObsRangeConfig(noise_draw=draw)), end_s)
+           for draw in range(obs_draws)]
+    return obs, range_errors(scenario, truth, iq_ranges(scenario, truth, seconds=seconds), end_s)
+
+
+def compare(cases: Sequence[Case], seeds: Sequence[int], seconds: float, still_s: float | None = None,
+            first_seed: int = REPORTING_SEEDS.start, obs_draws: int = OBS_DRAWS,
+            cluster: ClusterConfig = IN_PROCESS, progress: bool = False) -> list[Comparison]:
+    """Both levels on Monte Carlo walks ``seeds`` of each case, every walk a task (:mod:`dtmbnav.distributed`).
+
+    Parameters
+    ----------
+    cases : sequence of Case
+    seeds : sequence of int
+        Monte Carlo indices k (walk k runs :func:`dtmbnav.seeds.monte_carlo_seed` ``(scenario.seed, k,
+        first_seed)``).
+    seconds : float
+        Segment length from the start of the capture, s (standstill included).
+    still_s : float, optional
+        Standstill before the walk, s (default: the scenario's).
+    first_seed : int
+    obs_draws : int
+        Receiver-noise draws per walk at the observation level.
+    cluster : ClusterConfig
+        Where the walks run (default: in this process).
+    progress : bool
+
+    Raises
+    ------
+    RuntimeError
+        When a walk fails (its case, seed and the error are named).
+    """
+    tasks = []
+    for case in cases:
+        base = case.build(still_s)
+        for k in seeds:
+            walk = base.replace(seed=monte_carlo_seed(base.seed, k, first_seed))
+            tasks.append(Task(f"{case.label} k={k} (seed {walk.seed})", walk_errors, (walk, seconds, obs_draws)))
+    outcome = run_tasks(tasks, cluster, progress=progress, description="obs vs iq")
+    if outcome.failures:
+        f = outcome.failures[0]
+        raise RuntimeError(f"obs_vs_iq: {f.label} failed: {f.error}")
+    rows = []
+    for i, case in enumerate(cases):
+        results = outcome.results[i * len(seeds):(i + 1) * len(seeds)]
+        obs = LevelErrors.pool([e for draws, _ in results for e in draws])
+        iq = LevelErrors.pool([e for _, e in results])
+        rows.append(Comparison(case.label, tuple(seeds), seconds, ErrorStats.of(obs.integrated_m),
+                               ErrorStats.of(iq.integrated_m), ErrorStats.of(obs.change_m),
+                               ErrorStats.of(iq.change_m)))
+    return rows
+
+
+def format_comparisons(rows: Sequence[Comparison]) -> str:
+    """A fixed-width table: each level's median and 95 % error and their ratios, for both metrics."""
+    header = (f"{'case':<20} {'metric':<10} {'seeds':>5} {'seconds':>7}  {'obs med':>7} {'iq med':>7} {'ratio':>5}  "
+              f"{'obs 95%':>7} {'iq 95%':>7} {'ratio':>5}  agree")
+    lines = [f"range error, m (change: over {CHANGE_WINDOW_S:g} s)", header, "-" * len(header)]
+    for r in rows:
+        for metric in ("integrated", "change"):
+            obs, iq = getattr(r, f"obs_{metric}"), getattr(r, f"iq_{metric}")
+            med, p95 = r.ratios(metric)
+            lines.append(f"{r.label:<20} {metric:<10} {len(r.seeds):>5} {r.seconds:>7.0f}  {obs.median_m:7.3f} "
+                         f"{iq.median_m:7.3f} {med:5.2f}  {obs.p95_m:7.3f} {iq.p95_m:7.3f} {p95:5.2f}  "
+                         f"{'yes' if r.agrees(metric) else 'no'}")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Print the comparison table (``python -m dtmbnav.obs_vs_iq --help``)."""
+    parser = argparse.ArgumentParser(prog="python -m dtmbnav.obs_vs_iq", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seconds", type=float, default=70.0,
+                        help="segment from the capture start, s, standstill included (default 70)")
+    parser.add_argument("--still", type=float, help="standstill before the walk, s (default: the scenario's)")
+    parser.add_argument("--seeds", type=int, default=3, help="Monte Carlo walks per case (default 3)")
+    parser.add_argument("--first-seed", type=int, default=REPORTING_SEEDS.start,
+                        help=f"first Monte Carlo index (default {REPORTING_SEEDS.start}, the reporting range)")
+    parser.add_argument("--cases", default=",".join(c.label for c in CASES),
+                        help="comma-separated case labels (default: all)")
+    parser.add_argument("--workers", type=int, help="local Dask workers (default: one per core; 0: this process)")
+    parser.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://HOST:PORT)")
+    args = parser.parse_args(argv)
+    by_label = {c.label: c for c in CASES}
+    unknown = [label for label in args.cases.split(",") if label not in by_label]
+    if unknown:
+        parser.error(f"--cases: unknown {unknown}; choose from {', '.join(by_label)}")
+    cluster = ClusterConfig(workers=args.workers, scheduler=args.scheduler)
+    rows = compare([by_label[label] for label in args.cases.split(",")], range(args.seeds), args.seconds,
+                   still_s=args.still, first_seed=args.first_seed, cluster=cluster, progress=True)
+    print(format_comparisons(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
