@@ -28,7 +28,13 @@ from dtmbnav.core import gb20600
 from dtmbnav.core.gb20600 import PnMode
 
 #: Default delay span of the estimate before and after the frame's window start, samples.
-TAPS_BEFORE = 16
+#: Symmetric because the frame timing follows the taps' power centroid: in a
+#: single-frequency network the first tower sits that far before the centroid
+#: (a second tower 44 chips later and 4 dB weaker puts it 12-17 samples
+#: before as the two fade), and with 16 samples before it fell off the span,
+#: the header metric collapsed to the second tower's share and the lock was
+#: lost every few seconds.
+TAPS_BEFORE = 48
 TAPS_AFTER = 48
 #: Default tap power over the noise floor needed to keep a tap.
 TAP_THRESHOLD = 10.0

@@ -868,7 +868,12 @@ class PathTracker:
                 difference = held_doppler(cfo_of[tower] - cfo_of[0], self._difference_hz[slot])
                 column = self._range_difference[slot] - self.wavelength_m * np.cumsum(difference * dt)
                 self._range_difference[slot] = float(column[-1])
-                self._difference_hz[slot] = float(difference[-1])
+                # The rate held across a later gap: the batch's median, not its last frame's (a path that is
+                # being lost ends on wild frequencies, which held over a second made jumps of hundreds of metres).
+                measured = cfo_of[tower] - cfo_of[0]
+                measured = measured[np.isfinite(measured)]
+                if len(measured):
+                    self._difference_hz[slot] = float(np.median(measured))
             elif self._difference_started[slot]:
                 # Tower missing in this batch: hold its rate, as eq. 11 does across gaps.
                 self._range_difference[slot] -= self.wavelength_m * self._difference_hz[slot] * float(np.sum(dt))
