@@ -431,7 +431,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     from dtmbnav.demo import run_demo
 
-    run_demo(args.output, scenario=args.scenario, seconds=args.seconds, progress=not args.quiet)
+    run_demo(args.output, scenario=args.scenario, seconds=args.seconds, progress=not args.quiet, jobs=args.jobs)
     return EXIT_OK
 
 
@@ -597,6 +597,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
     p.add_argument("--scenario", type=_scenario, default="park-loop", help="scenario (default park-loop)")
     p.add_argument("--seconds", type=_positive, help="simulate only this many seconds (default: the whole walk)")
+    p.add_argument("--jobs", type=_positive_int, metavar="N",
+                   help="threads generating the IQ while the receiver runs (default: one per CPU core)")
     p.set_defaults(handler=cmd_demo)
     return parser
 

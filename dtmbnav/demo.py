@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -29,20 +30,29 @@ from sim.scenario import load_scenario
 from sim.walk import simulate_walk
 
 
-def stream_receive(scenario, seconds: float | None, rx_path: Path, progress: bool) -> int:
-    """Generate the scenario's capture and receive it on the fly; returns the frame count."""
+def stream_receive(scenario, seconds: float | None, rx_path: Path, progress: bool, jobs: int = 1) -> int:
+    """Generate the scenario's capture and receive it on the fly; returns the frame count.
+
+    ``jobs`` threads generate the capture ahead of the receiver, which runs
+    on the calling thread (the synthesis kernels release the GIL).
+    """
     generator = CaptureGenerator(scenario, simulate_walk(scenario).track, seconds=seconds)
     # The walker stands still for start_still_s: that is the f_s calibration window (eq. 9-10).
     receiver = Receiver(generator.sample_rate_hz, generator.carrier_hz, simulated_receiver_config(scenario))
     sink = FrameSink(rx_path)
-    receive_into_sink(receiver, generated_chunks(generator), sink, source=f"simulated {scenario.name} (streamed)",
+    receive_into_sink(receiver, generated_chunks(generator, jobs=jobs), sink, source=f"simulated {scenario.name} (streamed)",
                       total_samples=generator.num_samples, progress=progress,
                       attrs={schema.CAPTURE_SCENARIO_ATTR: scenario.name, schema.CAPTURE_SEED_ATTR: generator.seed})
     return sink.frames
 
 
-def run_demo(out_dir: Path, scenario: str = "park-loop", seconds: float | None = None, progress: bool = True) -> Path:
-    """Run the demo into ``out_dir``; returns the report folder."""
+def run_demo(out_dir: Path, scenario: str = "park-loop", seconds: float | None = None, progress: bool = True,
+             jobs: int | None = None) -> Path:
+    """Run the demo into ``out_dir``; returns the report folder.
+
+    ``jobs`` threads generate the IQ (default: one per CPU core).
+    """
+    jobs = jobs or os.cpu_count() or 1
     scn = load_scenario(scenario)
     out_dir = Path(out_dir)
     print(f"[1/4] simulating the {scn.name} walk, IMU and truth", file=sys.stderr)
@@ -50,7 +60,7 @@ def run_demo(out_dir: Path, scenario: str = "park-loop", seconds: float | None =
     print(f"[2/4] generating the IQ at {scn.receiver.sample_rate_hz / 1e6:g} Msps {scn.receiver.sample_format} "
           "and receiving it (streamed, nothing large on disk)", file=sys.stderr)
     rx_path = out_dir / "receiver.h5"
-    if stream_receive(scn, seconds, rx_path, progress) == 0:
+    if stream_receive(scn, seconds, rx_path, progress, jobs) == 0:
         raise RuntimeError("the receiver found no DTMB signal in the simulated capture")
     print("[3/4] PDR, initial heading and fusion", file=sys.stderr)
     results_path = out_dir / "results.h5"

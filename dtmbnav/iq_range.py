@@ -44,10 +44,14 @@ def simulated_receiver_config(scenario: Scenario) -> ReceiverConfig:
     return ReceiverConfig(static_window_s=max(scenario.walk.start_still_s - guard_s, MIN_STATIC_WINDOW_S))
 
 
-def generated_chunks(generator: CaptureGenerator, chunk_samples: int = CHUNK_SAMPLES) -> Iterator[np.ndarray]:
-    """The generator's capture, quantised to its sample format and decoded back (what a file would give)."""
+def generated_chunks(generator: CaptureGenerator, chunk_samples: int = CHUNK_SAMPLES,
+                     jobs: int = 1) -> Iterator[np.ndarray]:
+    """The generator's capture, quantised to its sample format and decoded back (what a file would give).
+
+    ``jobs`` threads generate chunks ahead of the consumer (the same samples for any ``jobs``).
+    """
     fmt = get_format(generator.sample_format)
-    return (decode(rails, fmt) for rails in generator.quantised_chunks(chunk_samples))
+    return (decode(rails, fmt) for rails in generator.quantised_chunks(chunk_samples, jobs=jobs))
 
 
 def iq_frame_batches(scenario: Scenario, track: Track, seconds: float | None = None,
