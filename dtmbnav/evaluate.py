@@ -51,6 +51,7 @@ from dtmbnav.seeds import LEVELS, REPORTING_SEEDS, TUNING_SEEDS, monte_carlo_see
 from dtmbnav.simulation import calibration_walk_k_m
 from fusion import FILTER_NAMES, FOOT_INS
 from fusion.foot_ins import ZuptInsRankKf
+from fusion.observations import PathRanges
 from fusion.metrics import (PDR_AT_FIX, PDR_BASELINE, error_stats, heading_error_rad, interpolate_track, pdr_baselines,
                             position_errors_m)
 from fusion.pdr import PdrConfig, run_pdr
@@ -85,6 +86,8 @@ class ChainOutput:
         Receiver range for the walk.
     foot_imu : ImuLog or None
         A foot-mounted IMU on the same walk, when asked for (the ZUPT INS).
+    paths : PathRanges or None
+        The path tracker's first-path ranges and tower differences (IQ level), when the range source has them.
     """
 
     truth: Track
@@ -93,15 +96,33 @@ class ChainOutput:
     walk_start_t_s: float
     ranges: RangeSeries
     foot_imu: ImuLog | None = None
+    paths: PathRanges | None = None
 
 
-RangeSource = Callable[[Scenario, Track], RangeSeries]
+@dataclass
+class Observations:
+    """What a range source gives the fusion for one walk.
+
+    Attributes
+    ----------
+    ranges : RangeSeries
+        The SI-carrier range.
+    paths : PathRanges or None
+        First-path ranges and tower differences (``docs/paths.md``); None
+        where the source has no path tracker (the observation level).
+    """
+
+    ranges: RangeSeries
+    paths: PathRanges | None = None
+
+
+RangeSource = Callable[[Scenario, Track], Observations]
 Chain = Callable[[Scenario, RangeSource, bool], ChainOutput]
 
 
-def obs_range_source(scenario: Scenario, truth: Track) -> RangeSeries:
-    """Observation-level receiver range (:func:`sim.obs_range.simulate_obs_range`)."""
-    return simulate_obs_range(scenario, truth)
+def obs_range_source(scenario: Scenario, truth: Track) -> Observations:
+    """Observation-level receiver range (:func:`sim.obs_range.simulate_obs_range`); it models no path tracker."""
+    return Observations(simulate_obs_range(scenario, truth))
 
 
 def level_range_source(level: str) -> RangeSource:
@@ -143,9 +164,10 @@ def simulated_chain(scenario: Scenario, range_source: RangeSource, foot_imu: boo
     pdr = run_pdr(imu, calibrated_pdr_config(scenario))
     start_fix = simulate_start_fix(scenario, walk)
     foot = simulate_imu(scenario.replace(imu={"preset": "foot-mems"}), walk) if foot_imu else None
+    observed = range_source(scenario, walk.track)
     return ChainOutput(truth=walk.track, pdr=pdr.steps, start_fix_xy_m=(start_fix.x_m, start_fix.y_m),
-                       walk_start_t_s=walk.walk_start_t_s, ranges=range_source(scenario, walk.track),
-                       foot_imu=foot)
+                       walk_start_t_s=walk.walk_start_t_s, ranges=observed.ranges, foot_imu=foot,
+                       paths=observed.paths)
 
 
 @dataclass
@@ -181,9 +203,13 @@ def run_seed(scenario: Scenario, filters: tuple[str, ...], config: FusionConfig,
     """
     out = chain(scenario, range_source, FOOT_INS in filters)
     tower = scenario.tower
+    antenna_m = scenario.channel.antenna_height_m
+    # The further towers of an SFN, for the tower differences of the path tracker (IQ level).
+    other_towers = tuple((site.x_m, site.y_m, site.height_m - antenna_m) for site in scenario.sites[1:])
     fused = tuple(f for f in filters if f != FOOT_INS)
     result = fuse(out.pdr, out.ranges, out.start_fix_xy_m, (tower.x_m, tower.y_m), fused,
-                  tower_height_m=tower.height_m - scenario.channel.antenna_height_m, config=config)
+                  tower_height_m=tower.height_m - antenna_m, other_towers=other_towers, paths=out.paths,
+                  config=config)
     baselines, true_heading = pdr_baselines(out.pdr, out.truth, out.walk_start_t_s, out.start_fix_xy_m,
                                             result.heading.heading_rad)
     tracks = {**baselines, **result.tracks}

@@ -15,7 +15,9 @@ The receiver measures f_s while the walker stands at the start
 stretch.
 
 This is the range source of ``dtmbnav evaluate --level iq``
-(:func:`iq_range_source`) and of the demo.
+(:func:`iq_range_source`: the SI-carrier range and, from the path tracker,
+each tower's first-path range and the tower differences, as ``dtmbnav fuse``
+reads them from a receiver file) and of the demo.
 """
 
 from __future__ import annotations
@@ -24,10 +26,11 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from dtmbnav.chain import ranges_from_frames
+from dtmbnav.chain import paths_from_frames, ranges_from_frames
 from dtmbnav.core.iqformat import decode, get_format
-from dtmbnav.core.records import FrameBatch, RangeSeries, Track
-from receiver.pipeline import ReceiverConfig, receive_stream
+from dtmbnav.core.records import FrameBatch, PathBatch, PathFlag, RangeSeries, Track
+from dtmbnav.evaluate import Observations
+from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
 from sim.obs_range import ObsRangeConfig
 from sim.rf import CaptureGenerator
 from sim.scenario import Scenario
@@ -87,6 +90,41 @@ def iq_ranges(scenario: Scenario, track: Track, seconds: float | None = None) ->
                           for name in RangeSeries.__dataclass_fields__})
 
 
-def iq_range_source(scenario: Scenario, truth: Track) -> RangeSeries:
-    """IQ-level receiver range of the whole walk (a :data:`dtmbnav.evaluate.RangeSource`)."""
-    return iq_ranges(scenario, truth)
+def iq_observations(scenario: Scenario, track: Track, seconds: float | None = None) -> Observations:
+    """The receiver's SI-carrier range and path tracker output for the scenario's capture.
+
+    The path rows kept are those of each tower's first path (what
+    :func:`dtmbnav.chain.paths_from_frames` reads), batch by batch: a whole
+    walk's rows of every tracked path are not held.
+
+    Raises
+    ------
+    RuntimeError
+        When the receiver finds no DTMB signal in the capture.
+    """
+    generator = CaptureGenerator(scenario, track, seconds=seconds)
+    receiver = Receiver(generator.sample_rate_hz, generator.carrier_hz, simulated_receiver_config(scenario))
+    frames: list[FrameBatch] = []
+    rows: list[PathBatch] = []
+
+    def keep_first_paths() -> None:
+        batch = receiver.pop_paths()
+        rows.append(batch.select((batch.flags & PathFlag.FIRST_PATH) > 0))
+
+    for chunk in generated_chunks(generator):
+        frames += receiver.process(chunk)
+        keep_first_paths()
+    frames += receiver.finish()
+    keep_first_paths()
+    if not frames:
+        raise RuntimeError(f"{scenario.name} (seed {scenario.seed}): the receiver found no DTMB signal in the "
+                           "simulated capture")
+    columns = FrameBatch.concatenate(frames).columns()
+    path_rows = PathBatch.concatenate(rows).columns() if receiver.config.track_paths else None
+    return Observations(ranges_from_frames(columns),
+                        paths_from_frames(columns, path_rows, len(scenario.sites)) if path_rows is not None else None)
+
+
+def iq_range_source(scenario: Scenario, truth: Track) -> Observations:
+    """IQ-level receiver range and paths of the whole walk (a :data:`dtmbnav.evaluate.RangeSource`)."""
+    return iq_observations(scenario, truth)

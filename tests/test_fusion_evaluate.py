@@ -19,7 +19,7 @@ def synthetic_chain(scenario, range_source, foot_imu=False):
     pdr, _ = make_pdr(truth, walk.start_still_s, gain=1.15, heading_noise_rad=np.deg2rad(2.0), length_noise=0.03,
                       seed=scenario.seed)
     return ev.ChainOutput(truth=truth, pdr=pdr, start_fix_xy_m=(0.0, 0.0), walk_start_t_s=walk.start_still_s,
-                          ranges=range_source(scenario, truth))
+                          ranges=range_source(scenario, truth).ranges)
 
 
 @pytest.fixture(scope="module")
