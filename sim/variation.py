@@ -16,6 +16,12 @@ walk (``docs/scenarios.md``, "Geometry variation"):
 3. **Tower distance.** The tower's horizontal distance from P0 is drawn
    uniformly in ``tower_distance_m``; its height is kept.
 
+A single-frequency network (``[[towers]]``) turns with the scene as a whole:
+every tower keeps its distance, so the delays between towers stay those of
+the file (a drawn bearing and distance could move a tower out of the guard
+interval). The bearing and distance draws are still made (the stream stays
+the same) but not applied.
+
 The draws use ``default_rng([seed, STREAM_VARIATION])`` in that order, so the
 layout is a pure function of (scenario, seed) and the scenario's other random
 streams are untouched. The scenario's own ``seed`` is not changed. Amplitudes
@@ -121,12 +127,18 @@ def vary_scenario(scenario: Scenario, seed: int, config: VariationConfig = Varia
         return rotate_xy(np.asarray(point, dtype=np.float64), start, layout.rotation_rad).tolist()
 
     channel = scenario.channel
-    tower = scenario.tower
-    bearing = np.arctan2(tower.x_m - start[0], tower.y_m - start[1]) + layout.rotation_rad + layout.bearing_offset_rad
-    tower_xy = start + layout.tower_distance_m * np.array([np.sin(bearing), np.cos(bearing)])
+    if scenario.towers:
+        moved = {"towers": [dataclasses.replace(site, **dict(zip(("x_m", "y_m"), turn([site.x_m, site.y_m]))))
+                            for site in scenario.towers]}
+    else:
+        tower = scenario.tower
+        bearing = (np.arctan2(tower.x_m - start[0], tower.y_m - start[1]) + layout.rotation_rad
+                   + layout.bearing_offset_rad)
+        tower_xy = start + layout.tower_distance_m * np.array([np.sin(bearing), np.cos(bearing)])
+        moved = {"tower": dataclasses.replace(tower, x_m=float(tower_xy[0]), y_m=float(tower_xy[1]))}
     return dataclasses.replace(
         scenario,
-        tower=dataclasses.replace(tower, x_m=float(tower_xy[0]), y_m=float(tower_xy[1])),
+        **moved,
         walk=dataclasses.replace(scenario.walk, waypoints_m=[turn(p) for p in scenario.walk.waypoints_m]),
         channel=dataclasses.replace(
             channel,

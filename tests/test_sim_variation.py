@@ -111,3 +111,16 @@ def test_rotation_keeps_distances_and_inverts(cx, cy, angle, points):
 
 def test_a_quarter_turn_is_clockwise():
     np.testing.assert_allclose(rotate_xy(np.array([0.0, 1.0]), np.zeros(2), np.pi / 2), [1.0, 0.0], atol=1e-12)
+
+
+def test_an_sfn_turns_as_a_whole_and_keeps_its_tower_distances():
+    scn = load_scenario("sfn-park")
+    start = np.asarray(scn.walk.waypoints_m[0], dtype=np.float64)
+    varied = vary_scenario(scn, 5)
+    assert len(varied.sites) == len(scn.sites) == 2
+    assert (varied.tower.x_m, varied.tower.y_m) == (varied.sites[0].x_m, varied.sites[0].y_m)
+    turn = draw_layout(scn, 5).rotation_rad
+    for old, new in zip(scn.sites, varied.sites):
+        expected = rotate_xy(np.array([old.x_m, old.y_m]), start, turn)
+        assert np.allclose([new.x_m, new.y_m], expected)
+        assert (new.height_m, new.power_db, new.transmit_delay_s) == (old.height_m, old.power_db, old.transmit_delay_s)
