@@ -35,8 +35,9 @@ from dtmbnav.core.sensors import (read_capture_start_s, read_gnss, read_imu, rea
                                   read_weinberg_k_m)
 from dtmbnav.errors import NoResult
 from dtmbnav.receive import receive_capture
-from fusion.pdr import PdrConfig, PdrResult, run_pdr
+from fusion import DEFAULT_CLOCK_MODEL, DEFAULT_PARTICLES
 from fusion.observations import PathRanges
+from fusion.pdr import PdrConfig, PdrResult, run_pdr
 from fusion.run import FusionConfig, FusionResult, fuse
 from receiver.capture import open_capture
 from receiver.pipeline import ReceiverConfig
@@ -310,8 +311,10 @@ def write_fusion(h5: h5py.File, result: FusionResult) -> None:
 def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike, out_path: str | os.PathLike,
                filters: tuple[str, ...], pdr_config: PdrConfig, tower_xy_m: tuple[float, float] | None = None,
                start_xy_m: tuple[float, float] | None = None, n_particles: int | None = None,
-               seed: int = 0) -> FusionResult:
+               seed: int = 0, clock_model: str = DEFAULT_CLOCK_MODEL) -> FusionResult:
     """``dtmbnav fuse``: receiver range + PDR of the sensors file -> ``/pdr`` and ``/fusion/*``.
+
+    ``clock_model`` is the receiver's clock (:class:`fusion.run.FusionConfig`).
 
     Every input is read and checked first, including that both files are of
     one walk (:func:`check_same_walk`).
@@ -339,7 +342,7 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
     pdr = run_pdr(imu, pdr_config)
     if len(pdr.steps) == 0:
         raise NoResult(f"{sensors_path}: /{schema.IMU}: the PDR found no steps; nothing to fuse")
-    config = FusionConfig(seed=seed) if n_particles is None else FusionConfig(n_particles=n_particles, seed=seed)
+    config = FusionConfig(n_particles=n_particles or DEFAULT_PARTICLES, seed=seed, clock_model=clock_model)
     result = fuse(pdr.steps, ranges, start_xy_m, tower_xy_m, filters, tower_height_m=height_m,
                   other_towers=other_towers, paths=paths, config=config)
     with atomic_h5(out_path) as h5:

@@ -37,7 +37,7 @@ from pathlib import Path
 
 from dtmbnav.errors import NoResult, UsageError
 from dtmbnav.seeds import LEVELS, REPORTING_SEEDS, TUNING_SEEDS
-from fusion import DEFAULT_PARTICLES, FILTER_NAMES, FOOT_INS
+from fusion import CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_PARTICLES, FILTER_NAMES, FOOT_INS
 from receiver import DEFAULT_STATIC_WINDOW_S
 
 EXIT_OK = 0
@@ -327,7 +327,7 @@ def cmd_fuse(args: argparse.Namespace) -> int:
 
     result = fuse_files(args.receiver, args.sensors, args.output, filters=args.filters,
                         pdr_config=_pdr_config(args), tower_xy_m=args.tower, start_xy_m=args.start,
-                        n_particles=args.particles, seed=args.seed)
+                        n_particles=args.particles, seed=args.seed, clock_model=args.clock_model)
     print(f"initial heading {result.heading.describe()}", file=sys.stderr)
     print(f"fused {', '.join(result.tracks)} -> {args.output}", file=sys.stderr)
     return EXIT_OK
@@ -548,6 +548,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--start", type=_xy, metavar="X,Y", help="start fix P0, ENU m (default: from /gnss)")
     p.add_argument("--particles", type=_positive_int, help=f"particle-filter Np (default {DEFAULT_PARTICLES})")
     p.add_argument("--seed", type=_seed, default=0, help="particle-filter seed")
+    p.add_argument("--clock-model", choices=CLOCK_MODELS, default=DEFAULT_CLOCK_MODEL,
+                   help="the receiver's clock: disciplined (GNSS/GPSDO; the default) or free-running (a TCXO: the "
+                        "filters carry its frequency as a state and, in an SFN, eq. 15 uses the tower difference)")
     _add_pdr_options(p)
     p.set_defaults(handler=cmd_fuse)
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from dtmbnav.chain import fuse_files
 from dtmbnav.core import schema
+from dtmbnav.evaluate import receiver_clock_model
 from dtmbnav.iq_range import generated_chunks, simulated_receiver_config
 from dtmbnav.report import write_report
 from dtmbnav.simulation import simulate_capture_set
@@ -40,8 +41,9 @@ def stream_receive(scenario, seconds: float | None, rx_path: Path, progress: boo
     # The walker stands still for start_still_s: that is the f_s calibration window (eq. 9-10).
     receiver = Receiver(generator.sample_rate_hz, generator.carrier_hz, simulated_receiver_config(scenario))
     sink = FrameSink(rx_path)
-    receive_into_sink(receiver, generated_chunks(generator, jobs=jobs), sink, source=f"simulated {scenario.name} (streamed)",
-                      total_samples=generator.num_samples, progress=progress,
+    receive_into_sink(receiver, generated_chunks(generator, jobs=jobs), sink,
+                      source=f"simulated {scenario.name} (streamed)", total_samples=generator.num_samples,
+                      progress=progress,
                       attrs={schema.CAPTURE_SCENARIO_ATTR: scenario.name, schema.CAPTURE_SEED_ATTR: generator.seed})
     return sink.frames
 
@@ -64,7 +66,8 @@ def run_demo(out_dir: Path, scenario: str = "park-loop", seconds: float | None =
         raise RuntimeError("the receiver found no DTMB signal in the simulated capture")
     print("[3/4] PDR, initial heading and fusion", file=sys.stderr)
     results_path = out_dir / "results.h5"
-    result = fuse_files(rx_path, truth_path, results_path, tuple(FILTERS), PdrConfig())
+    result = fuse_files(rx_path, truth_path, results_path, tuple(FILTERS), PdrConfig(),
+                        clock_model=receiver_clock_model(scn))
     print(f"      initial heading {result.heading.describe()}", file=sys.stderr)
     print("[4/4] writing the report", file=sys.stderr)
     report = write_report(results_path, out_dir / "report", truth_path=truth_path)

@@ -38,6 +38,7 @@ walks on the reporting seeds (``--first-seed 100`` for the tuning seeds);
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import asdict, dataclass
 from typing import Callable
@@ -51,9 +52,9 @@ from dtmbnav.seeds import LEVELS, REPORTING_SEEDS, TUNING_SEEDS, monte_carlo_see
 from dtmbnav.simulation import calibration_walk_k_m
 from fusion import FILTER_NAMES, FOOT_INS
 from fusion.foot_ins import ZuptInsRankKf
-from fusion.observations import PathRanges
 from fusion.metrics import (PDR_AT_FIX, PDR_BASELINE, error_stats, heading_error_rad, interpolate_track, pdr_baselines,
                             position_errors_m)
+from fusion.observations import PathRanges
 from fusion.pdr import PdrConfig, run_pdr
 from fusion.run import FusionConfig, fuse
 from sim.gnss import simulate_start_fix
@@ -148,6 +149,12 @@ def seed_scenario(scenario: Scenario, k: int, first_seed: int = REPORTING_SEEDS.
     return vary_scenario(seeded, seed) if vary_geometry else seeded
 
 
+def receiver_clock_model(scenario: Scenario) -> str:
+    """The fusion's clock model for the scenario's receiver: disciplined for a GNSS-disciplined oscillator,
+    free-running for any other (a user knows which clock their SDR has, as ``dtmbnav fuse --clock-model``)."""
+    return "disciplined" if scenario.receiver.clock.preset == "gnss-disciplined" else "free-running"
+
+
 def calibrated_pdr_config(scenario: Scenario) -> PdrConfig:
     """PDR settings with the Weinberg K from the walker's calibration walk."""
     return PdrConfig(weinberg_k_m=calibration_walk_k_m(scenario))
@@ -207,6 +214,7 @@ def run_seed(scenario: Scenario, filters: tuple[str, ...], config: FusionConfig,
     # The further towers of an SFN, for the tower differences of the path tracker (IQ level).
     other_towers = tuple((site.x_m, site.y_m, site.height_m - antenna_m) for site in scenario.sites[1:])
     fused = tuple(f for f in filters if f != FOOT_INS)
+    config = dataclasses.replace(config, clock_model=receiver_clock_model(scenario))
     result = fuse(out.pdr, out.ranges, out.start_fix_xy_m, (tower.x_m, tower.y_m), fused,
                   tower_height_m=tower.height_m - antenna_m, other_towers=other_towers, paths=out.paths,
                   config=config)

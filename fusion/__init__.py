@@ -13,3 +13,8 @@ DEFAULT_PARTICLES = 10_000
 #: Row name of the foot-mounted ZUPT INS (:mod:`fusion.foot_ins`) in evaluations: it runs on its own
 #: IMU, not on the range/PDR epochs the filters share.
 FOOT_INS = "zupt-ins"
+#: The receiver clock models (:class:`fusion.model.ClockModel`): a GNSS-disciplined clock, whose
+#: offset the static window measures once, and a free-running one, which the filters carry as a state.
+CLOCK_MODELS = ("disciplined", "free-running")
+#: The clock model unless a caller says otherwise.
+DEFAULT_CLOCK_MODEL = "disciplined"

@@ -13,6 +13,11 @@ the integrated range may carry an error it picked up there, so each later
 run of observed epochs gets a free offset (its median mismatch, the L1
 optimum); only the run that starts at P0 is tied to zero. A coarse 1-degree grid finds the minima;
 each is then refined to a fraction of a degree.
+
+In a single-frequency network the same equations hold for the difference of
+two towers' ranges (``difference_tower``, docs/paths.md): it changes with the
+walker's position as eq. 14 predicts for each tower, and the receiver clock's
+drift, which a single tower's range cannot tell from motion, cancels in it.
 """
 
 from __future__ import annotations
@@ -82,21 +87,30 @@ def rotate_pdr(x_m: np.ndarray, y_m: np.ndarray, heading_rad: float | np.ndarray
 
 
 def predicted_range_change(heading_rad: float | np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.ndarray,
-                           geometry: Geometry) -> np.ndarray:
-    """Eq. 14: range change predicted by the PDR track rotated by ``heading_rad``, m."""
+                           geometry: Geometry, difference_tower: int = 0) -> np.ndarray:
+    """Eq. 14: range change predicted by the PDR track rotated by ``heading_rad``, m.
+
+    With ``difference_tower`` k > 0, the change of the range difference tower k minus tower 0.
+    """
     dx, dy = rotate_pdr(pdr_x_m, pdr_y_m, heading_rad)
-    return geometry.range_m(geometry.start_x_m + dx, geometry.start_y_m + dy) - geometry.start_range_m()
+    x, y = geometry.start_x_m + dx, geometry.start_y_m + dy
+    change = geometry.range_m(x, y) - geometry.start_range_m()
+    if difference_tower:
+        change = geometry.range_m(x, y, difference_tower) - geometry.start_range_m(difference_tower) - change
+    return change
 
 
 def heading_cost(heading_rad: float | np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.ndarray,
                  range_change_m: np.ndarray, geometry: Geometry, scale: float = 1.0,
-                 free_runs: list[np.ndarray] | None = None) -> np.ndarray:
+                 free_runs: list[np.ndarray] | None = None, difference_tower: int = 0) -> np.ndarray:
     """Eq. 15 cost (mean absolute range mismatch, m) of candidate headings for a PDR scaled by ``scale``.
 
     ``free_runs`` lists index arrays of epochs whose range shares an unknown
     offset (module docstring): their mismatch is taken about its median.
+    ``difference_tower``: as :func:`predicted_range_change`.
     """
-    predicted = predicted_range_change(np.asarray(heading_rad)[..., None], scale * pdr_x_m, scale * pdr_y_m, geometry)
+    predicted = predicted_range_change(np.asarray(heading_rad)[..., None], scale * pdr_x_m, scale * pdr_y_m, geometry,
+                                       difference_tower)
     mismatch = predicted - range_change_m
     for run in free_runs or ():
         mismatch[..., run] -= np.median(mismatch[..., run], axis=-1, keepdims=True)
@@ -114,7 +128,8 @@ def free_offset_runs(observed: np.ndarray) -> list[np.ndarray]:
 def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.ndarray,
                           range_change_m: np.ndarray, geometry: Geometry, *,
                           scale_bounds: tuple[float, float] | None = (0.8, 1.25),
-                          max_duration_s: float | None = 45.0, min_confidence: float = 0.3) -> HeadingSolution:
+                          max_duration_s: float | None = 45.0, min_confidence: float = 0.3,
+                          difference_tower: int = 0) -> HeadingSolution:
     """Solve eq. 15 for the initial heading.
 
     Three options extend the paper's eq. 15, aimed at the PDR errors that
@@ -142,10 +157,14 @@ def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.
         Measured range change since P0 at the same epochs, m; NaN entries
         (no observation) are left out.
     geometry : Geometry
-        P0 and the tower.
+        P0 and the tower(s).
     scale_bounds : (float, float) or None
     max_duration_s : float or None
     min_confidence : float
+    difference_tower : int
+        0: ``range_change_m`` is the range to tower 0 (eq. 14-15); k > 0:
+        it is the change of the range difference tower k minus tower 0
+        (module docstring).
 
     Returns
     -------
@@ -170,7 +189,7 @@ def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.
         solution = None
         if used.sum() >= 3:
             solution = _solve_window(x[used], y[used], rc[used], geometry, scale_bounds,
-                                     free_offset_runs(observed[: int(np.nonzero(used)[0][-1]) + 1]))
+                                     free_offset_runs(observed[: int(np.nonzero(used)[0][-1]) + 1]), difference_tower)
         whole_walk = duration is None or t[-1] <= t[0] + duration
         if solution is not None and (solution.confidence >= min_confidence or whole_walk):
             return solution
@@ -181,19 +200,21 @@ def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.
 
 
 def _solve_window(x: np.ndarray, y: np.ndarray, rc: np.ndarray, geometry: Geometry,
-                  scale_bounds: tuple[float, float] | None, free_runs: list[np.ndarray]) -> HeadingSolution | None:
+                  scale_bounds: tuple[float, float] | None, free_runs: list[np.ndarray],
+                  difference_tower: int = 0) -> HeadingSolution | None:
     """Eq. 15 over the given epochs: coarse grid, then every local minimum refined (None: a flat cost)."""
     grid = np.arange(0.0, 2.0 * np.pi, COARSE_STEP_RAD)
     scales = (np.array([1.0]) if scale_bounds is None
               else np.clip(np.arange(scale_bounds[0], scale_bounds[1] + 0.01, 0.01), *scale_bounds))
-    costs = np.stack([heading_cost(grid, x, y, rc, geometry, k, free_runs) for k in scales])  # (scales, headings)
+    costs = np.stack([heading_cost(grid, x, y, rc, geometry, k, free_runs, difference_tower)
+                      for k in scales])  # (scales, headings)
     profile = costs.min(axis=0)
     best_scale = scales[costs.argmin(axis=0)]
     # Local minima on the circle (a flat stretch counts once: <= before, < after).
     is_min = (profile <= np.roll(profile, 1)) & (profile < np.roll(profile, -1))
 
     def cost(params: np.ndarray) -> float:
-        return float(heading_cost(params[0], x, y, rc, geometry, params[1], free_runs))
+        return float(heading_cost(params[0], x, y, rc, geometry, params[1], free_runs, difference_tower))
 
     found = []
     for i in np.nonzero(is_min)[0]:

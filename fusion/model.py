@@ -53,6 +53,7 @@ from functools import cached_property
 import numpy as np
 
 from dtmbnav.core.constants import CLOCK_PRESETS, SPEED_OF_LIGHT_MPS
+from fusion import CLOCK_MODELS
 
 #: Column indices of the state vector.
 X, Y, HEADING_RATE, HEADING, SPEED = range(5)
@@ -265,9 +266,6 @@ def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray | float:
     """Wrap angles to [-pi, pi)."""
     return (np.asarray(angle_rad) + np.pi) % (2.0 * np.pi) - np.pi
 
-
-#: The receiver clock models :class:`ClockModel` knows.
-CLOCK_MODELS = ("disciplined", "free-running")
 
 
 @dataclass(frozen=True)

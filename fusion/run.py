@@ -24,13 +24,14 @@ from typing import Callable
 import numpy as np
 
 from dtmbnav.core.records import PdrSteps, RangeSeries, Track
-from fusion import DEFAULT_PARTICLES, FILTER_NAMES
+from fusion import CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_PARTICLES, FILTER_NAMES
 from fusion.adaptive_kf import run_adaptive_kf
 from fusion.heading_init import HeadingSolution, solve_initial_heading
 from fusion.integrity import IntegrityConfig
-from fusion.model import CLOCK_MODELS, ClockModel, Geometry, ModelNoise
-from fusion.observations import (AggregationConfig, FilterEpochs, PathAggregationConfig, PathRanges, StandstillConfig,
-                                 aggregate_paths, aggregate_ranges, build_epochs, epoch_times)
+from fusion.model import ClockModel, Geometry, ModelNoise
+from fusion.observations import (AggregationConfig, FilterEpochs, PathAggregationConfig, PathEpochs, PathRanges,
+                                 RangeEpochs, StandstillConfig, aggregate_paths, aggregate_ranges, build_epochs,
+                                 epoch_times)
 from fusion.particle_filter import run_particle_filter
 from fusion.rank_kf import run_rank_kf
 from fusion.ukf import run_ukf
@@ -69,7 +70,7 @@ class FusionConfig:
     aggregation: AggregationConfig = field(default_factory=AggregationConfig)
     n_particles: int = DEFAULT_PARTICLES
     seed: int = 0
-    clock_model: str = "disciplined"
+    clock_model: str = DEFAULT_CLOCK_MODEL
     clock_allan_deviation: float | None = None
     clock_allan_tau_s: float = 1.0
     integrity: IntegrityConfig = field(default_factory=IntegrityConfig)
@@ -84,6 +85,27 @@ class FusionConfig:
     def clock(self) -> ClockModel:
         """The clock model the filters use."""
         return ClockModel(self.clock_model, self.clock_allan_deviation, self.clock_allan_tau_s)
+
+
+def initial_heading(pdr: PdrSteps, range_epochs: RangeEpochs, path_epochs: PathEpochs | None, at_steps: np.ndarray,
+                    geometry: Geometry, config: FusionConfig) -> HeadingSolution:
+    """Eq. 15 at the PDR steps: on the range to tower 0, or on a tower difference when the clock runs free.
+
+    A free-running receiver clock drifts in a way a single tower's range
+    cannot tell from motion, so the eq. 15 heading solved on it is off by tens
+    of degrees; the difference of two towers' first paths (an SFN) is free of
+    the clock, so with ``clock_model="free-running"`` eq. 15 is solved on the
+    first tower difference that constrains the heading, and on the range to
+    tower 0 otherwise.
+    """
+    if config.clock().has_state and path_epochs is not None:
+        for k in range(path_epochs.range_difference_m.shape[1]):
+            try:
+                return solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, path_epochs.range_difference_m[at_steps, k],
+                                             geometry, difference_tower=k + 1)
+            except ValueError:  # too few epochs of this difference: try the next, then the range
+                continue
+    return solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, range_epochs.range_change_m[at_steps], geometry)
 
 
 FilterRunner = Callable[[FilterEpochs, Geometry, FusionConfig], Track]
@@ -162,8 +184,8 @@ def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], to
     t_s = epoch_times(pdr.t_s, float(ranges.t_s[0]), standstills)
     range_epochs = aggregate_ranges(ranges, t_s, config.aggregation)
     at_steps = np.searchsorted(t_s, pdr.t_s)
-    heading = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, range_epochs.range_change_m[at_steps], geometry)
     path_epochs = None if paths is None else aggregate_paths(paths, t_s, geometry.n_towers, config.paths)
+    heading = initial_heading(pdr, range_epochs, path_epochs, at_steps, geometry, config)
     epochs = build_epochs(pdr, range_epochs, heading.heading_rad, path_epochs)
     tracks = {name: FILTERS[name](epochs, geometry, config) for name in filters}
     return FusionResult(tracks=tracks, heading=heading, epochs=epochs)

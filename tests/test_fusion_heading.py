@@ -37,6 +37,27 @@ def test_recovers_any_heading_from_an_error_free_pdr(true_heading):
     assert sol.costs_m[0] < 1e-3
 
 
+@given(st.floats(0.0, 2 * np.pi - 1e-3))
+@settings(max_examples=15, deadline=None)
+def test_a_tower_difference_gives_the_heading_where_a_drifting_clock_ruins_the_range(true_heading):
+    """SFN (docs/paths.md): the difference of two towers' ranges carries no receiver clock; eq. 15 on it."""
+    sfn = Geometry(0.0, 0.0, 2000.0, 2200.0, 150.0, other_towers=((-1560.0, -4285.0, 120.0),))
+    pdr = park_like_walk().pdr
+    x, y = pdr.x_m, pdr.y_m
+    difference = predicted_range_change(true_heading, x, y, sfn, difference_tower=1)
+    clock_m = 0.05 * (pdr.t_s - pdr.t_s[0]) ** 1.5  # a free-running TCXO's drift, integrated: in every tower's range
+    sol = solve_initial_heading(pdr.t_s, x, y, difference, sfn, difference_tower=1, max_duration_s=None)
+    assert heading_error_rad(sol.heading_rad, true_heading) < np.deg2rad(0.1)
+    # The same difference from the two ranges, each with the clock in it, equals the clock-free one ...
+    one = predicted_range_change(true_heading, x, y, sfn) + clock_m
+    moved = rotate_pdr(x, y, true_heading)
+    other = sfn.range_m(moved[0], moved[1], 1) - sfn.start_range_m(1) + clock_m
+    np.testing.assert_allclose(other - one, difference, atol=1e-9)
+    # ... while the first tower's range with the clock in it gives a wrong heading.
+    biased = solve_initial_heading(pdr.t_s, x, y, one, sfn, max_duration_s=None)
+    assert heading_error_rad(biased.heading_rad, true_heading) > np.deg2rad(2.0)
+
+
 def test_symmetric_walk_reports_both_mirror_minima():
     """A straight walk: headings beta and 2*theta_b - beta give the same range change."""
     truth = polyline_truth([[0, 0], [0, 60]])
