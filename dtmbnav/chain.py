@@ -251,14 +251,19 @@ def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray]
 
 def read_other_towers(sensors_path: str | os.PathLike) -> tuple[tuple[float, float, float], ...]:
     """Further towers of a simulated single-frequency network: ``[[towers]]`` after the first, from the
-    scenario recorded in ``/truth/frames`` (x, y, height, m); empty when there are none."""
+    scenario recorded in ``/truth/frames`` (x, y, m, and height above the receiver's antenna, m, like
+    the first tower's in ``/truth/trajectory``); empty when there are none."""
     with open_h5(sensors_path) as f:
         text = f[schema.TRUTH_FRAMES].attrs.get("scenario") if schema.TRUTH_FRAMES in f else None
     if text is None:
         return ()
     try:
         sites = tomllib.loads(str(text)).get("towers", [])
-        return tuple((float(s["x_m"]), float(s["y_m"]), float(s["height_m"])) for s in sites[1:])
+        if len(sites) < 2:
+            return ()
+        # The record holds the towers' heights above the ground; the first tower's above the antenna is known.
+        antenna_m = float(sites[0]["height_m"]) - read_tower(sensors_path)[2]
+        return tuple((float(s["x_m"]), float(s["y_m"]), float(s["height_m"]) - antenna_m) for s in sites[1:])
     except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError, AttributeError):
         raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: unreadable [[towers]] in the scenario record; "
                          "give --tower X,Y") from None

@@ -246,3 +246,18 @@ def test_receiver_path_columns_become_path_ranges():
     assert list(paths.differences) == [1]                                        # no tower 2 in a 2-tower geometry
     frames.pop("first_path_range_change_m")
     assert paths_from_frames(frames, rows, n_towers=2) is None                    # tracker off: SI range only
+
+
+def test_the_sensors_file_gives_every_towers_height_above_the_antenna(tmp_path):
+    """``dtmbnav fuse`` reads an SFN's further towers like the first: height above the receiver's antenna."""
+    from dtmbnav.chain import read_other_towers
+    from dtmbnav.core.sensors import read_tower
+    from dtmbnav.simulation import simulate_capture_set
+    from sim.scenario import load_scenario
+
+    scn = load_scenario("sfn-park")
+    truth = simulate_capture_set(scn, tmp_path, seconds=1.0, with_iq=False).truth_path
+    antenna_m = scn.channel.antenna_height_m
+    assert read_tower(truth)[2] == pytest.approx(scn.sites[0].height_m - antenna_m)
+    (x, y, height), = read_other_towers(truth)
+    assert (x, y, height) == pytest.approx((scn.sites[1].x_m, scn.sites[1].y_m, scn.sites[1].height_m - antenna_m))
