@@ -10,11 +10,20 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 import pytest
+from hypothesis import settings
+
+# The suite's property tests draw the same examples on every run (a red CI is then the code's,
+# never the dice's); HYPOTHESIS_PROFILE=explore draws fresh ones on each run, to look for new
+# counterexamples before a change lands.
+settings.register_profile("repeatable", derandomize=True, print_blob=True)
+settings.register_profile("explore", derandomize=False, print_blob=True)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "repeatable"))
 
 TINY_WALK = Path(__file__).parent / "data" / "tiny-walk.toml"
 #: Length of the tiny capture, s, and its sample rate and format (the tiny walk's front end).

@@ -53,9 +53,26 @@ def test_a_tower_difference_gives_the_heading_where_a_drifting_clock_ruins_the_r
     moved = rotate_pdr(x, y, true_heading)
     other = sfn.range_m(moved[0], moved[1], 1) - sfn.start_range_m(1) + clock_m
     np.testing.assert_allclose(other - one, difference, atol=1e-9)
-    # ... while the first tower's range with the clock in it gives a wrong heading.
+    # ... while no heading explains the first tower's range with the clock in it (the fit's rms
+    # residual is metres; the difference's is nil). How far off its heading lands depends on the
+    # heading (the bias passes through zero near 170 deg): the next test measures that.
     biased = solve_initial_heading(pdr.t_s, x, y, one, sfn, max_duration_s=None)
-    assert heading_error_rad(biased.heading_rad, true_heading) > np.deg2rad(2.0)
+    assert sol.costs_m[0] < 1e-3
+    assert biased.costs_m[0] > 5.0
+
+
+def test_a_drifting_clock_throws_the_single_tower_heading_off():
+    """Over 24 headings round the circle the clock-drifted range's eq. 15 heading is > 2 deg off at nearly all."""
+    sfn = Geometry(0.0, 0.0, 2000.0, 2200.0, 150.0, other_towers=((-1560.0, -4285.0, 120.0),))
+    pdr = park_like_walk().pdr
+    clock_m = 0.05 * (pdr.t_s - pdr.t_s[0]) ** 1.5
+    headings = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
+    errors = [heading_error_rad(solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m,
+                                                      predicted_range_change(h, pdr.x_m, pdr.y_m, sfn) + clock_m,
+                                                      sfn, max_duration_s=None).heading_rad, h)
+              for h in headings]
+    assert np.median(errors) > np.deg2rad(10.0)
+    assert np.mean(np.asarray(errors) > np.deg2rad(2.0)) > 0.9
 
 
 def test_symmetric_walk_reports_both_mirror_minima():
