@@ -333,3 +333,10 @@ def test_capture_shorter_than_the_static_window_is_ranged_once():
     # Standing still with a 1 Hz Doppler: f_s absorbs it, and the path's own f_s too.
     assert rx.first_path_ranging.clock_offset_hz == pytest.approx(1.0, abs=0.05)
     assert np.max(np.abs(frames.first_path_range_change_m)) < 0.05
+
+
+@pytest.mark.parametrize("frames, pfa", [(1, 0.1), (8, 1e-3), (64, 1e-6), (300, 1e-9)])
+def test_detection_threshold_is_the_gamma_quantile(frames, pfa):
+    from scipy.stats import gamma
+
+    assert detection_threshold(frames, pfa) == pytest.approx(gamma.isf(pfa, a=frames, scale=1.0 / frames), rel=1e-9)
