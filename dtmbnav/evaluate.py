@@ -239,7 +239,10 @@ class EvaluationRow:
 
     Errors in metres, averaged per-walk statistics; ``reduction_95`` against
     the PDR and ``reduction_95_vs_fix`` against ``pdr@fix`` (None for the PDR
-    rows); paper figures None where the paper has none for this filter.
+    rows); ``worst_vs_fix``: the largest ratio, over the walks, of a walk's
+    95 % error to that walk's ``pdr@fix`` 95 %, minus one (positive where the
+    filter made some walk worse than the PDR it started from; None for the
+    PDR rows); paper figures None where the paper has none for this filter.
     """
 
     scenario: str
@@ -251,6 +254,7 @@ class EvaluationRow:
     reduction_95: float | None
     reduction_95_vs_fix: float | None
     heading_error_median_deg: float
+    worst_vs_fix: float | None = None
     paper_p68_m: float | None = None
     paper_p95_m: float | None = None
     paper_max_m: float | None = None
@@ -286,6 +290,8 @@ def summarise(scenario_name: str, results: list[SeedResult], settings: RunSettin
             scenario=scenario_name, filter=name, seeds=len(results), p68_m=p68, p95_m=p95, max_m=pmax,
             reduction_95=None if name in (PDR_BASELINE, PDR_AT_FIX) else 1.0 - p95 / mean[PDR_BASELINE][1],
             reduction_95_vs_fix=None if name in (PDR_BASELINE, PDR_AT_FIX) else 1.0 - p95 / mean[PDR_AT_FIX][1],
+            worst_vs_fix=None if name in (PDR_BASELINE, PDR_AT_FIX) else
+            max(s.p95_m / f.p95_m for s, f in zip(stats[name], stats[PDR_AT_FIX])) - 1.0,
             heading_error_median_deg=heading_median,
             paper_p68_m=reference[0] if reference else None, paper_p95_m=reference[1] if reference else None,
             paper_max_m=reference[2] if reference else None,
@@ -461,14 +467,15 @@ def format_table(rows: list[EvaluationRow]) -> str:
     """A fixed-width text table, our figures next to the paper's, under a line naming the walks."""
     runs = dict.fromkeys((r.first_seed, r.seeds, r.level, r.geometry_varied) for r in rows)
     header = (f"{'scenario':<15} {'filter':<12} {'seeds':>5}  {'68%':>6} {'95%':>6} {'max':>6}  {'95%red':>6} "
-              f"{'red@fix':>7}  "
+              f"{'red@fix':>7} {'worst@fix':>9}  "
               f"{'hdg_err':>7}  | paper {'68%':>6} {'95%':>6} {'max':>6} {'red':>5}")
     lines = [describe_seeds(*run) for run in runs] + [header, "-" * len(header)]
     for r in rows:
         lines.append(
             f"{r.scenario:<15} {r.filter:<12} {r.seeds:>5}  {r.p68_m:6.2f} {r.p95_m:6.2f} {r.max_m:6.2f}  "
             f"{_fmt(None if r.reduction_95 is None else 100 * r.reduction_95, '5.1f'):>5}% "
-            f"{_fmt(None if r.reduction_95_vs_fix is None else 100 * r.reduction_95_vs_fix, '6.1f'):>6}%  "
+            f"{_fmt(None if r.reduction_95_vs_fix is None else 100 * r.reduction_95_vs_fix, '6.1f'):>6}% "
+            f"{_fmt(None if r.worst_vs_fix is None else 100 * r.worst_vs_fix, '+8.1f'):>8}%  "
             f"{r.heading_error_median_deg:6.2f}d  |       {_fmt(r.paper_p68_m, '6.2f'):>6} "
             f"{_fmt(r.paper_p95_m, '6.2f'):>6} {_fmt(r.paper_max_m, '6.2f'):>6} "
             f"{_fmt(None if r.paper_reduction_95 is None else 100 * r.paper_reduction_95, '4.0f'):>4}%")

@@ -94,3 +94,18 @@ def test_arguments_are_checked():
         ev.evaluate("park-loop-cw", seeds=2, first_seed=999)
     assert ev.expand_scenarios(["street", "x.toml"]) == ["street-out", "street-back", "x.toml"]
     assert ev.paper_figures("street-back").reduction_95 == 0.30 and ev.paper_figures("custom") is None
+
+
+def test_worst_walk_against_its_own_pdr_at_the_fix():
+    """worst@fix: the largest per-walk ratio of a filter's 95 % to that walk's pdr@fix 95 %, minus one."""
+    def walk(pdr_m, at_fix_m, pf_m):
+        errors = {"pdr": np.full(10, pdr_m), "pdr@fix": np.full(10, at_fix_m), "pf": np.full(10, pf_m)}
+        return ev.SeedResult(truth=None, tracks={}, errors_m=errors, heading_error_rad=0.0)
+
+    # Walk 1: the PF halves its PDR; walk 2: it is 25 % worse than its PDR. The mean hides walk 2.
+    rows = ev.summarise("park-loop-cw", [walk(3.0, 2.0, 1.0), walk(3.0, 4.0, 5.0)])
+    pdr, at_fix, pf = rows
+    assert pf.worst_vs_fix == pytest.approx(0.25)
+    assert pf.reduction_95_vs_fix == pytest.approx(0.0)
+    assert pdr.worst_vs_fix is None and at_fix.worst_vs_fix is None
+    assert "+25.0%" in ev.format_table(rows)
