@@ -447,7 +447,8 @@ class ParticleFilter:
             self.fall_back(fallback[0])
         channels = np.arange(self.layout.n_channels)
         self.linear_cov[channels[~use], channels[~use]] += self.noise.range_offset_m**2
-        reanchor = use & (new_origin | returning)
+        lost = self.linear_cov[channels, channels] > self.noise.range_reanchor_m**2
+        reanchor = use & (new_origin | returning | lost)
         for j in np.flatnonzero(reanchor):
             self._reanchor(j, z[j], sigma[j])
         for j in np.flatnonzero(use & ~reanchor):

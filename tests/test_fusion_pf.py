@@ -240,6 +240,35 @@ def test_range_returning_far_off_after_a_long_gap_keeps_the_cloud():
     assert np.hypot(after[0] - true_x, after[1] - true_y) < 1.5
 
 
+def test_range_returning_from_minutes_blocked_is_a_new_origin():
+    """After 150 s blocked the range returns 60 m off (a reflection's Doppler integrated for minutes): the filter
+    re-anchors the channel instead of keeping the particles that happen to fit it, and the cloud stays put.
+
+    With the offset kept however long the gap (``range_reanchor_m`` infinite)
+    the returning range is far outside every particle's offset sigma (about
+    17 m), only the mixture's tail particles fit it, and the estimate jumps
+    along the line of sight.
+    """
+    walk = park_like_walk(gain=1.0, seed=5, laps=3)
+    epochs = epochs_for(walk, ranges_with_blockage(walk, 20.0, 170.0, 60.0))
+    back = int(np.argmax(np.isfinite(epochs.range_change_m) & (epochs.t_s > 170.0)))
+    jumps = {}
+    for reanchor_m in (ModelNoise().range_reanchor_m, np.inf):
+        f = pf.ParticleFilter(walk.geometry, ModelNoise(range_reanchor_m=reanchor_m), n_particles=2000, seed=2)
+        f.initialise(float(epochs.pdr_heading_rad[0]), float(epochs.pdr_speed_mps[0]))
+        errors = []
+        for n in range(back + 6):
+            f.predict(epochs.control(n))
+            f.update(epochs.observation(n))
+            if n >= back - 1:
+                true_xy = [np.interp(epochs.t_s[n], walk.truth.t_s, c) for c in (walk.truth.x_m, walk.truth.y_m)]
+                errors.append(float(np.hypot(*(f.estimate()[:2] - true_xy))))
+        # How much the returning ranges added to the position error the blocked stretch left.
+        jumps[reanchor_m] = max(errors) - errors[0]
+    assert jumps[ModelNoise().range_reanchor_m] < 1.0, jumps
+    assert jumps[np.inf] > 5.0, jumps
+
+
 def test_benchmark_reports_a_rate():
     assert pf.particle_updates_per_second(1000, "numba", n_epochs=3) > 1e4
     assert pf.particle_updates_per_second(1000, "numpy", n_epochs=3) > 1e3
