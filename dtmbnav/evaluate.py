@@ -286,11 +286,12 @@ def summarise(scenario_name: str, results: list[SeedResult], settings: RunSettin
     for name in names:
         p68, p95, pmax = mean[name]
         reference = {PDR_BASELINE: paper.pdr, "pf": paper.pf}.get(name) if paper else None
+        baseline = name in (PDR_BASELINE, PDR_AT_FIX)  # the references themselves: no reductions
         rows.append(EvaluationRow(
             scenario=scenario_name, filter=name, seeds=len(results), p68_m=p68, p95_m=p95, max_m=pmax,
-            reduction_95=None if name in (PDR_BASELINE, PDR_AT_FIX) else 1.0 - p95 / mean[PDR_BASELINE][1],
-            reduction_95_vs_fix=None if name in (PDR_BASELINE, PDR_AT_FIX) else 1.0 - p95 / mean[PDR_AT_FIX][1],
-            worst_vs_fix=None if name in (PDR_BASELINE, PDR_AT_FIX) else
+            reduction_95=None if baseline else 1.0 - p95 / mean[PDR_BASELINE][1],
+            reduction_95_vs_fix=None if baseline else 1.0 - p95 / mean[PDR_AT_FIX][1],
+            worst_vs_fix=None if baseline else
             max(s.p95_m / f.p95_m for s, f in zip(stats[name], stats[PDR_AT_FIX])) - 1.0,
             heading_error_median_deg=heading_median,
             paper_p68_m=reference[0] if reference else None, paper_p95_m=reference[1] if reference else None,

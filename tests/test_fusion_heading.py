@@ -11,6 +11,13 @@ from fusion.metrics import heading_error_rad
 from fusion.model import Geometry
 
 GEOMETRY = Geometry(0.0, 0.0, 2000.0, 2200.0, 150.0)
+#: An SFN: GEOMETRY's tower and a second one at another bearing.
+SFN = Geometry(0.0, 0.0, 2000.0, 2200.0, 150.0, other_towers=((-1560.0, -4285.0, 120.0),))
+
+
+def drifting_clock_m(t_s):
+    """A free-running TCXO's drift, integrated: a range error common to every tower's range, m."""
+    return 0.05 * (t_s - t_s[0]) ** 1.5
 
 
 def measured_range(walk_or_pdr_xy, heading_rad, geometry=GEOMETRY, scale=1.0):
@@ -41,35 +48,33 @@ def test_recovers_any_heading_from_an_error_free_pdr(true_heading):
 @settings(max_examples=15, deadline=None)
 def test_a_tower_difference_gives_the_heading_where_a_drifting_clock_ruins_the_range(true_heading):
     """SFN (docs/paths.md): the difference of two towers' ranges carries no receiver clock; eq. 15 on it."""
-    sfn = Geometry(0.0, 0.0, 2000.0, 2200.0, 150.0, other_towers=((-1560.0, -4285.0, 120.0),))
     pdr = park_like_walk().pdr
     x, y = pdr.x_m, pdr.y_m
-    difference = predicted_range_change(true_heading, x, y, sfn, difference_tower=1)
-    clock_m = 0.05 * (pdr.t_s - pdr.t_s[0]) ** 1.5  # a free-running TCXO's drift, integrated: in every tower's range
-    sol = solve_initial_heading(pdr.t_s, x, y, difference, sfn, difference_tower=1, max_duration_s=None)
+    difference = predicted_range_change(true_heading, x, y, SFN, difference_tower=1)
+    clock_m = drifting_clock_m(pdr.t_s)
+    sol = solve_initial_heading(pdr.t_s, x, y, difference, SFN, difference_tower=1, max_duration_s=None)
     assert heading_error_rad(sol.heading_rad, true_heading) < np.deg2rad(0.1)
     # The same difference from the two ranges, each with the clock in it, equals the clock-free one ...
-    one = predicted_range_change(true_heading, x, y, sfn) + clock_m
+    one = predicted_range_change(true_heading, x, y, SFN) + clock_m
     moved = rotate_pdr(x, y, true_heading)
-    other = sfn.range_m(moved[0], moved[1], 1) - sfn.start_range_m(1) + clock_m
+    other = SFN.range_m(moved[0], moved[1], 1) - SFN.start_range_m(1) + clock_m
     np.testing.assert_allclose(other - one, difference, atol=1e-9)
     # ... while no heading explains the first tower's range with the clock in it (the fit's rms
     # residual is metres; the difference's is nil). How far off its heading lands depends on the
     # heading (the bias passes through zero near 170 deg): the next test measures that.
-    biased = solve_initial_heading(pdr.t_s, x, y, one, sfn, max_duration_s=None)
+    biased = solve_initial_heading(pdr.t_s, x, y, one, SFN, max_duration_s=None)
     assert sol.costs_m[0] < 1e-3
     assert biased.costs_m[0] > 5.0
 
 
 def test_a_drifting_clock_throws_the_single_tower_heading_off():
     """Over 24 headings round the circle the clock-drifted range's eq. 15 heading is > 2 deg off at nearly all."""
-    sfn = Geometry(0.0, 0.0, 2000.0, 2200.0, 150.0, other_towers=((-1560.0, -4285.0, 120.0),))
     pdr = park_like_walk().pdr
-    clock_m = 0.05 * (pdr.t_s - pdr.t_s[0]) ** 1.5
+    clock_m = drifting_clock_m(pdr.t_s)
     headings = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
     errors = [heading_error_rad(solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m,
-                                                      predicted_range_change(h, pdr.x_m, pdr.y_m, sfn) + clock_m,
-                                                      sfn, max_duration_s=None).heading_rad, h)
+                                                      predicted_range_change(h, pdr.x_m, pdr.y_m, SFN) + clock_m,
+                                                      SFN, max_duration_s=None).heading_rad, h)
               for h in headings]
     assert np.median(errors) > np.deg2rad(10.0)
     assert np.mean(np.asarray(errors) > np.deg2rad(2.0)) > 0.9
