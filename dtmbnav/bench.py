@@ -24,7 +24,10 @@ is limited to one thread so that "one core" means one core):
 - receive command: ``dtmbnav receive`` as a user runs it, a child process
   on a generated ci8 capture at 7.56 Msps, pinned to one core (two for
   ``--jobs 2``): wall time including interpreter start-up, imports, reading
-  and writing, next to the in-memory figure; the child's peak RSS for a
+  and writing, next to the in-memory figure; the same with path tracking off;
+  the start-up (a 0.2 s capture) and the receive path's import time; the
+  children import from bytecode as an installed copy does, even where the
+  environment sets ``PYTHONDONTWRITEBYTECODE``; the child's peak RSS for a
   short and a long capture (flat memory); and, when the ``dtmb-sdr``
   package is installed, its front end on the same capture and core;
 - particle filter: particle-updates/s at Np = 1k, 10k, 100k.
@@ -134,37 +137,35 @@ def bench_simulate(seconds: tuple[float, ...]) -> list[BenchRow]:
     One job, numba on one thread; the child imports the same ``dtmbnav`` as
     this process and reports its own peak RSS (Linux ``VmHWM``).
     """
-    import subprocess
-    import tempfile
-    from pathlib import Path
-
     from sim.scenario import load_scenario
 
     rate_hz = load_scenario("park-loop").receiver.sample_rate_hz
     root = str(Path(__file__).resolve().parents[1])
-    env = {**os.environ, "NUMBA_NUM_THREADS": "1", "PYTHONPATH": os.pathsep.join(
-        p for p in (root, os.environ.get("PYTHONPATH", "")) if p)}
     # VmHWM is the peak RSS of the process's own address space; rusage's maxrss would also count the
     # parent's pages that the child held between fork and exec.
     child = ("import sys\nfrom dtmbnav.cli import main\ncode = main(sys.argv[1:])\n"
              "print([l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM')][0])\n"
              "sys.exit(code)")
     rows = []
-    for length in seconds:
-        with tempfile.TemporaryDirectory() as out:
-            t0 = time.perf_counter()
-            done = subprocess.run([sys.executable, "-c", child, "-q", "simulate", "park-loop", "--seconds",
-                                   f"{length:g}", "-o", out], env=env, cwd=root, capture_output=True, text=True,
-                                  check=False)
-            elapsed = time.perf_counter() - t0
-        if done.returncode != 0:
-            raise RuntimeError(f"dtmbnav simulate --seconds {length:g} failed (exit {done.returncode}): "
-                               f"{done.stderr.strip()[-300:]}")
-        rss_mib = int(done.stdout.split()[-1]) / 1024.0  # VmHWM is in KiB
-        samples = length * rate_hz
-        rows.append(BenchRow(f"simulate park-loop {length:g} s (whole process)", "samples/s", samples / elapsed,
-                             None, samples / elapsed / rate_hz,
-                             f"{elapsed:.1f} s wall incl. start-up, peak RSS {rss_mib:.0f} MiB"))
+    with tempfile.TemporaryDirectory(prefix="dtmbnav-bench-") as tmp:
+        env = _child_env(Path(tmp), NUMBA_NUM_THREADS="1")
+        # Untimed: writes the bytecode the timed runs import (_child_env).
+        subprocess.run([sys.executable, "-c", "import dtmbnav.cli, sim.simulate"], env=env, cwd=root, check=True)
+        for length in seconds:
+            with tempfile.TemporaryDirectory(dir=tmp) as out:
+                t0 = time.perf_counter()
+                done = subprocess.run([sys.executable, "-c", child, "-q", "simulate", "park-loop", "--seconds",
+                                       f"{length:g}", "-o", out], env=env, cwd=root, capture_output=True,
+                                      text=True, check=False)
+                elapsed = time.perf_counter() - t0
+            if done.returncode != 0:
+                raise RuntimeError(f"dtmbnav simulate --seconds {length:g} failed (exit {done.returncode}): "
+                                   f"{done.stderr.strip()[-300:]}")
+            rss_mib = int(done.stdout.split()[-1]) / 1024.0  # VmHWM is in KiB
+            samples = length * rate_hz
+            rows.append(BenchRow(f"simulate park-loop {length:g} s (whole process)", "samples/s", samples / elapsed,
+                                 None, samples / elapsed / rate_hz,
+                                 f"{elapsed:.1f} s wall incl. start-up, peak RSS {rss_mib:.0f} MiB"))
     return rows
 
 
@@ -278,6 +279,24 @@ with open(sys.argv[1], "w") as out:
 """
 
 
+def _child_env(folder: Path, **extra: str) -> dict[str, str]:
+    """Environment of a timed child: this package first on its path, imports from bytecode as installed.
+
+    An installed package imports from its compiled bytecode; an environment
+    with ``PYTHONDONTWRITEBYTECODE`` (some containers and CI images set it)
+    would make every child compile the project's sources again, about 0.4 s
+    of each run on the bench machine, a cost no installed copy pays. The
+    children write their bytecode under ``folder`` instead
+    (``PYTHONPYCACHEPREFIX``), never into the installation, and the first
+    (untimed) run of each command leaves it there for the timed ones.
+    """
+    env = {key: value for key, value in os.environ.items() if key != "PYTHONDONTWRITEBYTECODE"}
+    root = str(Path(__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))
+    env["PYTHONPYCACHEPREFIX"] = str(folder / "pycache")
+    return {**env, **extra}
+
+
 def _run_child(commands: list[list[str]], cpus: list[int], env: dict[str, str] | None = None) -> tuple[float, int]:
     """Run ``commands`` as a pipeline (each one's stdout into the next) pinned to ``cpus``: wall time, exit code."""
     t0 = time.perf_counter()
@@ -320,6 +339,10 @@ def _capture_prefix(capture: Path, seconds: float, folder: Path) -> Path:
     return out
 
 
+#: Capture length whose whole-process receive time is the command's start-up, s.
+START_UP_CAPTURE_S = 0.2
+
+
 def bench_receive_command(seconds: float, rss_seconds: tuple[float, float], repeats: int) -> list[BenchRow]:
     """``dtmbnav receive`` as a user runs it: whole process on a generated ci8 capture, against in-memory.
 
@@ -328,9 +351,13 @@ def bench_receive_command(seconds: float, rss_seconds: tuple[float, float], repe
     long capture shows memory flat with length (these runs also load numba's
     cache and put the file in the page cache). Then the command runs in a
     child process pinned to one core (two for ``--jobs 2``); its wall time
-    counts interpreter start-up, imports, reading, conversion and writing.
-    Next to it, the same samples through :class:`receiver.pipeline.Receiver`
-    in this process (kernels only, reading left out). When dtmb-sdr is
+    counts interpreter start-up, imports (from bytecode, as installed:
+    :func:`_child_env`), reading, conversion and writing. Next to it, the
+    same samples through :class:`receiver.pipeline.Receiver` in this process
+    (kernels only, reading left out); the command once more with
+    ``--no-paths`` (the rate the path tracker is measured against); the
+    command on a :data:`START_UP_CAPTURE_S` capture (its start-up); and the
+    import of :mod:`receiver.pipeline` in a fresh interpreter. When dtmb-sdr is
     installed, its front end (:data:`DTMB_SDR_FRONT_END`) runs on the same
     capture on one core too.
     """
@@ -338,27 +365,26 @@ def bench_receive_command(seconds: float, rss_seconds: tuple[float, float], repe
     from sim.simulate import simulate
 
     cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
-    # The child runs this package, wherever it was imported from.
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(Path(__file__).resolve().parents[1]),
-                                                                     os.environ.get("PYTHONPATH")]))}
     rows: list[BenchRow] = []
     with tempfile.TemporaryDirectory(prefix="dtmbnav-bench-") as tmp:
         folder = Path(tmp)
+        env = _child_env(folder)   # the child runs this package, wherever it was imported from
         longest = max(seconds, *rss_seconds)
         result = simulate(load_scenario("park-loop"), folder / "sim", seconds=longest, sample_format="ci8",
                           container="raw")
         assert result.capture_path is not None
         captures = {sec: _capture_prefix(Path(result.capture_path), sec, folder) if sec < longest
-                    else Path(result.capture_path) for sec in {seconds, *rss_seconds}}
+                    else Path(result.capture_path) for sec in {seconds, START_UP_CAPTURE_S, *rss_seconds}}
 
-        def command(sec: float, jobs: int) -> list[str]:
+        def command(sec: float, jobs: int, *options: str) -> list[str]:
             return [sys.executable, "-m", "dtmbnav.cli", "-q", "receive", str(captures[sec]), "-o",
-                    str(folder / "rx.h5"), "--jobs", str(jobs)]
+                    str(folder / "rx.h5"), "--jobs", str(jobs), *options]
 
-        def receive(sec: float, jobs: int) -> float:
-            seconds_taken, code = _run_child([command(sec, jobs)], cpus[:jobs], env)
+        def receive(sec: float, jobs: int, *options: str) -> float:
+            seconds_taken, code = _run_child([command(sec, jobs, *options)], cpus[:jobs], env)
             if code:
-                raise RuntimeError(f"dtmbnav receive --jobs {jobs} on {captures[sec]} exited {code}")
+                raise RuntimeError(f"dtmbnav receive --jobs {jobs} {' '.join(options)} on {captures[sec]} exited "
+                                   f"{code}")
             return seconds_taken
 
         # Peak RSS first: the short run also warms numba's cache and the page cache for the timed runs.
@@ -374,10 +400,36 @@ def bench_receive_command(seconds: float, rss_seconds: tuple[float, float], repe
                                  capture.num_samples / best, None, seconds / best,
                                  f"ci8 7.56 Msps {seconds:g} s capture on {min(jobs, len(cpus) or jobs)} core(s), "
                                  f"incl. start-up; in memory {in_memory:.1f}x real time"))
+        off = min(receive(seconds, 1, "--no-paths") for _ in range(repeats))
+        rows.append(BenchRow("receive command, tracking off, --jobs 1", "samples/s",
+                             capture.num_samples / off, None, seconds / off,
+                             f"the same on 1 core with --no-paths; with tracking {off / whole_process[1]:.0%} of "
+                             "this speed"))
+        start_up = min(receive(START_UP_CAPTURE_S, 1) for _ in range(repeats))
+        rows.append(BenchRow(f"receive command start-up ({START_UP_CAPTURE_S:g} s capture)", "s", start_up, None, None,
+                             "whole process on 1 core: interpreter, imports, numba cache, acquisition, files"))
+        rows.append(BenchRow("import receiver.pipeline", "s", _import_seconds("receiver.pipeline", env, cpus[:1]),
+                             None, None, "child process on 1 core, best of 5; the receive path's imports"))
         rows.extend(rss_rows)
         if importlib.util.find_spec("dtmb") is not None:
             rows.extend(_bench_dtmb_sdr(captures[seconds], seconds, whole_process[1], cpus[:1]))
     return rows
+
+
+def _import_seconds(module: str, env: dict[str, str], cpus: list[int], repeats: int = 5) -> float:
+    """Seconds a fresh interpreter takes to import ``module`` (best of ``repeats``; the interpreter's own start-up
+    left out)."""
+    child = f"import time; t = time.perf_counter(); import {module}; print(time.perf_counter() - t)"
+    best = np.inf
+    for _ in range(repeats):
+        proc = subprocess.Popen([sys.executable, "-c", child], stdout=subprocess.PIPE, text=True, env=env)
+        if cpus and hasattr(os, "sched_setaffinity"):
+            os.sched_setaffinity(proc.pid, cpus)
+        out, _ = proc.communicate()
+        if proc.returncode:
+            raise RuntimeError(f"import {module} exited {proc.returncode}")
+        best = min(best, float(out.split()[-1]))
+    return best
 
 
 def _receiver_seconds(capture: CaptureSource, jobs: int) -> float:

@@ -160,6 +160,10 @@ def test_bench_quick(tmp_path):
     assert main(["bench", "--quick", "--json", str(out)]) == EXIT_OK
     rows = json.loads(out.read_text())["rows"]
     assert any(r["kernel"].startswith("receiver end to end") for r in rows)
+    kernels = {r["kernel"] for r in rows}
+    # The whole-process rows issue 17's targets are read from: with tracking on and off, start-up, import.
+    assert {"receive command, whole process, --jobs 1", "receive command, tracking off, --jobs 1",
+            "receive command start-up (0.2 s capture)", "import receiver.pipeline"} <= kernels
     assert all(r["rate"] > 0 for r in rows)
 
 
