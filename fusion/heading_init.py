@@ -35,6 +35,9 @@ COARSE_STEP_RAD = np.deg2rad(1.0)
 #: Costs closer than this are indistinguishable for the confidence, m.
 COST_FLOOR_M = 0.05
 
+#: Epochs a window needs beyond the free offsets of its runs (each run after a gap spends one on its offset).
+MIN_CONSTRAINING_EPOCHS = 3
+
 
 @dataclass(frozen=True)
 class HeadingSolution:
@@ -176,7 +179,9 @@ def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.
     ------
     ValueError
         If the inputs differ in length, or the range constrains no heading
-        (fewer than 3 epochs with a range, or no cost minimum).
+        even over the whole walk (fewer than :data:`MIN_CONSTRAINING_EPOCHS`
+        epochs beyond the runs' free offsets, or a cost flat to within
+        :data:`COST_FLOOR_M`).
     """
     arrays = [np.asarray(a, dtype=np.float64) for a in (pdr_t_s, pdr_x_m, pdr_y_m, range_change_m)]
     if len({a.shape for a in arrays}) != 1:
@@ -187,9 +192,12 @@ def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.
     while True:
         used = observed if duration is None else observed & (t <= t[0] + duration)
         solution = None
-        if used.sum() >= 3:
-            solution = _solve_window(x[used], y[used], rc[used], geometry, scale_bounds,
-                                     free_offset_runs(observed[: int(np.nonzero(used)[0][-1]) + 1]), difference_tower)
+        if used.any():
+            free_runs = free_offset_runs(observed[: int(np.nonzero(used)[0][-1]) + 1])
+            # A run with a free offset spends one epoch on it: isolated epochs after gaps constrain nothing.
+            if used.sum() - len(free_runs) >= MIN_CONSTRAINING_EPOCHS:
+                solution = _solve_window(x[used], y[used], rc[used], geometry, scale_bounds, free_runs,
+                                         difference_tower)
         whole_walk = duration is None or t[-1] <= t[0] + duration
         if solution is not None and (solution.confidence >= min_confidence or whole_walk):
             return solution
@@ -202,13 +210,21 @@ def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.
 def _solve_window(x: np.ndarray, y: np.ndarray, rc: np.ndarray, geometry: Geometry,
                   scale_bounds: tuple[float, float] | None, free_runs: list[np.ndarray],
                   difference_tower: int = 0) -> HeadingSolution | None:
-    """Eq. 15 over the given epochs: coarse grid, then every local minimum refined (None: a flat cost)."""
+    """Eq. 15 over the given epochs: coarse grid, then every local minimum refined.
+
+    None when the cost is flat to within :data:`COST_FLOOR_M` over the whole
+    circle: the range does not tell the headings apart (e.g. a few runs of
+    epochs, each with its own free offset), and a minimum of it, alone or
+    not, would be a heading picked by rounding, not by the range.
+    """
     grid = np.arange(0.0, 2.0 * np.pi, COARSE_STEP_RAD)
     scales = (np.array([1.0]) if scale_bounds is None
               else np.clip(np.arange(scale_bounds[0], scale_bounds[1] + 0.01, 0.01), *scale_bounds))
     costs = np.stack([heading_cost(grid, x, y, rc, geometry, k, free_runs, difference_tower)
                       for k in scales])  # (scales, headings)
     profile = costs.min(axis=0)
+    if np.ptp(profile) < COST_FLOOR_M:
+        return None   # every heading explains the range as well as any other: its minima would be noise
     best_scale = scales[costs.argmin(axis=0)]
     # Local minima on the circle (a flat stretch counts once: <= before, < after).
     is_min = (profile <= np.roll(profile, 1)) & (profile < np.roll(profile, -1))

@@ -161,3 +161,33 @@ def test_bad_input_raises():
         solve_initial_heading(np.zeros(5), np.zeros(5), np.zeros(4), np.zeros(5), GEOMETRY)
     with pytest.raises(ValueError, match="does not constrain the heading"):
         solve_initial_heading(np.arange(5.0), np.zeros(5), np.zeros(5), np.full(5, np.nan), GEOMETRY)
+
+
+def isolated_epochs(t_s, every=15):
+    """True at every ``every``-th epoch only: each a run of one after a gap (a range that comes and goes)."""
+    return np.arange(len(t_s)) % every == every // 2
+
+
+def test_isolated_epochs_after_gaps_do_not_make_a_heading():
+    """Each epoch after a gap has a free offset, so single ones fit every heading: no heading, not a confident one.
+
+    (The solver once reported such a window's rounding noise as a single minimum with confidence 1: a street
+    walk whose range came back for one epoch at a time got a heading 67 deg off.)
+    """
+    walk = park_like_walk()
+    pdr = walk.pdr
+    measured = measured_range((pdr.x_m, pdr.y_m), 2.0)
+    measured[~isolated_epochs(pdr.t_s)] = np.nan
+    with pytest.raises(ValueError, match="does not constrain the heading"):
+        solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, measured, GEOMETRY, max_duration_s=None)
+
+
+def test_a_window_of_isolated_epochs_widens_to_the_first_run_that_constrains():
+    walk = park_like_walk()
+    pdr = walk.pdr
+    measured = measured_range((pdr.x_m, pdr.y_m), 2.0)
+    later = pdr.t_s >= pdr.t_s[0] + 60.0
+    measured[~(isolated_epochs(pdr.t_s) | later)] = np.nan
+    sol = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, measured, GEOMETRY, max_duration_s=45.0)
+    assert heading_error_rad(sol.heading_rad, 2.0) < np.deg2rad(0.1)
+    assert sol.n_used > np.count_nonzero(isolated_epochs(pdr.t_s) & ~later)
