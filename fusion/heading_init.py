@@ -22,7 +22,7 @@ drift, which a single tower's range cannot tell from motion, cancels in it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
@@ -35,8 +35,9 @@ COARSE_STEP_RAD = np.deg2rad(1.0)
 #: Costs closer than this are indistinguishable for the confidence, m.
 COST_FLOOR_M = 0.05
 
-#: Epochs a window needs beyond the free offsets of its runs (each run after a gap spends one on its offset).
-MIN_CONSTRAINING_EPOCHS = 3
+#: Epochs a window needs beyond the free offsets of its runs (each run after a gap spends one on its offset);
+#: with no more of them than solved parameters the window's solution has no confidence.
+MIN_CONSTRAINING_EPOCHS = 2
 
 
 @dataclass(frozen=True)
@@ -195,9 +196,15 @@ def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.
         if used.any():
             free_runs = free_offset_runs(observed[: int(np.nonzero(used)[0][-1]) + 1])
             # A run with a free offset spends one epoch on it: isolated epochs after gaps constrain nothing.
-            if used.sum() - len(free_runs) >= MIN_CONSTRAINING_EPOCHS:
+            constraining = int(used.sum()) - len(free_runs)
+            if constraining >= MIN_CONSTRAINING_EPOCHS:
                 solution = _solve_window(x[used], y[used], rc[used], geometry, scale_bounds, free_runs,
                                          difference_tower)
+            solved_parameters = 1 if scale_bounds is None else 2
+            if solution is not None and constraining <= solved_parameters:
+                # As many epochs as unknowns (heading, scale): some heading fits them exactly, whatever the
+                # noise; its minimum is no evidence against the others, so the window must grow.
+                solution = replace(solution, confidence=0.0)
         whole_walk = duration is None or t[-1] <= t[0] + duration
         if solution is not None and (solution.confidence >= min_confidence or whole_walk):
             return solution

@@ -169,11 +169,7 @@ def isolated_epochs(t_s, every=15):
 
 
 def test_isolated_epochs_after_gaps_do_not_make_a_heading():
-    """Each epoch after a gap has a free offset, so single ones fit every heading: no heading, not a confident one.
-
-    (The solver once reported such a window's rounding noise as a single minimum with confidence 1: a street
-    walk whose range came back for one epoch at a time got a heading 67 deg off.)
-    """
+    """Each epoch after a gap has a free offset, so single ones fit every heading: no heading at all."""
     walk = park_like_walk()
     pdr = walk.pdr
     measured = measured_range((pdr.x_m, pdr.y_m), 2.0)
@@ -191,3 +187,36 @@ def test_a_window_of_isolated_epochs_widens_to_the_first_run_that_constrains():
     sol = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, measured, GEOMETRY, max_duration_s=45.0)
     assert heading_error_rad(sol.heading_rad, 2.0) < np.deg2rad(0.1)
     assert sol.n_used > np.count_nonzero(isolated_epochs(pdr.t_s) & ~later)
+
+
+def test_a_window_fitted_exactly_by_heading_and_scale_is_not_confident():
+    """Two pairs of epochs after gaps: two constraints for two unknowns, a perfect fit at a wrong heading.
+
+    (Street-out tuning walk 108: five epochs in three runs over its first 45 s gave a heading 67 deg off
+    with confidence 1; the range of the walk's second half gives it to 17 deg.)
+    """
+    walk = park_like_walk()
+    pdr = walk.pdr
+    measured = measured_range((pdr.x_m, pdr.y_m), 2.0) + np.random.default_rng(3).normal(0.0, 0.1, len(pdr))
+    pairs = np.zeros(len(pdr), dtype=bool)
+    for i in (20, 50):
+        pairs[i:i + 2] = True
+    later = pdr.t_s >= pdr.t_s[0] + 60.0
+    measured[~(pairs | later)] = np.nan
+    first = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, measured, GEOMETRY, max_duration_s=45.0,
+                                  min_confidence=0.0)
+    assert first.n_used == 4 and first.confidence == 0.0
+    sol = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, measured, GEOMETRY, max_duration_s=45.0)
+    assert sol.n_used > 4
+    assert heading_error_rad(sol.heading_rad, 2.0) < np.deg2rad(1.0)
+
+
+def test_a_walker_who_has_hardly_moved_gives_no_heading():
+    """Centimetres of PDR motion move the predicted range by less than its noise: the cost is flat, no minimum
+    of it is a heading (without the flatness check its rounding made one)."""
+    t = np.arange(20.0)
+    x, y = 0.002 * np.sin(t), 0.002 * np.cos(t)
+    measured = np.random.default_rng(1).normal(0.0, 0.05, len(t))
+    measured[0] = 0.0
+    with pytest.raises(ValueError, match="does not constrain the heading"):
+        solve_initial_heading(t, x, y, measured, GEOMETRY, max_duration_s=None)
