@@ -28,6 +28,8 @@ command line's option names: it turns them into the libraries' typed configs.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
 import math
 import os
 import sys
@@ -198,7 +200,8 @@ def _io_paths(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[tup
     elif command == "report":
         inputs, folders = [("RESULTS", args.results), ("--truth", args.truth)], [("-o", args.output)]
     elif command == "evaluate":
-        inputs, files = [("SCENARIO", name) for name in args.scenarios], [("--json", args.json)]
+        inputs, files = [("SCENARIO", name) for name in args.scenarios], [("--json", args.json),
+                                                                           ("--walks", args.walks)]
     elif command == "bench":
         files = [("--json", args.json)]
     elif command in ("simulate", "run", "demo"):
@@ -399,9 +402,18 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print(pdr_table(scenarios))
         return EXIT_OK
     config = FusionConfig() if args.particles is None else FusionConfig(n_particles=args.particles)
-    outcome = evaluate.evaluate_many(scenarios, args.seeds, args.filters, level=args.level, config=config,
-                                     first_seed=args.first_seed, vary_geometry=args.vary_geometry,
-                                     cluster=_cluster(args), progress=not args.quiet)
+    with contextlib.ExitStack() as stack:
+        on_walk = None
+        if args.walks:
+            # One line per walk as it finishes, flushed: a run that is stopped keeps every finished walk.
+            walks = stack.enter_context(open(args.walks, "w", encoding="utf-8"))
+
+            def on_walk(record: dict) -> None:
+                walks.write(json.dumps(record) + "\n")
+                walks.flush()
+        outcome = evaluate.evaluate_many(scenarios, args.seeds, args.filters, level=args.level, config=config,
+                                         first_seed=args.first_seed, vary_geometry=args.vary_geometry,
+                                         cluster=_cluster(args), progress=not args.quiet, on_walk=on_walk)
     for f in outcome.failures:
         print(f"dtmbnav evaluate: {f.scenario} walk k={f.k} (seed {f.seed}) failed: {f.error}\n"
               f"  re-run it alone: {_rerun_walk(args, f)}", file=sys.stderr)
@@ -578,6 +590,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"{FILTERS_HELP}; {FOOT_INS} adds the foot-mounted ZUPT INS")
     p.add_argument("--particles", type=_positive_int, help=f"particle-filter Np (default {DEFAULT_PARTICLES})")
     p.add_argument("--json", metavar="FILE", help="also write the table as JSON ('-' for stdout)")
+    p.add_argument("--walks", metavar="FILE",
+                   help="also write each walk's figures as a JSON line when it finishes (a stopped run keeps them)")
     p.add_argument("--pdr", action="store_true", help="only the PDR figures (steps, step length, drift, error)")
     p.add_argument("--first-seed", type=_index, default=REPORTING_SEEDS.start, metavar="N",
                    help=f"first Monte Carlo index (default {REPORTING_SEEDS.start}: the reporting range "

@@ -124,13 +124,20 @@ def _describe(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"
 
 
-def _run_here(tasks: Sequence[Task], bar: tqdm) -> Outcome:
+#: Called in the submitting process with a task's index and result as each task finishes (completion order).
+ResultCallback = Callable[[int, Any], None]
+
+
+def _run_here(tasks: Sequence[Task], bar: tqdm, on_result: ResultCallback | None) -> Outcome:
     outcome = Outcome(results=[None] * len(tasks))
     for i, task in enumerate(tasks):
         try:
             outcome.results[i] = task.function(*task.args)
         except Exception as exc:  # noqa: BLE001 - every failure is reported with its task
             outcome.failures.append(Failure(i, task.label, _describe(exc), traceback.format_exc()))
+        else:
+            if on_result is not None:
+                on_result(i, outcome.results[i])
         bar.update(1)
     return outcome
 
@@ -148,7 +155,8 @@ def _local_cluster(config: ClusterConfig, n_tasks: int):
     return LocalCluster(**options)
 
 
-def _run_on_dask(tasks: Sequence[Task], config: ClusterConfig, bar: tqdm) -> Outcome:
+def _run_on_dask(tasks: Sequence[Task], config: ClusterConfig, bar: tqdm, on_result: ResultCallback | None
+                 ) -> Outcome:
     from distributed import Client, as_completed
 
     cluster = None if config.scheduler else _local_cluster(config, len(tasks))
@@ -163,6 +171,8 @@ def _run_on_dask(tasks: Sequence[Task], config: ClusterConfig, bar: tqdm) -> Out
             i = index[future.key]
             if future.status == "finished":
                 outcome.results[i] = future.result()
+                if on_result is not None:
+                    on_result(i, outcome.results[i])
             else:
                 exc = future.exception()
                 tb = "".join(traceback.format_tb(future.traceback())) if future.traceback() else ""
@@ -178,7 +188,7 @@ def _run_on_dask(tasks: Sequence[Task], config: ClusterConfig, bar: tqdm) -> Out
 
 
 def run_tasks(tasks: Sequence[Task], cluster: ClusterConfig = IN_PROCESS, progress: bool = True,
-              description: str = "tasks") -> Outcome:
+              description: str = "tasks", on_result: ResultCallback | None = None) -> Outcome:
     """Run ``tasks`` where ``cluster`` says; results in task order, failures listed (none raised).
 
     Parameters
@@ -190,10 +200,14 @@ def run_tasks(tasks: Sequence[Task], cluster: ClusterConfig = IN_PROCESS, progre
         Show a progress bar on stderr.
     description : str
         The bar's label.
+    on_result : callable, optional
+        ``on_result(index, result)`` in this process as each task succeeds, in
+        the order they finish (e.g. to write each result out at once, so that a
+        run that is stopped keeps what finished).
     """
     with tqdm(total=len(tasks), desc=description, unit="task", disable=not progress, file=sys.stderr) as bar:
         if not tasks:
             return Outcome(results=[])
         if cluster.in_process:
-            return _run_here(tasks, bar)
-        return _run_on_dask(tasks, cluster, bar)
+            return _run_here(tasks, bar, on_result)
+        return _run_on_dask(tasks, cluster, bar, on_result)

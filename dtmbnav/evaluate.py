@@ -301,6 +301,22 @@ def summarise(scenario_name: str, results: list[SeedResult], settings: RunSettin
     return rows
 
 
+def walk_record(scenario_name: str, k: int, seed: int, result: SeedResult, settings: RunSettings = RunSettings()
+                ) -> dict[str, object]:
+    """One walk's figures, JSON-ready: a line of ``dtmbnav evaluate --walks`` (the table averages them).
+
+    Keys: ``scenario``, ``k`` (Monte Carlo index within the run), ``seed``,
+    ``first_seed``, ``level``, ``geometry_varied``, ``heading_error_deg``
+    (eq. 15), and per track (the PDR baselines and each filter) ``p68_m``,
+    ``p95_m``, ``max_m``.
+    """
+    stats = {name: error_stats(errors) for name, errors in result.errors_m.items()}
+    return {"scenario": scenario_name, "k": k, "seed": seed, "first_seed": settings.first_seed,
+            "level": settings.level, "geometry_varied": settings.vary_geometry,
+            "heading_error_deg": float(np.rad2deg(result.heading_error_rad)),
+            **{key: {name: getattr(s, key) for name, s in stats.items()} for key in ("p68_m", "p95_m", "max_m")}}
+
+
 def run_walk(scenario: Scenario, k: int, first_seed: int, vary_geometry: bool, filters: tuple[str, ...],
              config: FusionConfig, level: str, range_source: RangeSource | None, chain: Chain) -> SeedResult:
     """Monte Carlo walk ``k`` of a scenario (:func:`seed_scenario`) through :func:`run_seed`: one task.
@@ -356,7 +372,8 @@ def _check(seeds: int, level: str, first_seed: int) -> None:
 def evaluate_many(scenarios: list[str | Scenario], seeds: int = 20, filters: tuple[str, ...] = FILTER_NAMES,
                   level: str = "obs", range_source: RangeSource | None = None, config: FusionConfig = FusionConfig(),
                   first_seed: int = REPORTING_SEEDS.start, chain: Chain = simulated_chain, vary_geometry: bool = True,
-                  cluster: ClusterConfig = IN_PROCESS, progress: bool = False) -> EvaluationOutcome:
+                  cluster: ClusterConfig = IN_PROCESS, progress: bool = False,
+                  on_walk: Callable[[dict[str, object]], None] | None = None) -> EvaluationOutcome:
     """Monte Carlo evaluation of several scenarios, every walk a task (:mod:`dtmbnav.distributed`).
 
     Parameters
@@ -383,6 +400,9 @@ def evaluate_many(scenarios: list[str | Scenario], seeds: int = 20, filters: tup
         Where the walks run (default: in this process).
     progress : bool
         Progress bar on stderr.
+    on_walk : callable, optional
+        Called with each walk's :func:`walk_record` as the walk finishes (in
+        the order walks finish, in this process).
 
     Returns
     -------
@@ -395,7 +415,15 @@ def evaluate_many(scenarios: list[str | Scenario], seeds: int = 20, filters: tup
     tasks = [Task(f"{scn.name} k={k} (seed {monte_carlo_seed(scn.seed, k, first_seed)})", run_walk,
                   (scn, k, first_seed, vary_geometry, filters, config, level, range_source, chain))
              for scn in loaded for k in range(seeds)]
-    outcome = run_tasks(tasks, cluster, progress=progress, description=f"evaluate ({level} level)")
+    settings = RunSettings(first_seed, level, vary_geometry)
+
+    def finished(index: int, result: SeedResult) -> None:
+        if on_walk is not None:
+            scn, k = loaded[index // seeds], index % seeds
+            on_walk(walk_record(scn.name, k, monte_carlo_seed(scn.seed, k, first_seed), result, settings))
+
+    outcome = run_tasks(tasks, cluster, progress=progress, description=f"evaluate ({level} level)",
+                        on_result=finished)
     failed = {f.index: f for f in outcome.failures}
     rows: list[EvaluationRow] = []
     failures: list[WalkFailure] = []
@@ -408,8 +436,7 @@ def evaluate_many(scenarios: list[str | Scenario], seeds: int = 20, filters: tup
                 failures.append(WalkFailure(scn.name, argument, k, first_seed,
                                             monte_carlo_seed(scn.seed, k, first_seed), failed[j].error))
         if not any(j in failed for j in span):
-            rows.extend(summarise(scn.name, [outcome.results[j] for j in span],
-                                  RunSettings(first_seed, level, vary_geometry)))
+            rows.extend(summarise(scn.name, [outcome.results[j] for j in span], settings))
     return EvaluationOutcome(rows, failures)
 
 

@@ -6,6 +6,7 @@ loaded 2-core machine, and the result of a walk does not depend on the process
 it runs in (``tests/test_cli.py`` runs the command line on worker processes).
 """
 
+import json
 from pathlib import Path
 
 import pytest
@@ -67,11 +68,24 @@ def test_a_failed_walk_is_reported_with_its_seed_and_the_command_that_reruns_it(
 
 def test_evaluate_command_on_worker_processes(tmp_path, capsys):
     argv = ["-q", "evaluate", TINY, "--seeds", "2", "--filters", "ukf", "--workers"]
-    assert main([*argv, "2"]) == EXIT_OK
+    assert main([*argv, "2", "--walks", str(tmp_path / "workers.jsonl")]) == EXIT_OK
     on_workers = capsys.readouterr().out
-    assert main([*argv, "0"]) == EXIT_OK
+    assert main([*argv, "0", "--walks", str(tmp_path / "here.jsonl"), "--json", str(tmp_path / "table.json")]) \
+        == EXIT_OK
     assert capsys.readouterr().out == on_workers
     assert "Monte Carlo indices 200-201 (reporting range" in on_workers
+    # --walks: a line per walk as it finishes (workers finish in any order), the walks the table averages.
+    walks = {name: sorted((json.loads(line) for line in (tmp_path / name).read_text().splitlines()),
+                          key=lambda r: r["k"]) for name in ("workers.jsonl", "here.jsonl")}
+    assert walks["workers.jsonl"] == walks["here.jsonl"]
+    here = walks["here.jsonl"]
+    assert [(r["k"], r["seed"], r["first_seed"], r["level"]) for r in here] == [(0, 7200, 200, "obs"),
+                                                                              (1, 7201, 200, "obs")]
+    table = {r["filter"]: r for r in json.loads((tmp_path / "table.json").read_text())}
+    for name in ("pdr", "pdr@fix", "ukf"):
+        assert table[name]["p95_m"] == pytest.approx(sum(r["p95_m"][name] for r in here) / 2, rel=1e-12)
+    assert table["ukf"]["worst_vs_fix"] == pytest.approx(
+        max(r["p95_m"]["ukf"] / r["p95_m"]["pdr@fix"] for r in here) - 1.0, rel=1e-12)
 
 
 def test_run_over_several_capture_sets(tmp_path, capsys):
