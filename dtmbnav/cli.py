@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import math
 import os
@@ -131,6 +132,17 @@ def _xy(text: str) -> tuple[float, float]:
     return x, y
 
 
+def _seconds_window(text: str) -> tuple[float, float]:
+    parts = text.split(":")
+    try:
+        start, stop = (_non_negative(v) for v in parts) if len(parts) == 2 else (None, None)
+    except argparse.ArgumentTypeError:
+        start = stop = None
+    if start is None or stop is None or not start < stop:
+        raise argparse.ArgumentTypeError(f"expected START:STOP in seconds, 0 <= START < STOP, got {text!r}")
+    return start, stop
+
+
 def _filter_list(known: tuple[str, ...]) -> Callable[[str], tuple[str, ...]]:
     """An argparse type: comma-separated names, each one of ``known``."""
     def parse(text: str) -> tuple[str, ...]:
@@ -192,7 +204,7 @@ def _io_paths(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[tup
     folders: list[tuple[str, str]] = []
     if command == "receive":
         inputs = [("CAPTURE", str(f)) for f in capture_files(args.capture)]
-        files = [("-o", args.output), ("--csv", args.csv)]
+        files = [("-o", args.output), ("--csv", args.csv), ("--dump", args.dump)]
     elif command == "pdr":
         inputs, files = [("SENSORS", args.sensors)], [("-o", args.output), ("--csv", args.csv)]
     elif command == "fuse":
@@ -218,6 +230,8 @@ def check_usage(args: argparse.Namespace) -> str | None:
             return "reading stdin (-) needs --format and --rate"
         if args.static_window <= 0 and args.clock_offset is None:
             return "--static-window must be positive unless --clock-offset gives f_s"
+        if args.dump is None and (args.dump_stages is not None or args.dump_window is not None):
+            return "--dump-stages and --dump-window need --dump FILE"
     if getattr(args, "output", None) is not None and str(args.output) == "-" and args.command in ("receive", "pdr",
                                                                                                   "fuse"):
         return "-o -: an HDF5 file cannot be written to stdout (use --csv - for the rows)"
@@ -305,8 +319,26 @@ def cmd_receive(args: argparse.Namespace) -> int:
         raise UsageError(f"{exc} (--format, --rate)") from None
     if source.center_hz is None:
         raise UsageError(f"{args.capture}: the capture does not say its RF centre frequency; give --center")
-    summary = receive_capture(source, args.output, _receiver_config(args), csv_path=args.csv,
-                              progress=not args.quiet)
+    config = _receiver_config(args)
+    dump = None
+    if args.dump is not None:
+        from receiver.dump import DEFAULT_DUMP_STAGES, StageDump
+
+        try:
+            stages = (DEFAULT_DUMP_STAGES if args.dump_stages is None
+                      else [name.strip() for name in args.dump_stages.split(",")])
+            dump = StageDump(args.dump, stages, args.dump_window)
+        except ValueError as exc:
+            raise UsageError(f"--dump-stages/--dump-window: {exc}") from None
+        config = dataclasses.replace(config, inspect=dump, inspect_stages=dump.stages)
+    try:
+        summary = receive_capture(source, args.output, config, csv_path=args.csv, progress=not args.quiet)
+    except BaseException:
+        if dump is not None:
+            dump.close(complete=False)
+        raise
+    if dump is not None:
+        dump.close()
     print(summary.describe(), file=sys.stderr)
     for note in filter(None, str(summary.attrs.get("notes", "")).split("\n")):
         _warn(args, note)
@@ -541,6 +573,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--csv", metavar="FILE", help="also write the frame table as CSV ('-' for stdout)")
     p.add_argument("--jobs", type=_positive_int, default=1, metavar="N",
                    help="threads for the per-frame work (default 1); the output is the same for any N")
+    p.add_argument("--dump", metavar="FILE", type=Path,
+                   help="also write the stages' intermediate outputs, one row per frame, to an HDF5 file")
+    p.add_argument("--dump-stages", metavar="LIST",
+                   help="stages to dump, comma-separated from channel, tracking, body, ofdm, paths (default "
+                        "channel,tracking,paths; body is 30 kB a frame)")
+    p.add_argument("--dump-window", metavar="START:STOP", type=_seconds_window,
+                   help="dump only the frames within these capture seconds")
     _add_receiver_options(p)
     p.set_defaults(handler=cmd_receive)
 

@@ -71,6 +71,9 @@ from receiver.resample import StreamResampler
 from receiver.tracking import FrameTracker, LockMonitor
 from receiver.writer import FrameSink
 
+#: The stages handed to ``ReceiverConfig.inspect``, in the order of the data path.
+INSPECT_STAGES = ("channel", "tracking", "body", "ofdm", "paths")
+
 #: Search position after the end of the stream (no acquisition window can fit).
 END_OF_STREAM = np.iinfo(np.int64).max // 4
 #: Stage names of :attr:`Receiver.stage_seconds`: acquisition (searches and lock set-up, a one-off
@@ -147,7 +150,13 @@ class ReceiverConfig:
     paths : PathConfig
         Path-tracker settings.
     inspect : callable or None
-        ``inspect(stage, arrays)`` called per batch with intermediate outputs.
+        ``inspect(stage, arrays)`` called per batch with intermediate outputs
+        (e.g. :class:`receiver.dump.StageDump`): stages ``channel``,
+        ``tracking``, ``body``, ``ofdm`` and ``paths`` (the path tracker's
+        span of the CIR), one row per frame, each with ``window_start``.
+    inspect_stages : frozenset of str or None
+        The stages ``inspect`` is called for (None: all). The bodies are kept
+        for it only when ``body`` is among them (they cost a copy per frame).
     """
 
     pn_mode: PnMode | None = None
@@ -173,6 +182,11 @@ class ReceiverConfig:
     track_paths: bool = True
     paths: PathConfig = field(default_factory=PathConfig)
     inspect: Callable[[str, Mapping[str, np.ndarray]], None] | None = field(default=None, repr=False)
+    inspect_stages: frozenset[str] | None = None
+
+    def inspects(self, stage: str) -> bool:
+        """Whether the inspect hook wants ``stage``."""
+        return self.inspect is not None and (self.inspect_stages is None or stage in self.inspect_stages)
 
     def __post_init__(self) -> None:
         if self.pn_mode is not None:
@@ -570,7 +584,7 @@ class Receiver:
             tracker = None
         frames = self._workers.run(lock.mode, BatchWindows(self._queue.view, starts, phases, lock.header_symbols(phases),
                                                            lock.cfo_cycles_per_sample, lock.rot),
-                                   keep_bodies=cfg.inspect is not None,
+                                   keep_bodies=cfg.inspects("body"),
                                    span=None if tracker is None else (tracker.taps_before, tracker.taps_after))
         ch, si = frames.channel, frames.si
         for name, dt in frames.seconds.items():
@@ -582,24 +596,28 @@ class Receiver:
         lost_at = lock.monitor.check(ch.peak_metric)
         t2 = time.perf_counter()
         self.stage_seconds["sync"] += t2 - t1
-        if cfg.inspect is not None:
-            cfg.inspect("channel", {"taps": ch.taps, "snr_db": ch.snr_db, "peak_metric": ch.peak_metric})
-            cfg.inspect("tracking", {"window_start": starts, "measured": measured, "smoothed": smoothed})
-            cfg.inspect("body", {"bodies": frames.bodies})
+        for stage, arrays in (("channel", {"taps": ch.taps, "snr_db": ch.snr_db, "peak_metric": ch.peak_metric}),
+                              ("tracking", {"measured": measured, "smoothed": smoothed}),
+                              ("body", {"bodies": frames.bodies})):
+            if cfg.inspects(stage):
+                cfg.inspect(stage, {"window_start": starts, "frame_index": frame_index, **arrays})
         t3 = time.perf_counter()
         rows, scattered = self._estimate(lock, starts, smoothed, periods, si, ch, frame_index, phases[:-1])
         t4 = time.perf_counter()
         self.stage_seconds["estimators"] += t4 - t3
         if tracker is not None:  # sequential (its loops link the frames): on this thread, in frame order
             assert frames.span is not None
+            if cfg.inspects("paths"):
+                cfg.inspect("paths", {"window_start": starts, "frame_index": frame_index, "taps": frames.span.raw_taps,
+                                      "noise_tap": frames.span.noise_tap, "lag0": np.int64(tracker.lag0)})
             found = tracker.update(frames.span.raw_taps, frames.span.noise_tap, starts, frame_index,
                                    periods / lock.tracker.nominal_period - 1.0, rows.t_s, lock.acq.coarse_cfo_hz)
             rows = replace(rows, **found.first_path)
             keep = len(rows) if lost_at is None else lost_at
             self.path_ranging.push(found.rows.select(found.rows.frame_index < frame_index[0] + keep))
             self.stage_seconds["paths"] += time.perf_counter() - t4
-        if cfg.inspect is not None:
-            cfg.inspect("ofdm", {"si_carriers": si})
+        if cfg.inspects("ofdm"):
+            cfg.inspect("ofdm", {"window_start": starts, "frame_index": frame_index, "si_carriers": si})
         lock.next_frame_index += count
         if lost_at is not None:
             rows, scattered = rows.select(slice(0, lost_at)), scattered[:lost_at]

@@ -440,6 +440,19 @@ def receive_csv_is_the_sidecar(ctx):
 
 
 @case(EXIT_USAGE)
+def receive_dump_is_the_sigmf_data_file(ctx):
+    files = ctx.capture()
+    return ["-q", "receive", str(files.meta), "-o", ctx.o(), "--dump", str(files.data)], ["--dump", str(files.data),
+                                                                                         "input"]
+
+
+@case(EXIT_USAGE)
+def receive_dump_is_the_output(ctx):
+    out = ctx.o()
+    return ["-q", "receive", str(ctx.capture().meta), "-o", out, "--dump", out], ["--dump", out]
+
+
+@case(EXIT_USAGE)
 def receive_output_through_another_spelling_of_the_input(ctx):
     files = ctx.capture("raw")
     other = str(ctx.tmp / "." / "out" / ".." / files.capture.name)
