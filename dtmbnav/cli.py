@@ -143,6 +143,17 @@ def _seconds_window(text: str) -> tuple[float, float]:
     return start, stop
 
 
+def _int_range(text: str) -> tuple[int, int]:
+    parts = text.split(":")
+    try:
+        low, high = (int(v) for v in parts) if len(parts) == 2 else (0, -1)
+    except ValueError:
+        low, high = 0, -1
+    if not low <= high:
+        raise argparse.ArgumentTypeError(f"expected A:B, whole numbers with A <= B, got {text!r}")
+    return low, high
+
+
 def _filter_list(known: tuple[str, ...]) -> Callable[[str], tuple[str, ...]]:
     """An argparse type: comma-separated names, each one of ``known``."""
     def parse(text: str) -> tuple[str, ...]:
@@ -418,6 +429,22 @@ def cmd_report(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_doppler_map(args: argparse.Namespace) -> int:
+    from receiver.delay_doppler import doppler_lines, map_from_dump
+
+    delays = None if args.delays is None else range(args.delays[0], args.delays[1] + 1)
+    dd_map = map_from_dump(args.dump, args.at, args.seconds, delays)
+    lines = doppler_lines(dd_map, args.floor)
+    d = dd_map.delay_samples
+    print(f"{args.dump}: paths stage, {args.seconds:g} s around {args.at:g} s, delays {d[0]}..{d[-1]} samples, "
+          f"Doppler resolution {dd_map.doppler_hz[1] - dd_map.doppler_hz[0]:.3f} Hz per bin (Hann, 4x padded)")
+    print(f"{'doppler_hz':>10s} {'power_db':>8s} {'delay':>5s}  profile_db at delays {d[0]}..{d[-1]}")
+    for line in lines:
+        profile = " ".join(f"{v:6.1f}" for v in line.profile_db)
+        print(f"{line.doppler_hz:10.2f} {line.power_db:8.1f} {line.delay_samples:5d}  {profile}")
+    return EXIT_OK
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from dtmbnav import evaluate
     from dtmbnav.core.h5io import atomic_path
@@ -621,6 +648,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, type=Path, help="report folder")
     p.add_argument("--truth", help="truth.h5 (default: the truth group inside the results file)")
     p.set_defaults(handler=cmd_report)
+
+    p = command("doppler-map", "Doppler lines of the CIR around the first path, from a receive --dump file")
+    p.add_argument("dump", help="HDF5 file from receive --dump (with the paths stage)")
+    p.add_argument("--at", type=_non_negative, required=True, metavar="T", help="centre of the window, capture s")
+    p.add_argument("--seconds", type=_positive, default=1.0, help="window length, s (default 1: 1.1 Hz bins)")
+    p.add_argument("--delays", type=_int_range, metavar="A:B",
+                   help="delays to map, samples after the window's first frame (default: around the strongest)")
+    p.add_argument("--floor", type=float, default=-25.0, help="lines within this many dB of the strongest (-25)")
+    p.set_defaults(handler=cmd_doppler_map)
 
     p = command("evaluate", "Monte Carlo accuracy table of every filter against truth")
     p.add_argument("scenarios", nargs="+", help="scenario names/files; 'all', 'park-loop', 'street' = groups")

@@ -96,3 +96,29 @@ class StageDump:
         if self._file.id.valid:
             self._file.attrs["complete"] = complete
             self._file.close()
+
+
+def read_stage(path: str | os.PathLike, stage: str, window_s: tuple[float, float] | None = None
+               ) -> tuple[dict[str, np.ndarray], dict[str, object]]:
+    """A dumped stage's arrays (the frames whose window starts within ``window_s`` seconds) and its attributes.
+
+    Raises
+    ------
+    ValueError
+        If the file has no such stage, or no frame of it lies in the window.
+    """
+    with h5py.File(path, "r") as f:
+        if stage not in f:
+            raise ValueError(f"{path}: no stage {stage!r} in this dump (it has {', '.join(f) or 'none'}; "
+                             f"dtmbnav receive --dump-stages names them)")
+        group = f[stage]
+        start = group["window_start"][()]
+        keep = np.ones(len(start), dtype=bool) if window_s is None else \
+            (start >= window_s[0] * SYMBOL_RATE_HZ) & (start < window_s[1] * SYMBOL_RATE_HZ)
+        if not keep.any():
+            raise ValueError(f"{path}: no {stage} frame in {window_s} s (the dump's window starts span "
+                             f"{start.min() / SYMBOL_RATE_HZ:.2f}-{start.max() / SYMBOL_RATE_HZ:.2f} s)"
+                             if len(start) else f"{path}: the {stage} stage holds no frame")
+        index = np.flatnonzero(keep)
+        arrays = {name: group[name][index[0]:index[-1] + 1][keep[index[0]:index[-1] + 1]] for name in group}
+        return arrays, dict(group.attrs)

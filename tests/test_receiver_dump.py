@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from test_cli import _assert_same_frames, _frames
 
-from dtmbnav.cli import EXIT_OK, EXIT_USAGE, main
+from dtmbnav.cli import EXIT_BAD_INPUT, EXIT_OK, EXIT_USAGE, main
 from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
 
 
@@ -59,3 +59,18 @@ def _exit_code(argv: list[str]) -> int:
         return main(argv)
     except SystemExit as exc:
         return int(exc.code)
+
+
+def test_doppler_map_of_a_dump(tiny_sim, tmp_path, capsys):
+    capture = str(tiny_sim / "tiny-walk.sigmf-meta")
+    dump = tmp_path / "dump.h5"
+    assert main(["-q", "receive", capture, "-o", str(tmp_path / "rx.h5"), "--dump", str(dump),
+                 "--dump-stages", "paths"]) == EXIT_OK
+    capsys.readouterr()
+    assert main(["doppler-map", str(dump), "--at", "0.25", "--seconds", "0.2"]) == EXIT_OK
+    out = capsys.readouterr().out.splitlines()
+    assert "paths stage, 0.2 s around 0.25 s" in out[0]
+    strongest = out[2].split()
+    assert float(strongest[1]) == 0.0                  # lines are listed strongest first, relative to it
+    assert _exit_code(["-q", "doppler-map", str(dump), "--at", "30"]) == EXIT_BAD_INPUT
+    assert "no paths frame in" in capsys.readouterr().err
