@@ -132,26 +132,27 @@ def _xy(text: str) -> tuple[float, float]:
     return x, y
 
 
-def _seconds_window(text: str) -> tuple[float, float]:
+def _colon_pair(text: str, convert: Callable[[str], float], expected: str) -> tuple[float, float]:
+    """``A:B`` with ``convert(A) < convert(B)``, else an argparse error naming ``expected``."""
     parts = text.split(":")
     try:
-        start, stop = (_non_negative(v) for v in parts) if len(parts) == 2 else (None, None)
-    except argparse.ArgumentTypeError:
-        start = stop = None
-    if start is None or stop is None or not start < stop:
-        raise argparse.ArgumentTypeError(f"expected START:STOP in seconds, 0 <= START < STOP, got {text!r}")
-    return start, stop
+        if len(parts) != 2:
+            raise ValueError(text)
+        low, high = (convert(v) for v in parts)
+    except (ValueError, argparse.ArgumentTypeError):
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+    if not low < high:
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+    return low, high
+
+
+def _seconds_window(text: str) -> tuple[float, float]:
+    return _colon_pair(text, _non_negative, "START:STOP in seconds, 0 <= START < STOP")
 
 
 def _int_range(text: str) -> tuple[int, int]:
-    parts = text.split(":")
-    try:
-        low, high = (int(v) for v in parts) if len(parts) == 2 else (0, -1)
-    except ValueError:
-        low, high = 0, -1
-    if not low <= high:
-        raise argparse.ArgumentTypeError(f"expected A:B, whole numbers with A <= B, got {text!r}")
-    return low, high
+    low, high = _colon_pair(text, int, "A:B, whole numbers with A < B")
+    return int(low), int(high)
 
 
 def _filter_list(known: tuple[str, ...]) -> Callable[[str], tuple[str, ...]]:
@@ -654,7 +655,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--at", type=_non_negative, required=True, metavar="T", help="centre of the window, capture s")
     p.add_argument("--seconds", type=_positive, default=1.0, help="window length, s (default 1: 1.1 Hz bins)")
     p.add_argument("--delays", type=_int_range, metavar="A:B",
-                   help="delays to map, samples after the window's first frame (default: around the strongest)")
+                   help="delays to map, samples after the window's first frame (default: around the strongest; "
+                        "write --delays=-3:3 when A is negative)")
     p.add_argument("--floor", type=float, default=-25.0, help="lines within this many dB of the strongest (-25)")
     p.set_defaults(handler=cmd_doppler_map)
 
