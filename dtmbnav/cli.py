@@ -431,7 +431,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_doppler_map(args: argparse.Namespace) -> int:
-    from receiver.delay_doppler import doppler_lines, map_from_dump
+    from receiver.delay_doppler import doppler_lines
+    from receiver.dump import map_from_dump
 
     delays = None if args.delays is None else range(args.delays[0], args.delays[1] + 1)
     dd_map = map_from_dump(args.dump, args.at, args.seconds, delays)

@@ -10,21 +10,20 @@ Hann-windowed along the frames and Fourier transformed: each path becomes a
 line at its Doppler (plus the receiver's common carrier offset), at its
 delay. :func:`doppler_lines` lists the lines.
 
-This is the diagnostic behind issue 14's street analysis (``docs/paths.md``,
-"Separating paths by Doppler"); ``dtmbnav doppler-map`` runs it on a stage
-dump (``dtmbnav receive --dump``, stage ``paths``). The receiver's ranging does
-not use it yet.
+``dtmbnav doppler-map`` runs it on a stage dump (``dtmbnav receive --dump``,
+stage ``paths``: :func:`receiver.dump.map_from_dump`), and the path tracker
+uses it for its first path (:class:`FirstPathDoppler`, ``docs/paths.md``,
+"Separating paths by Doppler").
 """
 
 from __future__ import annotations
 
-import os
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
-from receiver.dump import read_stage
 
 
 @dataclass(frozen=True)
@@ -145,19 +144,194 @@ def doppler_lines(dd_map: DelayDopplerMap, floor_db: float = -25.0, max_lines: i
     return lines
 
 
-def map_from_dump(path: str | os.PathLike, at_s: float, seconds: float, delays: np.ndarray | None = None,
-                  oversample: int = 4) -> DelayDopplerMap:
-    """The delay-Doppler map of a stage dump's ``paths`` frames within ``seconds`` centred on ``at_s``.
+def line_components(profile: np.ndarray, delays: np.ndarray, table: np.ndarray, oversampling: int,
+                    max_paths: int = 3, step: float = 1.0 / 32.0) -> tuple[np.ndarray, np.ndarray]:
+    """Super-resolved paths of one Doppler line: delays (samples) and powers of up to ``max_paths`` pulses.
 
-    ``delays`` (samples after the first of those frames' window start)
-    default to the strongest lag of their mean CIR, from 4 before to 8 after.
+    The line's complex delay profile is fitted with ``max_paths`` copies of the
+    pulse ``table`` (:func:`receiver.paths.pulse_tables`) by least squares:
+    each new path starts where the residual projects best, then every delay is
+    refined in turn over +-half a sample (coordinate descent; for each
+    candidate the residual after projecting out the other paths and the
+    candidate, all candidates at once). Paths closer than a chip that share
+    the line's Doppler (a direct path under a scatter cluster) separate here
+    at the line's SNR, which is the frames' combined SNR.
     """
-    arrays, attrs = read_stage(path, "paths", (max(at_s - seconds / 2.0, 0.0), at_s + seconds / 2.0))
-    start, index, taps = arrays["window_start"], arrays["frame_index"], arrays["taps"]
-    steps = np.diff(start) / np.maximum(np.diff(index), 1)
-    frame_length = int(np.rint(np.median(steps))) if len(steps) else 0
-    lag0 = int(attrs["lag0"])
-    if delays is None:
-        peak = lag0 + int(np.argmax(np.mean(np.abs(taps) ** 2, axis=0)))
-        delays = np.arange(peak - 4, peak + 9)
-    return delay_doppler_map(taps, start, index, lag0, frame_length, delays, oversample)
+    period = (len(table) - 1) // oversampling
+    grid_x = np.arange(len(table) - 1) / oversampling
+    d = np.asarray(delays, dtype=np.float64)
+    candidates = np.arange(d[0] + 1.0, d[-1] - 1.0, step)
+    bank = np.interp(np.mod(d[:, None] - candidates[None, :], period), grid_x, table[:-1], period=period)
+    y = np.asarray(profile, dtype=np.complex128)
+    half = int(round(0.5 / step))
+    chosen: list[int] = []
+
+    def best_with(others: list[int], near: np.ndarray) -> int:
+        """The candidate in ``near`` that, with the paths ``others``, leaves the least residual."""
+        if others:
+            q, _ = np.linalg.qr(bank[:, others])
+            y_perp = y - q @ (q.T @ y)
+            b_perp = bank[:, near] - q @ (q.T @ bank[:, near])
+        else:
+            y_perp, b_perp = y, bank[:, near]
+        gain = np.abs(b_perp.T @ y_perp) ** 2 / np.maximum(np.sum(b_perp ** 2, axis=0), 1e-30)
+        return int(near[int(np.argmax(gain))])
+
+    for _ in range(max_paths):
+        chosen.append(best_with(chosen, np.arange(len(candidates))))
+        for _sweep in range(4):
+            for i in range(len(chosen)):
+                near = np.arange(max(chosen[i] - half, 0), min(chosen[i] + half + 1, len(candidates)))
+                chosen[i] = best_with(chosen[:i] + chosen[i + 1:], near)
+    amplitudes = np.linalg.lstsq(bank[:, chosen], y, rcond=None)[0]
+    order = np.argsort(candidates[chosen])
+    return candidates[chosen][order], (np.abs(amplitudes) ** 2)[order]
+
+
+@dataclass(frozen=True)
+class DopplerConfig:
+    """Settings of :class:`FirstPathDoppler`.
+
+    Attributes
+    ----------
+    frames : int
+        Frames per map (PN420: 2048 = 1.14 s, 0.22 Hz bins with 4x padding;
+        0 switches the correction off).
+    hop_frames : int
+        Frames between maps (the correction is held in between).
+    line_floor_db : float
+        Lines within this of the strongest line are compared, dB.
+    component_floor_db : float
+        A line's super-resolved path counts if within this of the map's
+        strongest path, dB.
+    own_floor_db : float
+        ... and within this of its own line's strongest path, dB (a fit's
+        stray path in a weak line is not a path).
+    margin : float
+        The earliest line's first path must precede both the tracked first
+        path and the first path of the line it follows by this much, samples.
+    separation_bins : float
+        The two lines must be at least this many DFT bins (``1 / map length``)
+        apart: closer lines share a main lobe, and a pair that close drifts
+        apart by less than a cycle in a map's length anyway.
+    max_lines : int
+        Strongest lines fitted.
+    """
+
+    frames: int = 2048
+    hop_frames: int = 1024
+    line_floor_db: float = -12.0
+    component_floor_db: float = -25.0
+    own_floor_db: float = -20.0
+    margin: float = 0.25
+    separation_bins: float = 2.0
+    max_lines: int = 3
+
+
+class FirstPathDoppler:
+    """The frequency correction that moves a first path from the strongest Doppler line to the earliest one.
+
+    The path tracker's first path is the earliest path it can resolve in
+    delay; when a reflection arrives less than about a third of a chip after
+    a weaker direct path, the two are one tracked path whose phase follows the
+    stronger, the reflection. Over the last ``frames`` frames this keeps the
+    CIR around that path, maps it in delay and Doppler
+    (:func:`delay_doppler_map`), super-resolves each strong line's delay
+    profile (:func:`line_components`) and finds the line whose earliest
+    significant path comes first. When that is not the line the tracked first
+    path follows (the peak of its amplitude's own spectrum), and its first
+    path precedes both that line's and the tracked one by ``margin`` samples
+    (the tracker resolves anything farther apart itself), and the two lines lie at least
+    ``separation_bins`` apart, the first path's frequency is off by the
+    difference of the two lines' frequencies: :meth:`update` returns it (0
+    otherwise), held until the next map.
+
+    Parameters
+    ----------
+    config : DopplerConfig
+    table : ndarray
+        The pulse table (:func:`receiver.paths.pulse_tables`).
+    oversampling : int
+        Its points per sample.
+    lag0 : int
+        Lag of the CIR's first column.
+    frame_length : int
+        Nominal frame length, samples.
+    """
+
+    def __init__(self, config: DopplerConfig, table: np.ndarray, oversampling: int, lag0: int,
+                 frame_length: int) -> None:
+        self.config = config
+        self._table, self._oversampling = table, oversampling
+        self._lag0, self._frame_length = lag0, frame_length
+        self._batches: deque[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = deque()
+        self._held = 0
+        self._since = 0
+        self.correction_hz = 0.0
+
+    def update(self, taps: np.ndarray, window_start: np.ndarray, frame_index: np.ndarray,
+               first_lag: float | None, first_amplitude: np.ndarray | None) -> float:
+        """Keep a batch's CIRs; every ``hop_frames`` frames map them again. Returns the correction, Hz.
+
+        ``first_lag``: the first path's lag in the batch's last frame;
+        ``first_amplitude``: its fitted amplitude in each frame (None: no
+        first path, the correction is dropped).
+        """
+        cfg = self.config
+        if self._batches and frame_index[0] != self._batches[-1][2][-1] + 1:
+            self._batches.clear()          # frames must be consecutive: start again after a gap
+            self._held = 0
+        amplitude = np.zeros(len(frame_index), complex) if first_amplitude is None else first_amplitude
+        self._batches.append((taps, np.asarray(window_start), np.asarray(frame_index), amplitude))
+        self._held += len(frame_index)
+        while self._batches and self._held - len(self._batches[0][2]) >= cfg.frames:
+            self._held -= len(self._batches.popleft()[2])
+        self._since += len(frame_index)
+        if first_lag is None or first_amplitude is None:
+            self.correction_hz = 0.0
+        elif self._held >= cfg.frames and self._since >= cfg.hop_frames:
+            self._since = 0
+            self.correction_hz = self._resolve(first_lag)
+        return self.correction_hz
+
+    def _resolve(self, first_lag: float) -> float:
+        cfg = self.config
+        start = np.concatenate([b[1] for b in self._batches])[-cfg.frames:]
+        index = np.concatenate([b[2] for b in self._batches])[-cfg.frames:]
+        amplitude = np.concatenate([b[3] for b in self._batches])[-cfg.frames:]
+        offsets = (start - int(start[0])) - (index - int(index[0])) * self._frame_length
+        tracked = first_lag + int(offsets[-1])       # the first path's delay in the map's frame (its first frame)
+        delays = np.arange(int(round(tracked)) - 6, int(round(tracked)) + 9)
+        # Only the columns the map reads are gathered (the span has ten times as many).
+        lo = int(delays[0] - offsets.max()) - self._lag0
+        hi = int(delays[-1] - offsets.min()) - self._lag0 + 1
+        if lo < 0 or hi > self._batches[-1][0].shape[1]:
+            return 0.0                               # the first path near the span's edge: nothing to say
+        taps = np.concatenate([b[0][:, lo:hi] for b in self._batches])[-cfg.frames:]
+        dd_map = delay_doppler_map(taps, start, index, self._lag0 + lo, self._frame_length, delays)
+        lines = doppler_lines(dd_map, cfg.line_floor_db, cfg.max_lines)
+        if len(lines) < 2:
+            return 0.0
+        # The frequency the tracked first path follows: the peak of its own amplitude's spectrum.
+        window = np.hanning(len(amplitude))
+        followed = dd_map.doppler_hz[int(np.argmax(np.abs(np.fft.fftshift(
+            np.fft.fft(amplitude * window, len(dd_map.doppler_hz))))))]
+        bin_hz = (dd_map.doppler_hz[1] - dd_map.doppler_hz[0]) * (len(dd_map.doppler_hz) / len(amplitude))
+        if all(abs(line.doppler_hz - followed) < cfg.separation_bins * bin_hz for line in lines):
+            return 0.0                               # no line far enough from the followed one to be another path
+        fitted = [line_components(dd_map.spectrum[int(np.argmin(np.abs(dd_map.doppler_hz - line.doppler_hz)))],
+                                  dd_map.delay_samples, self._table, self._oversampling) for line in lines]
+        strongest = max(float(power.max()) for _, power in fitted)
+        earliest = np.full(len(lines), np.inf)
+        for k, (delays, power) in enumerate(fitted):
+            real = (power >= strongest * 10.0 ** (cfg.component_floor_db / 10.0)) & \
+                (power >= power.max() * 10.0 ** (cfg.own_floor_db / 10.0))
+            if real.any():
+                earliest[k] = delays[real].min()
+        direct = int(np.argmin(earliest))
+        own = int(np.argmin([abs(line.doppler_hz - followed) for line in lines]))
+        # The tracked first path is the earliest path the delay fit resolves: a line must show one before it.
+        if (direct == own or earliest[direct] > min(earliest[own], tracked) - cfg.margin
+                or abs(lines[direct].doppler_hz - followed) < cfg.separation_bins * bin_hz):
+            return 0.0
+        return lines[direct].doppler_hz - followed

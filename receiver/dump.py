@@ -29,6 +29,7 @@ import h5py
 import numpy as np
 
 from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
+from receiver.delay_doppler import DelayDopplerMap, delay_doppler_map
 from receiver.pipeline import INSPECT_STAGES
 #: Stages dumped unless others are asked for (the bodies are large: module docstring).
 DEFAULT_DUMP_STAGES = ("channel", "tracking", "paths")
@@ -122,3 +123,21 @@ def read_stage(path: str | os.PathLike, stage: str, window_s: tuple[float, float
         index = np.flatnonzero(keep)
         arrays = {name: group[name][index[0]:index[-1] + 1][keep[index[0]:index[-1] + 1]] for name in group}
         return arrays, dict(group.attrs)
+
+
+def map_from_dump(path: str | os.PathLike, at_s: float, seconds: float, delays: np.ndarray | None = None,
+                  oversample: int = 4) -> DelayDopplerMap:
+    """The delay-Doppler map of a stage dump's ``paths`` frames within ``seconds`` centred on ``at_s``.
+
+    ``delays`` (samples after the first of those frames' window start)
+    default to the strongest lag of their mean CIR, from 4 before to 8 after.
+    """
+    arrays, attrs = read_stage(path, "paths", (max(at_s - seconds / 2.0, 0.0), at_s + seconds / 2.0))
+    start, index, taps = arrays["window_start"], arrays["frame_index"], arrays["taps"]
+    steps = np.diff(start) / np.maximum(np.diff(index), 1)
+    frame_length = int(np.rint(np.median(steps))) if len(steps) else 0
+    lag0 = int(attrs["lag0"])
+    if delays is None:
+        peak = lag0 + int(np.argmax(np.mean(np.abs(taps) ** 2, axis=0)))
+        delays = np.arange(peak - 4, peak + 9)
+    return delay_doppler_map(taps, start, index, lag0, frame_length, delays, oversample)

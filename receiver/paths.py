@@ -69,6 +69,7 @@ from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
 from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
 from dtmbnav.core.records import PathBatch, PathFlag
 from receiver.cfo import cfo_from_theta
+from receiver.delay_doppler import DopplerConfig, FirstPathDoppler
 from receiver.ranging import held_doppler
 from receiver.resample import design_filter
 
@@ -133,6 +134,9 @@ class PathConfig:
         Smallest phase-step departure that counts as an outlier, cycles.
     frequency_time_s : float
         Time constant of each path's smoothed frequency (the slip reference), s.
+    doppler : DopplerConfig
+        The first path's Doppler check (:class:`receiver.delay_doppler.FirstPathDoppler`;
+        ``frames=0`` switches it off).
     """
 
     taps_before: int | None = None
@@ -158,6 +162,7 @@ class PathConfig:
     slip_sigmas: float = 6.0
     slip_min_cycles: float = 0.05
     frequency_time_s: float = 0.1
+    doppler: DopplerConfig = field(default_factory=DopplerConfig)
 
     def span(self, mode: PnMode) -> tuple[int, int]:
         """``(taps_before, taps_after)`` for a header mode (the cyclic extension unless set)."""
@@ -724,6 +729,8 @@ class PathTracker:
         self.header_gain = m.header_power_ratio * m.period
         self.table, self.dtable = _pulse_tables_cached(m.period, *self._resample)
         self.paths: list[_Path] = []
+        self._doppler = (FirstPathDoppler(self.config.doppler, self.table, PULSE_OVERSAMPLING, self.lag0,
+                                          m.frame_length) if self.config.doppler.frames > 0 else None)
         self._towers: list[float] = []       # last first-path grid delay of each tower
         self._start_ref: int | None = None
         self._index_ref = 0
@@ -809,6 +816,12 @@ class PathTracker:
         first_of = self._choose_first_paths(paths, lags)
         rows = self._rows(paths, amplitudes, lags, rate, bridged, slips, noise, t_s, frame_index)
         first = self._first_paths(paths, first_of, lags, bridged, power, noise, t_s, dt)
+        if self._doppler is not None:
+            # The first path of tower 0 may be a pair under a third of a chip: its frequency is the stronger one's.
+            i = first_of.get(0)
+            first["first_path_cfo_hz"] += self._doppler.update(
+                taps, starts, frame_index, None if i is None else float(lags[-1, i]),
+                None if i is None else amplitudes[:, i])
         self._last_t_s = float(t_s[-1])
         self._maintain(residual / (noise_floor * count), noise_floor, offsets, count)
         return PathUpdate(rows, first)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from receiver.delay_doppler import delay_doppler_map, doppler_lines
+from receiver.delay_doppler import DopplerConfig, FirstPathDoppler, delay_doppler_map, doppler_lines
 from receiver.paths import pulse_tables
 
 FRAME = 4200            # PN420 frame length, samples
@@ -54,3 +54,47 @@ def test_frames_must_be_consecutive_and_inside_the_span():
         delay_doppler_map(taps, start, index * 2, LAG0, FRAME, np.arange(4, 17))
     with pytest.raises(ValueError, match="leave the CIR span"):
         delay_doppler_map(taps, start, index, LAG0, FRAME, np.arange(75, 85))
+
+
+def corner_batches(paths, n=4096, batch=128, seed=1):
+    """Batches of (taps, window_start, frame_index) of constructed paths (delay, amplitude, Doppler), in order."""
+    rng = np.random.default_rng(seed)
+    index = np.arange(n)
+    offsets = (index >= 2000).astype(int)
+    t = index * FRAME / 7.56e6
+    lags = LAG0 + np.arange(LAGS)
+    taps = sum(a * np.exp(2j * np.pi * f * t)[:, None] * pulse(lags[None, :] - (d - offsets[:, None]))
+               for d, a, f in paths)
+    taps = taps + 1e-3 * (rng.standard_normal(taps.shape) + 1j * rng.standard_normal(taps.shape))
+    followed = max(paths, key=lambda p: p[1])     # the tracked pair's amplitude follows its stronger member
+    amplitude = followed[1] * np.exp(2j * np.pi * followed[2] * t)
+    for lo in range(0, n, batch):
+        s = slice(lo, lo + batch)
+        yield taps[s].astype(np.complex64), index[s] * FRAME + offsets[s], index[s], amplitude[s], offsets[s]
+
+
+def run_resolver(paths, tracked_delay):
+    table, _ = pulse_tables(PERIOD, 32)
+    resolver = FirstPathDoppler(DopplerConfig(), table, 32, LAG0, FRAME)
+    return [resolver.update(taps, start, index, tracked_delay - offsets[-1], amplitude)
+            for taps, start, index, amplitude, offsets in corner_batches(paths)]
+
+
+def test_first_path_moves_to_the_direct_line_under_a_stronger_reflection():
+    """The street corner: the tracked pair (10.6 + 10.0) follows the wall; the direct path's line is at +1.30 Hz,
+    shared with a diffuse cluster 0.65 sample after it that outweighs it by 10 dB (so its line's delay profile
+    peaks later than the wall's): the super-resolved line still shows the direct path first."""
+    paths = [(10.0, 10 ** (-17 / 20), +1.30), (10.65, 10 ** (-7 / 20), +1.30), (10.6, 1.0, -1.35)]
+    corrections = run_resolver(paths, tracked_delay=10.45)
+    assert corrections[:15] == [0.0] * 15                               # until a map's worth of frames
+    assert np.all(np.abs(np.array(corrections[16:]) - 2.65) < 0.25)
+
+
+@pytest.mark.parametrize("paths, tracked", [
+    # line of sight: the direct path is the strongest and is tracked
+    ([(10.0, 1.0, +1.30), (10.65, 10 ** (-12 / 20), +1.30), (12.0, 10 ** (-6 / 20), -1.35)], 10.0),
+    # a scatter line at another Doppler, 0.65 sample after the tracked direct path: later, so not the direct path
+    ([(10.0, 10 ** (-20 / 20), 0.0), (10.65, 10 ** (-12 / 20), +2.6), (11.5, 1.0, 0.0)], 10.0),
+])
+def test_no_correction_where_the_tracked_first_path_is_the_earliest(paths, tracked):
+    assert set(run_resolver(paths, tracked)) == {0.0}
