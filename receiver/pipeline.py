@@ -47,7 +47,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, is_dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -448,7 +448,11 @@ class Receiver:
                                  self.first_path_ranging.clock_offset_hz is None else
                                  self.first_path_ranging.clock_offset_hz}
         if tracker is not None:
-            attrs.update({k: v for k, v in vars(tracker.config).items() if v is not None})
+            for key, value in vars(tracker.config).items():
+                if is_dataclass(value):   # a nested group of settings: doppler_frames, ...
+                    attrs.update({f"{key}_{k}": v for k, v in vars(value).items() if v is not None})
+                elif value is not None:
+                    attrs[key] = value
             attrs.update(taps_before=tracker.taps_before, taps_after=tracker.taps_after)
         return attrs
 
