@@ -308,10 +308,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def _receiver_config(args: argparse.Namespace):
     from receiver.pipeline import ReceiverConfig
 
+    from receiver.delay_doppler import CHECK_FRAMES, DopplerConfig
+    from receiver.paths import PathConfig
+
+    doppler = DopplerConfig(frames=CHECK_FRAMES if getattr(args, "doppler_check", False) else 0)
     return ReceiverConfig(pn_mode=args.pn_mode, static_window_s=args.static_window,
                           clock_offset_hz=args.clock_offset,
                           iq_orientation="conjugate" if args.conjugate else "auto", jobs=args.jobs,
-                          track_paths=not args.no_paths)
+                          track_paths=not args.no_paths, paths=PathConfig(doppler=doppler))
 
 
 def _pdr_config(args: argparse.Namespace):
@@ -602,6 +606,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--csv", metavar="FILE", help="also write the frame table as CSV ('-' for stdout)")
     p.add_argument("--jobs", type=_positive_int, default=1, metavar="N",
                    help="threads for the per-frame work (default 1); the output is the same for any N")
+    p.add_argument("--doppler-check", action="store_true",
+                   help="move the first path to the Doppler line whose earliest path comes first (off by default: "
+                        "it helped the street walk it was set on and hurt held-out ones; docs/paths.md)")
     p.add_argument("--dump", metavar="FILE", type=Path,
                    help="also write the stages' intermediate outputs, one row per frame, to an HDF5 file")
     p.add_argument("--dump-stages", metavar="LIST",

@@ -188,6 +188,10 @@ def line_components(profile: np.ndarray, delays: np.ndarray, table: np.ndarray, 
     return candidates[chosen][order], (np.abs(amplitudes) ** 2)[order]
 
 
+#: Frames per map when the check is on (PN420: 2048 = 1.14 s, 0.22 Hz bins with 4x padding).
+CHECK_FRAMES = 2048
+
+
 @dataclass(frozen=True)
 class DopplerConfig:
     """Settings of :class:`FirstPathDoppler`.
@@ -195,8 +199,10 @@ class DopplerConfig:
     Attributes
     ----------
     frames : int
-        Frames per map (PN420: 2048 = 1.14 s, 0.22 Hz bins with 4x padding;
-        0 switches the correction off).
+        Frames per map (0, the default: the check is off; :data:`CHECK_FRAMES`
+        turns it on: ``dtmbnav receive --doppler-check``). It is off by default
+        because on held-out street layouts it made the fusion worse
+        (``docs/paths.md``).
     hop_frames : int
         Frames between maps (the correction is held in between).
     line_floor_db : float
@@ -218,7 +224,7 @@ class DopplerConfig:
         Strongest lines fitted.
     """
 
-    frames: int = 2048
+    frames: int = 0
     hop_frames: int = 1024
     line_floor_db: float = -12.0
     component_floor_db: float = -25.0

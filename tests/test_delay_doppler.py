@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from receiver.delay_doppler import DopplerConfig, FirstPathDoppler, delay_doppler_map, doppler_lines
+from receiver.delay_doppler import CHECK_FRAMES, DopplerConfig, FirstPathDoppler, delay_doppler_map, doppler_lines
 from receiver.paths import pulse_tables
 
 FRAME = 4200            # PN420 frame length, samples
@@ -75,7 +75,7 @@ def corner_batches(paths, n=4096, batch=128, seed=1):
 
 def run_resolver(paths, tracked_delay):
     table, _ = pulse_tables(PERIOD, 32)
-    resolver = FirstPathDoppler(DopplerConfig(), table, 32, LAG0, FRAME)
+    resolver = FirstPathDoppler(DopplerConfig(frames=CHECK_FRAMES), table, 32, LAG0, FRAME)
     return [resolver.update(taps, start, index, tracked_delay - offsets[-1], amplitude)
             for taps, start, index, amplitude, offsets in corner_batches(paths)]
 
