@@ -52,8 +52,9 @@ needs removing); this module separates the paths in it and tracks each one:
    Each tower's earliest confirmed path that has lived ``first_path_batches``
    batches is its first path, the direct-path candidate; the differences of the towers' first-path phases give
    clock-free range differences.
-6. **Doppler check.** A first path may still be a pair under a third of a
-   chip whose phase follows the stronger member, a reflection: every
+6. **Doppler check** (an option, off by default: ``docs/paths.md``). A first
+   path may still be a pair under a third of a chip whose phase follows the
+   stronger member, a reflection: every
    ``doppler.hop_frames`` frames :class:`receiver.delay_doppler.FirstPathDoppler`
    maps the CIR around tower 0's first path in delay and Doppler and moves
    the first-path frequency to the Doppler line whose super-resolved
