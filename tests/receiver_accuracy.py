@@ -25,7 +25,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +36,7 @@ from dtmbnav.core import schema  # noqa: E402
 from dtmbnav.core.h5io import read_columns  # noqa: E402
 from dtmbnav.core.iqformat import decode  # noqa: E402
 from dtmbnav.core.records import FrameBatch, FrameFlag  # noqa: E402
+from receiver.delay_doppler import CHECK_FRAMES, DopplerConfig  # noqa: E402
 from receiver.capture import open_capture  # noqa: E402
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream  # noqa: E402
 from sim.channel import DIRECT  # noqa: E402
@@ -268,6 +269,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seconds", type=float, help="segment length, s (with --walk; default: to the end)")
     parser.add_argument("--capture", type=Path, help="score a capture written by dtmbnav simulate into this folder")
     parser.add_argument("--narrowband", action="store_true", help="park-loop recorded at the narrowband rates")
+    parser.add_argument("--doppler-check", action="store_true",
+                        help="with --walk: the path tracker's first-path Doppler check on (docs/paths.md)")
     args = parser.parse_args(argv)
     if args.narrowband:
         for rate in NARROWBAND_RATES_HZ:
@@ -291,8 +294,10 @@ def main(argv: list[str] | None = None) -> None:
         if scn.walk.start_still_s - args.start <= 1.0:
             walk = simulate_walk(scn)
             walk_truth = CaptureGenerator(scn, walk.track, start_s=args.start, seconds=1.0).frame_truth()
-        run = run_capture(scn, start_s=args.start, seconds=args.seconds,
-                          config=segment_config(scn, args.start, walk_truth))
+        config = segment_config(scn, args.start, walk_truth)
+        if args.doppler_check:
+            config = replace(config, paths=replace(config.paths, doppler=DopplerConfig(frames=CHECK_FRAMES)))
+        run = run_capture(scn, start_s=args.start, seconds=args.seconds, config=config)
         still = scn.walk.start_still_s - args.start
         report(run, f"{scn.name} from {args.start:g} s", max(still, 0.0), float(run.frames.t_s[-1]) + 1e-9)
         return
