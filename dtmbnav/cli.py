@@ -306,12 +306,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _receiver_config(args: argparse.Namespace):
-    from receiver.pipeline import ReceiverConfig
-
     from receiver.delay_doppler import CHECK_FRAMES, DopplerConfig
     from receiver.paths import PathConfig
+    from receiver.pipeline import ReceiverConfig
 
-    doppler = DopplerConfig(frames=CHECK_FRAMES if getattr(args, "doppler_check", False) else 0)
+    doppler = DopplerConfig(frames=CHECK_FRAMES if args.doppler_check else 0)
     return ReceiverConfig(pn_mode=args.pn_mode, static_window_s=args.static_window,
                           clock_offset_hz=args.clock_offset,
                           iq_orientation="conjugate" if args.conjugate else "auto", jobs=args.jobs,

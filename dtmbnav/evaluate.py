@@ -418,12 +418,11 @@ def evaluate_many(scenarios: list[str | Scenario], seeds: int = 20, filters: tup
     settings = RunSettings(first_seed, level, vary_geometry)
 
     def finished(index: int, result: SeedResult) -> None:
-        if on_walk is not None:
-            scn, k = loaded[index // seeds], index % seeds
-            on_walk(walk_record(scn.name, k, monte_carlo_seed(scn.seed, k, first_seed), result, settings))
+        scn, k = loaded[index // seeds], index % seeds
+        on_walk(walk_record(scn.name, k, monte_carlo_seed(scn.seed, k, first_seed), result, settings))
 
     outcome = run_tasks(tasks, cluster, progress=progress, description=f"evaluate ({level} level)",
-                        on_result=finished)
+                        on_result=None if on_walk is None else finished)
     failed = {f.index: f for f in outcome.failures}
     rows: list[EvaluationRow] = []
     failures: list[WalkFailure] = []

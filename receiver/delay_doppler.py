@@ -67,12 +67,33 @@ class DopplerLine:
         The delay of its strongest column.
     profile_db : ndarray, (L,)
         Its power at each delay of the map, dB relative to its strongest column.
+    row : int
+        Its row of the map (``spectrum[row]`` is its complex delay profile).
     """
 
     doppler_hz: float
     power_db: float
     delay_samples: int
     profile_db: np.ndarray
+    row: int
+
+
+def window_offsets(window_start: np.ndarray, frame_index: np.ndarray, frame_length: int) -> np.ndarray:
+    """How far each frame's window start has moved from the first frame's nominal frame grid, samples.
+
+    A path at a fixed delay appears at CIR lag ``delay - offset`` in each frame.
+    """
+    start = np.asarray(window_start, dtype=np.int64)
+    index = np.asarray(frame_index, dtype=np.int64)
+    return (start - start[0]) - (index - index[0]) * frame_length
+
+
+def doppler_spectrum(x: np.ndarray, size: int) -> np.ndarray:
+    """Hann-windowed DFT of ``x`` along its first axis (frames), ``size`` points, zero frequency centred,
+    normalised so that a constant ``a`` gives ``|a|`` at 0 Hz."""
+    window = np.hanning(len(x))
+    shape = (-1,) + (1,) * (np.ndim(x) - 1)
+    return np.fft.fftshift(np.fft.fft(x * window.reshape(shape), size, axis=0), axes=0) / window.sum()
 
 
 def delay_doppler_map(taps: np.ndarray, window_start: np.ndarray, frame_index: np.ndarray, lag0: int,
@@ -112,18 +133,15 @@ def delay_doppler_map(taps: np.ndarray, window_start: np.ndarray, frame_index: n
     frame_index = np.asarray(frame_index, dtype=np.int64)
     if n < 2 or np.any(np.diff(frame_index) != 1):
         raise ValueError("delay_doppler_map: needs two or more consecutive frames (frame_index step 1)")
-    offsets = (np.asarray(window_start, dtype=np.int64) - int(window_start[0])) - (frame_index - frame_index[0]) * \
-        frame_length
+    offsets = window_offsets(window_start, frame_index, frame_length)
     delays = np.asarray(delays, dtype=np.int64)
     columns = delays[None, :] - offsets[:, None] - lag0
     if columns.min() < 0 or columns.max() >= taps.shape[1]:
         raise ValueError(f"delay_doppler_map: delays {delays.min()}..{delays.max()} leave the CIR span "
                          f"{lag0}..{lag0 + taps.shape[1] - 1} in some frame (window offsets "
                          f"{offsets.min()}..{offsets.max()})")
-    x = taps[np.arange(n)[:, None], columns]
-    window = np.hanning(n)
     size = oversample * n
-    spectrum = np.fft.fftshift(np.fft.fft(x * window[:, None], size, axis=0), axes=0) / window.sum()
+    spectrum = doppler_spectrum(taps[np.arange(n)[:, None], columns], size)
     doppler = np.fft.fftshift(np.fft.fftfreq(size, frame_length / SYMBOL_RATE_HZ))
     return DelayDopplerMap(doppler, delays, spectrum)
 
@@ -140,7 +158,7 @@ def doppler_lines(dd_map: DelayDopplerMap, floor_db: float = -25.0, max_lines: i
         profile = dd_map.power[k]
         lines.append(DopplerLine(float(dd_map.doppler_hz[k]), float(10.0 * np.log10(total[k] / strongest)),
                                  int(dd_map.delay_samples[np.argmax(profile)]),
-                                 10.0 * np.log10(np.maximum(profile, 1e-300) / profile.max())))
+                                 10.0 * np.log10(np.maximum(profile, 1e-300) / profile.max()), int(k)))
     return lines
 
 
@@ -271,7 +289,6 @@ class FirstPathDoppler:
         self._table, self._oversampling = table, oversampling
         self._lag0, self._frame_length = lag0, frame_length
         self._batches: deque[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = deque()
-        self._held = 0
         self._since = 0
         self.correction_hz = 0.0
 
@@ -286,26 +303,28 @@ class FirstPathDoppler:
         cfg = self.config
         if self._batches and frame_index[0] != self._batches[-1][2][-1] + 1:
             self._batches.clear()          # frames must be consecutive: start again after a gap
-            self._held = 0
         amplitude = np.zeros(len(frame_index), complex) if first_amplitude is None else first_amplitude
         self._batches.append((taps, np.asarray(window_start), np.asarray(frame_index), amplitude))
-        self._held += len(frame_index)
-        while self._batches and self._held - len(self._batches[0][2]) >= cfg.frames:
-            self._held -= len(self._batches.popleft()[2])
+        while self._held() - len(self._batches[0][2]) >= cfg.frames:
+            self._batches.popleft()
         self._since += len(frame_index)
         if first_lag is None or first_amplitude is None:
             self.correction_hz = 0.0
-        elif self._held >= cfg.frames and self._since >= cfg.hop_frames:
+        elif self._held() >= cfg.frames and self._since >= cfg.hop_frames:
             self._since = 0
             self.correction_hz = self._resolve(first_lag)
         return self.correction_hz
+
+    def _held(self) -> int:
+        """Frames kept."""
+        return sum(len(batch[2]) for batch in self._batches)
 
     def _resolve(self, first_lag: float) -> float:
         cfg = self.config
         start = np.concatenate([b[1] for b in self._batches])[-cfg.frames:]
         index = np.concatenate([b[2] for b in self._batches])[-cfg.frames:]
         amplitude = np.concatenate([b[3] for b in self._batches])[-cfg.frames:]
-        offsets = (start - int(start[0])) - (index - int(index[0])) * self._frame_length
+        offsets = window_offsets(start, index, self._frame_length)
         tracked = first_lag + int(offsets[-1])       # the first path's delay in the map's frame (its first frame)
         delays = np.arange(int(round(tracked)) - 6, int(round(tracked)) + 9)
         # Only the columns the map reads are gathered (the span has ten times as many).
@@ -319,14 +338,12 @@ class FirstPathDoppler:
         if len(lines) < 2:
             return 0.0
         # The frequency the tracked first path follows: the peak of its own amplitude's spectrum.
-        window = np.hanning(len(amplitude))
-        followed = dd_map.doppler_hz[int(np.argmax(np.abs(np.fft.fftshift(
-            np.fft.fft(amplitude * window, len(dd_map.doppler_hz))))))]
-        bin_hz = (dd_map.doppler_hz[1] - dd_map.doppler_hz[0]) * (len(dd_map.doppler_hz) / len(amplitude))
+        followed = dd_map.doppler_hz[int(np.argmax(np.abs(doppler_spectrum(amplitude, len(dd_map.doppler_hz)))))]
+        bin_hz = SYMBOL_RATE_HZ / (self._frame_length * len(amplitude))   # 1 / the map's length
         if all(abs(line.doppler_hz - followed) < cfg.separation_bins * bin_hz for line in lines):
             return 0.0                               # no line far enough from the followed one to be another path
-        fitted = [line_components(dd_map.spectrum[int(np.argmin(np.abs(dd_map.doppler_hz - line.doppler_hz)))],
-                                  dd_map.delay_samples, self._table, self._oversampling) for line in lines]
+        fitted = [line_components(dd_map.spectrum[line.row], dd_map.delay_samples, self._table, self._oversampling)
+                  for line in lines]
         strongest = max(float(power.max()) for _, power in fitted)
         earliest = np.full(len(lines), np.inf)
         for k, (delays, power) in enumerate(fitted):
