@@ -295,6 +295,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from sim.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
+    if args.walk is not None:
+        from dtmbnav.evaluate import seed_scenario
+
+        scenario = seed_scenario(scenario, args.walk, first_seed=0)  # Monte Carlo index 0 + K
     result = simulate_capture_set(scenario, args.output, seconds=args.seconds, start_s=args.start,
                                   sample_rate_hz=args.rate, sample_format=args.format, pn_mode=args.pn_mode,
                                   seed=args.seed, container=args.container, with_iq=not args.no_iq,
@@ -590,7 +594,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=_positive, help="sample rate, Hz (default: the scenario's)")
     p.add_argument("--format", choices=IQ_FORMATS, help="sample format")
     p.add_argument("--pn-mode", choices=PN_MODES, help="header mode")
-    p.add_argument("--seed", type=_seed, help="seed (default: the scenario's)")
+    walk = p.add_mutually_exclusive_group()
+    walk.add_argument("--seed", type=_seed, help="seed (default: the scenario's)")
+    walk.add_argument("--walk", type=_index, metavar="K",
+                      help="the walk of Monte Carlo index K as dtmbnav evaluate draws it: its seed and its own "
+                           f"layout (e.g. {REPORTING_SEEDS.start}: the first reporting walk)")
     p.add_argument("--container", choices=["sigmf", "raw"], default="sigmf", help="raw = raw file + JSON sidecar")
     p.add_argument("--no-iq", action="store_true", help="write IMU, GNSS and truth only")
     p.add_argument("--jobs", type=_positive_int, default=1, help="threads generating the IQ (same bytes for any N)")

@@ -58,6 +58,21 @@ def test_simulate_no_iq(tmp_path):
         assert f["imu/acc_mps2"].shape[1] == 3
 
 
+def test_simulate_walk_is_the_evaluated_walk(tmp_path):
+    """``--walk K`` writes the walk ``dtmbnav evaluate`` runs as Monte Carlo index K: its seed and its own layout."""
+    import tomllib
+
+    from dtmbnav.evaluate import seed_scenario
+    from sim.scenario import load_scenario, scenario_from_dict
+
+    assert main(["-q", "simulate", TINY, "--no-iq", "--walk", "203", "-o", str(tmp_path)]) == EXIT_OK
+    with h5py.File(tmp_path / "truth.h5", "r") as f:
+        written = scenario_from_dict(tomllib.loads(f[schema.TRUTH_FRAMES].attrs["scenario"]))
+    evaluated = seed_scenario(load_scenario(TINY), 3, first_seed=200)   # evaluate --first-seed 200, its 4th walk
+    assert written == evaluated
+    assert written.tower != load_scenario(TINY).tower   # a layout of its own, not the file's
+
+
 def test_receive_locks_and_matches_truth(tiny_sim, tmp_path):
     out = tmp_path / "rx.h5"
     csv = tmp_path / "rx.csv"
