@@ -690,8 +690,9 @@ def build_parser() -> argparse.ArgumentParser:
                         f"{REPORTING_SEEDS.start}-{REPORTING_SEEDS[-1]}; tuning range "
                         f"{TUNING_SEEDS.start}-{TUNING_SEEDS[-1]})")
     p.add_argument("--level", choices=LEVELS, default="obs",
-                   help="range from the observation-level model (obs, default) or the IQ transmitter, channel "
-                        "and receiver (iq)")
+                   help="range from the observation-level model (obs, default), the IQ transmitter, channel "
+                        "and receiver (iq), or the direct path's exact range change (exact: the filters' bound "
+                        "with a perfect receiver)")
     p.add_argument("--vary-geometry", action=argparse.BooleanOptionalAction, default=True,
                    help="each walk gets its own scene orientation and tower bearing and distance (default on)")
     _add_cluster_options(p)

@@ -6,7 +6,9 @@ layout, :func:`sim.variation.vary_scenario`) -> walk -> phone IMU -> PDR, and
 a range source -> :func:`fusion.run.fuse` -> error of every filter against
 the truth at the PDR step times. The range comes from the observation-level
 model (``level="obs"``, :mod:`sim.obs_range`) or from the IQ transmitter,
-channel and receiver (``level="iq"``, :mod:`dtmbnav.iq_range`). Each walk is
+channel and receiver (``level="iq"``, :mod:`dtmbnav.iq_range`), or is the
+direct path's exact range change (``level="exact"``: what the filters and
+the single-tower geometry allow with a perfect receiver). Each walk is
 one task of :mod:`dtmbnav.distributed` (in this process, or on a Dask
 cluster); a walk depends only on its seed, so the table does not depend on
 where it ran.
@@ -59,7 +61,7 @@ from fusion.pdr import PdrConfig, run_pdr
 from fusion.run import FusionConfig, fuse
 from sim.gnss import simulate_start_fix
 from sim.imu import simulate_imu
-from sim.obs_range import simulate_obs_range
+from sim.obs_range import exact_range, simulate_obs_range
 from sim.scenario import Scenario, load_scenario
 from sim.variation import vary_scenario
 from sim.walk import simulate_walk
@@ -126,10 +128,17 @@ def obs_range_source(scenario: Scenario, truth: Track) -> Observations:
     return Observations(simulate_obs_range(scenario, truth))
 
 
+def exact_range_source(scenario: Scenario, truth: Track) -> Observations:
+    """The direct path's exact range change (:func:`sim.obs_range.exact_range`): the filters with a perfect receiver."""
+    return Observations(exact_range(scenario, truth))
+
+
 def level_range_source(level: str) -> RangeSource:
     """The range source of a level (:data:`LEVELS`); the IQ level's imports the receiver only when asked for."""
     if level == "obs":
         return obs_range_source
+    if level == "exact":
+        return exact_range_source
     if level == "iq":
         from dtmbnav.iq_range import iq_range_source
 
@@ -385,7 +394,7 @@ def evaluate_many(scenarios: list[str | Scenario], seeds: int = 20, filters: tup
         :func:`dtmbnav.seeds.monte_carlo_seed` ``(scenario.seed, k, first_seed)``.
     filters : tuple of str
         Filters to run (:data:`fusion.FILTER_NAMES`, and :data:`FOOT_INS`).
-    level : {"obs", "iq"}
+    level : {"obs", "iq", "exact"}
         Where the receiver range comes from (:data:`LEVELS`).
     range_source : callable, optional
         Replaces the level's range source (scenario, truth -> RangeSeries).

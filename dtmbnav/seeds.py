@@ -18,8 +18,9 @@ TUNING_SEEDS = range(100, 150)
 REPORTING_SEEDS = range(200, 250)
 #: Monte Carlo indices per scenario seed: walk k of a scenario with file seed s runs seed ``SEED_STRIDE * s + k``.
 SEED_STRIDE = 1000
-#: Where the receiver range comes from: the observation-level model, or the IQ transmitter, channel and receiver.
-LEVELS = ("obs", "iq")
+#: Where the receiver range comes from: the observation-level model, the IQ transmitter, channel and receiver,
+#: or the exact range change of the direct path (the filters' bound with a perfect receiver).
+LEVELS = ("obs", "iq", "exact")
 
 
 def monte_carlo_seed(scenario_seed: int, k: int, first_seed: int = REPORTING_SEEDS.start) -> int:

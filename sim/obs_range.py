@@ -335,3 +335,39 @@ def simulate_obs_range(scenario: Scenario, truth: Track, config: ObsRangeConfig 
     header_snr_db = 10.0 * np.log10(mode.value.header_power_ratio * header_power[out] / noise_var)
     return RangeSeries(t_s=t_s[out], range_change_m=-wavelength_m * corrected[out] / (2.0 * np.pi),
                        snr_db=10.0 * np.log10(snr_est[out]), valid=header_snr_db >= config.min_header_snr_db)
+
+
+#: SNR of every row of :func:`exact_range`, dB: above any "good link" threshold of the fusion, so the
+#: filters weigh it with their floor sigma, as they would a clean line-of-sight range.
+EXACT_RANGE_SNR_DB = 30.0
+
+
+def exact_range(scenario: Scenario, truth: Track, config: ObsRangeConfig = ObsRangeConfig()) -> RangeSeries:
+    """The direct path's true range change, on :func:`simulate_obs_range`'s output grid: no error at all.
+
+    No noise, no multipath, no clock, no gap: what the fusion could do with
+    a perfect receiver, which separates what the filters and the single-tower
+    geometry cannot do from what the range's errors cost
+    (``dtmbnav evaluate --level exact``). Every row is valid, with SNR
+    :data:`EXACT_RANGE_SNR_DB`.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Tower 0 and the receiver antenna height.
+    truth : Track
+        True trajectory, as for :func:`simulate_obs_range`.
+    config : ObsRangeConfig
+        Only ``decimation`` is used (the output grid).
+
+    Returns
+    -------
+    RangeSeries
+        3-D range to tower 0's antenna minus its value at the first row, m.
+    """
+    frame_s = PnMode.parse(scenario.tower.pn_mode).value.frame_duration_s
+    t_s = np.arange(truth.t_s[0], truth.t_s[-1], frame_s)[::config.decimation]
+    # The channel's seed does not matter: only its deterministic direct-path geometry is read.
+    range_m = Channel(scenario, truth, np.random.default_rng(0)).direct(t_s).range_m
+    return RangeSeries(t_s=t_s, range_change_m=range_m - range_m[0], snr_db=np.full(len(t_s), EXACT_RANGE_SNR_DB),
+                       valid=np.ones(len(t_s), dtype=bool))

@@ -10,8 +10,8 @@ from dtmbnav.core.gb20600 import PnMode
 from fusion.metrics import interpolate_track
 from fusion.model import Geometry
 from sim.channel import segment_crosses_polygon
-from sim.obs_range import (ObsRangeConfig, coarse_cfo_sigma_hz, si_carrier_grid_hz, si_frames_kernel,
-                           si_frames_reference, simulate_obs_range)
+from sim.obs_range import (EXACT_RANGE_SNR_DB, ObsRangeConfig, coarse_cfo_sigma_hz, exact_range, si_carrier_grid_hz,
+                           si_frames_kernel, si_frames_reference, simulate_obs_range)
 from sim.frames import FrameConfig
 from sim.frontend import mean_signal_power
 from sim.scenario import load_scenario
@@ -47,6 +47,17 @@ def test_line_of_sight_range_follows_the_geometry(park):
     assert np.abs(err).max() < 0.5              # LOS: centimetre ripple + sub-metre clock wander
     assert rs.valid.mean() > 0.95
     assert np.median(rs.snr_db) == pytest.approx(scn.receiver.cn_db, abs=1.5)
+
+
+def test_exact_range_is_the_geometry_on_the_observation_grid(park):
+    scn, truth, rs = park
+    exact = exact_range(scn, truth)
+    np.testing.assert_array_equal(exact.t_s, rs.t_s)
+    # The channel interpolates the track with a cubic spline: a millimetre from linear at the corners.
+    np.testing.assert_allclose(exact.range_change_m, true_range_change(scn, truth, exact.t_s), atol=2e-3)
+    assert exact.valid.all() and np.all(exact.snr_db == EXACT_RANGE_SNR_DB)
+    # The observation level's errors are what it adds: not zero, as the exact range's are.
+    assert np.abs(rs.range_change_m - exact.range_change_m).max() > 0.01
 
 
 def test_walking_towards_the_tower_shrinks_the_range():
