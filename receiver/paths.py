@@ -88,6 +88,10 @@ RING = (3, 10)
 RANGE_DIFFERENCE_TOWERS = 2
 
 
+#: Where the path ranges' f_s is measured (:attr:`PathConfig.clock_path`).
+CLOCK_PATHS = ("first", "strongest")
+
+
 @dataclass(frozen=True)
 class PathConfig:
     """Path-tracker settings (module docstring).
@@ -144,6 +148,12 @@ class PathConfig:
     doppler : DopplerConfig
         The first path's Doppler check (:class:`receiver.delay_doppler.FirstPathDoppler`;
         ``frames=0`` switches it off).
+    clock_path : {"first", "strongest"}
+        Which path's mean carrier offset over the static window is the f_s of
+        the path ranges (eq. 9): the first path's own, or that of the
+        strongest path tracked through the whole window
+        (:meth:`receiver.ranging.PathRanging.strongest_path_offset_hz`), whose
+        phase the scatter around it disturbs least.
     """
 
     taps_before: int | None = None
@@ -170,6 +180,11 @@ class PathConfig:
     slip_min_cycles: float = 0.05
     frequency_time_s: float = 0.1
     doppler: DopplerConfig = field(default_factory=DopplerConfig)
+    clock_path: str = "first"
+
+    def __post_init__(self) -> None:
+        if self.clock_path not in CLOCK_PATHS:
+            raise ValueError(f"PathConfig.clock_path must be one of {CLOCK_PATHS}, got {self.clock_path!r}")
 
     def span(self, mode: PnMode) -> tuple[int, int]:
         """``(taps_before, taps_after)`` for a header mode (the cyclic extension unless set)."""

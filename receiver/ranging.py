@@ -29,10 +29,21 @@ The same eq. 9-11 apply to one propagation path's carrier frequency
 (the first path's own mean frequency there; the SI carriers' f_s when the
 first path had no valid frame in it), and :class:`PathRanging` applies that
 f_s to every tracked path's rows.
+
+At a standstill every path has zero Doppler, so any path's mean frequency
+over the static window is f_s; what differs is how much the scatter around a
+path disturbs its phase. In a street whose direct path is blocked, the
+first path is 20 dB down and merges with diffuse scatter (which moves while
+the walker stands: environmental motion), so its mean frequency over a few
+seconds can be off by tenths of a hertz, and that error grows the range by
+tens of metres over a walk; a strong wall reflection there holds its phase.
+:meth:`PathRanging.strongest_path_offset_hz` measures f_s on the strongest
+path tracked through the whole window instead (``PathConfig.clock_path``).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -84,11 +95,16 @@ class RangeIntegrator:
     fallback : RangeIntegrator, optional
         Whose f_s to use when the static window holds no usable frame of
         ``columns.cfo`` (instead of an error); it must have calibrated first.
+    calibration : callable, optional
+        ``calibration(t_from_s, t_to_s)`` measures f_s over the static window
+        elsewhere (e.g. :meth:`PathRanging.strongest_path_offset_hz`); where it
+        returns None, f_s comes from ``columns.cfo`` as without it.
     """
 
     def __init__(self, carrier_hz: float, clock_offset_hz: float | None = None,
                  static_window_s: float = DEFAULT_STATIC_WINDOW_S, columns: RangeColumns = SI_COLUMNS,
-                 fallback: "RangeIntegrator | None" = None) -> None:
+                 fallback: "RangeIntegrator | None" = None,
+                 calibration: Callable[[float, float], float | None] | None = None) -> None:
         if not np.isfinite(carrier_hz) or carrier_hz <= 0:
             raise ValueError(f"carrier_hz must be a positive frequency, got {carrier_hz!r}")
         if clock_offset_hz is None and static_window_s <= 0:
@@ -99,6 +115,7 @@ class RangeIntegrator:
         self.static_window_s = static_window_s
         self.columns = columns
         self.fallback = fallback
+        self.calibration = calibration
         self._pending: list[FrameBatch] = []
         self._t_first: float | None = None
         self._range_m = 0.0
@@ -128,7 +145,11 @@ class RangeIntegrator:
         dt = np.diff(rows.t_s, prepend=np.nan)
         cfo = getattr(rows, self.columns.cfo)
         usable = in_window & np.isfinite(cfo) & ((rows.flags & FrameFlag.LOW_QUALITY) == 0)
-        if np.any(usable):
+        measured = (None if self.calibration is None
+                    else self.calibration(self._t_first, self._t_first + self.static_window_s))
+        if measured is not None:
+            self.clock_offset_hz = measured
+        elif np.any(usable):
             self.clock_offset_hz = float(np.sum(cfo[usable] * dt[usable]) / np.sum(dt[usable]))
         elif self.fallback is not None and self.fallback.clock_offset_hz is not None:
             self.clock_offset_hz = self.fallback.clock_offset_hz
@@ -179,6 +200,37 @@ class PathRanging:
         """Queue rows (in frame order)."""
         if len(rows):
             self._pending.append(rows)
+
+    def strongest_path_offset_hz(self, t_from_s: float, t_to_s: float, min_coverage: float = 0.9) -> float | None:
+        """f_s measured on the strongest path tracked through a static window (module docstring), Hz.
+
+        Among the queued paths (every tower's: the towers of an SFN share the
+        carrier) whose rows cover at least ``min_coverage`` of the window
+        without a cycle slip, the one with the highest mean SNR
+        (linear) gives its time-weighted mean carrier offset over the window,
+        i.e. its phase advance over the window divided by its duration, as
+        :class:`RangeIntegrator` measures the first path's. None when no path
+        qualifies (the caller then measures f_s as it would without this).
+        The window is ``[t_from_s, t_to_s)`` from the first path row in it on
+        (a path is confirmed a few hundred frames after the lock).
+        """
+        rows = PathBatch.concatenate(self._pending)
+        rows = rows.select((rows.t_s >= t_from_s) & (rows.t_s < t_to_s))
+        if len(rows) == 0:
+            return None
+        window_s = t_to_s - float(rows.t_s.min())
+        best: tuple[float, float] | None = None          # (mean SNR, f_s)
+        for path_id in np.unique(rows.path_id):
+            path = rows.select(rows.path_id == path_id)
+            dt = np.diff(path.t_s, prepend=np.nan)
+            ok = np.isfinite(path.cfo_hz) & np.isfinite(dt)
+            if (np.any(path.flags & PathFlag.CYCLE_SLIP) or not ok.any()
+                    or np.sum(dt[ok]) < min_coverage * window_s):
+                continue
+            snr = float(np.mean(10.0 ** (path.snr_db[ok] / 10.0)))
+            if best is None or snr > best[0]:
+                best = (snr, float(np.sum(path.cfo_hz[ok] * dt[ok]) / np.sum(dt[ok])))
+        return None if best is None else best[1]
 
     def release(self, clock_offset_hz: float | None, until_t_s: float) -> PathBatch:
         """The queued rows up to ``until_t_s`` with their range, once ``clock_offset_hz`` is known."""

@@ -15,6 +15,7 @@ from dtmbnav.core.records import FrameBatch, PathBatch, PathFlag
 from receiver.capture import open_capture
 from receiver.channel_estimate import ChannelEstimator
 from receiver.paths import (
+    CLOCK_PATHS,
     PULSE_OVERSAMPLING,
     PathConfig,
     PathTracker,
@@ -165,6 +166,48 @@ def test_path_ranging_is_eq_11_per_path_from_its_first_row():
     both = PathBatch.concatenate([out, out_rest])
     np.testing.assert_allclose(both.range_change_m[both.path_id == 3], -WAVELENGTH * 10.0 * t)
     np.testing.assert_allclose(both.range_change_m[both.path_id == 7], WAVELENGTH * 10.0 * t)
+
+
+def _path_rows(path_id, t, cfo_hz, snr_db, flags=0):
+    n = len(t)
+    return PathBatch(t_s=t, frame_index=np.arange(n), path_id=np.full(n, path_id, np.int32),
+                     tower_id=np.zeros(n, np.int32), delay_s=np.zeros(n), delay_rate=np.zeros(n, np.float32),
+                     cfo_hz=np.asarray(cfo_hz, float), doppler_hz=np.full(n, np.nan),
+                     range_change_m=np.full(n, np.nan), snr_db=np.full(n, snr_db, np.float32),
+                     flags=np.full(n, flags, np.uint8))
+
+
+def test_strongest_path_offset_is_the_mean_frequency_of_the_strongest_path_held_through_the_window():
+    ranging = PathRanging(CARRIER)
+    t = np.arange(0.0, 2.0, 1e-3)
+    assert ranging.strongest_path_offset_hz(0.0, 2.0) is None                  # nothing tracked
+    wander = 0.3 * np.cos(2 * np.pi * 0.4 * t)                                 # a weak path's phase wander
+    ranging.push(_path_rows(1, t, 5.0 + wander, 0.0))                          # weak, merged with scatter
+    ranging.push(_path_rows(2, t, np.where(t < 1.0, 5.0, 5.2), 20.0))          # strongest: its mean is 5.1
+    ranging.push(_path_rows(3, t[t > 1.5], np.full((t > 1.5).sum(), 9.0), 30.0))   # stronger, born late
+    slipped = _path_rows(4, t, np.full(len(t), 7.0), 40.0)
+    slipped.flags[500] = PathFlag.CYCLE_SLIP                                   # stronger still, but slipped
+    ranging.push(slipped)
+    assert ranging.strongest_path_offset_hz(0.0, 2.0) == pytest.approx(5.1, abs=1e-3)
+    assert ranging.strongest_path_offset_hz(0.0, 1.0) == pytest.approx(5.0, abs=1e-9)   # the window only
+
+
+def test_clock_path_strongest_takes_f_s_from_the_strong_path_not_the_wandering_first_path():
+    # Standing still: every path carries only the clock's 1.5 Hz; the first path, 20 dB under a wall
+    # reflection 2 chips later, also turns 0.3 extra cycles during the 2 s static window (scatter merged
+    # with it), which the first path's own f_s would take for clock and integrate for the rest of the capture.
+    clock_hz = 1.5
+    first = SignalPath(0.3, 10 ** (-20 / 20), clock_hz, lambda t: 0.3 * np.clip(t / 2.0, 0.0, 1.0))
+    wall = SignalPath(2.3, 1.0, clock_hz)
+    x = make_paths_signal(int(3.0 * SYMBOL_RATE_HZ), [first, wall], start_symbol=START, snr_db=15)
+    estimates = {}
+    for clock_path in CLOCK_PATHS:
+        _, _, rx = run_receiver(x, ReceiverConfig(static_window_s=2.0, paths=PathConfig(clock_path=clock_path)))
+        estimates[clock_path] = rx.first_path_ranging.clock_offset_hz
+    assert estimates["strongest"] == pytest.approx(clock_hz, abs=0.01)
+    assert estimates["first"] - clock_hz > 0.1          # the wander, over the part of the window the path was held
+    with pytest.raises(ValueError, match="clock_path"):
+        PathConfig(clock_path="loudest")
 
 
 # ---- tracking constructed signals ------------------------------------------------------------
