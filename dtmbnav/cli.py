@@ -41,7 +41,7 @@ from pathlib import Path
 from dtmbnav.errors import NoResult, UsageError
 from dtmbnav.seeds import LEVELS, REPORTING_SEEDS, TUNING_SEEDS
 from fusion import CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_PARTICLES, FILTER_NAMES, FOOT_INS
-from receiver import DEFAULT_STATIC_WINDOW_S
+from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH, DEFAULT_STATIC_WINDOW_S
 
 EXIT_OK = 0
 EXIT_NO_RESULT = 1
@@ -318,7 +318,7 @@ def _receiver_config(args: argparse.Namespace):
     return ReceiverConfig(pn_mode=args.pn_mode, static_window_s=args.static_window,
                           clock_offset_hz=args.clock_offset,
                           iq_orientation="conjugate" if args.conjugate else "auto", jobs=args.jobs,
-                          track_paths=not args.no_paths, paths=PathConfig(doppler=doppler))
+                          track_paths=not args.no_paths, paths=PathConfig(doppler=doppler, clock_path=args.clock_path))
 
 
 def _pdr_config(args: argparse.Namespace):
@@ -616,6 +616,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--doppler-check", action="store_true",
                    help="move the first path to the Doppler line whose earliest path comes first (off by default: "
                         "it helped the street walk it was set on and hurt held-out ones; docs/paths.md)")
+    p.add_argument("--clock-path", choices=CLOCK_PATHS, default=DEFAULT_CLOCK_PATH,
+                   help="measure the path ranges' f_s at the standstill on the first path or on the strongest "
+                        f"path held through it (default {DEFAULT_CLOCK_PATH}; docs/paths.md)")
     p.add_argument("--dump", metavar="FILE", type=Path,
                    help="also write the stages' intermediate outputs, one row per frame, to an HDF5 file")
     p.add_argument("--dump-stages", metavar="LIST",

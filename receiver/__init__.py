@@ -12,3 +12,8 @@ DEFAULT_STATIC_WINDOW_S = 10.0
 #: Half-width of the acquisition's carrier-offset search, Hz: cheap SDR crystals are off by +-20-25 ppm,
 #: up to about 20 kHz at UHF (docs/paths.md, "Oscillators of common SDRs"), with margin.
 DEFAULT_CFO_SEARCH_HZ = 60e3
+
+#: Where the path ranges' f_s is measured over the static window (``receiver.paths.PathConfig.clock_path``):
+#: on the first path, or on the strongest path held through the window.
+CLOCK_PATHS = ("first", "strongest")
+DEFAULT_CLOCK_PATH = "first"

@@ -75,6 +75,7 @@ from dtmbnav.core import gb20600
 from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
 from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
 from dtmbnav.core.records import PathBatch, PathFlag
+from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH
 from receiver.cfo import cfo_from_theta
 from receiver.delay_doppler import DopplerConfig, FirstPathDoppler
 from receiver.ranging import held_doppler
@@ -86,10 +87,6 @@ PULSE_OVERSAMPLING = 32
 RING = (3, 10)
 #: Towers whose clock-free range differences go to ``/receiver/frames`` (towers 1 and 2 against tower 0).
 RANGE_DIFFERENCE_TOWERS = 2
-
-
-#: Where the path ranges' f_s is measured (:attr:`PathConfig.clock_path`).
-CLOCK_PATHS = ("first", "strongest")
 
 
 @dataclass(frozen=True)
@@ -180,7 +177,7 @@ class PathConfig:
     slip_min_cycles: float = 0.05
     frequency_time_s: float = 0.1
     doppler: DopplerConfig = field(default_factory=DopplerConfig)
-    clock_path: str = "first"
+    clock_path: str = DEFAULT_CLOCK_PATH
 
     def __post_init__(self) -> None:
         if self.clock_path not in CLOCK_PATHS:

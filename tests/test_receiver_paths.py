@@ -12,10 +12,10 @@ from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
 from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
 from dtmbnav.core.h5io import read_columns
 from dtmbnav.core.records import FrameBatch, PathBatch, PathFlag
+from receiver import CLOCK_PATHS
 from receiver.capture import open_capture
 from receiver.channel_estimate import ChannelEstimator
 from receiver.paths import (
-    CLOCK_PATHS,
     PULSE_OVERSAMPLING,
     PathConfig,
     PathTracker,
