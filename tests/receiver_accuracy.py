@@ -16,7 +16,9 @@ free-running clock, and street, SI carriers and first path. ``--walk NAME``
 scores a whole walk (or ``--start``/``--seconds`` a segment of it), simulated
 in the process; ``--capture DIR`` scores a capture that ``dtmbnav simulate``
 wrote into DIR (the capture and its ``truth.h5``), without simulating again.
-``--narrowband`` prints the narrowband figures: park-loop, GNSS-disciplined clock,
+``--mc-walk K`` with ``--walk`` takes the walk ``dtmbnav evaluate`` runs as
+Monte Carlo index K instead of the scenario file's, ``--clock-path`` the path
+on which the first path's f_s is measured. ``--narrowband`` prints the narrowband figures: park-loop, GNSS-disciplined clock,
 40 s of walking recorded at 2.048, 2.4 and 3.2 Msps (an RTL-SDR's rates).
 """
 
@@ -38,7 +40,9 @@ from dtmbnav.core.iqformat import decode  # noqa: E402
 from dtmbnav.core.records import FrameBatch, FrameFlag  # noqa: E402
 from receiver.delay_doppler import CHECK_FRAMES, DopplerConfig  # noqa: E402
 from receiver.capture import open_capture  # noqa: E402
+from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH  # noqa: E402
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream  # noqa: E402
+from dtmbnav.evaluate import seed_scenario  # noqa: E402
 from sim.channel import DIRECT  # noqa: E402
 from sim.path_truth import PathTruth, path_truth  # noqa: E402
 from sim.rf import CaptureGenerator, FrameTruth  # noqa: E402
@@ -145,6 +149,19 @@ class Accuracy:
                 f"{self.clock_offset_error_hz:+.3f} Hz, {self.frames} frames over {self.seconds:.1f} s")
 
 
+def true_clock_offset_hz(run: CaptureRun) -> float:
+    """The f_s the receiver should measure: the true clock offset over its static window plus the tuner's, Hz.
+
+    The truth's clock offset is the oscillator part only; the receiver's f_s
+    also holds the bulk tuner offset. NaN without a static window.
+    """
+    f, tr = run.frames, run.truth
+    calibration = (f.flags & FrameFlag.CALIBRATION) > 0
+    if not calibration.any():
+        return float("nan")
+    return float(np.mean(tr.clock_offset_hz[match_truth(f, tr)][calibration])) + run.scenario.receiver.bulk_cfo_hz
+
+
 def accuracy(run: CaptureRun, t_from_s: float, t_to_s: float) -> Accuracy:
     """Velocity RMSE of 1 s means and range-change error over ``[t_from_s, t_to_s)`` (capture time).
 
@@ -168,10 +185,7 @@ def accuracy(run: CaptureRun, t_from_s: float, t_to_s: float) -> Accuracy:
     rx_cfo = np.bincount(bins[ok], f.cfo_hz[sel][ok]) / np.maximum(counts, 1)
     true_cfo_mean = np.bincount(bins[ok], true_cfo[sel][ok]) / np.maximum(counts, 1)
     cfo_rmse = float(np.sqrt(np.mean((rx_cfo - true_cfo_mean)[full] ** 2)))
-    # The receiver's f_s is the bulk tuner offset plus the clock offset; the truth's clock offset
-    # is the oscillator part only.
-    fs_true = float(np.mean(tr.clock_offset_hz[j][f.flags & FrameFlag.CALIBRATION > 0])) + run.scenario.receiver.bulk_cfo_hz
-    fs_err = (run.receiver.ranging.clock_offset_hz or np.nan) - fs_true
+    fs_err = (run.receiver.ranging.clock_offset_hz or np.nan) - true_clock_offset_hz(run)
     return Accuracy(rmse, cfo_rmse, float(np.percentile(range_err, 95)), float(np.max(range_err)), fs_err, int(sel.sum()),
                     float(t_to_s - t_from_s))
 
@@ -271,6 +285,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--narrowband", action="store_true", help="park-loop recorded at the narrowband rates")
     parser.add_argument("--doppler-check", action="store_true",
                         help="with --walk: the path tracker's first-path Doppler check on (docs/paths.md)")
+    parser.add_argument("--clock-path", choices=CLOCK_PATHS, default=DEFAULT_CLOCK_PATH,
+                        help="with --walk: the path on which the first path's f_s is measured (docs/paths.md)")
+    parser.add_argument("--mc-walk", type=int, metavar="K",
+                        help="with --walk: the walk dtmbnav evaluate runs as Monte Carlo index K (its seed and layout)")
     args = parser.parse_args(argv)
     if args.narrowband:
         for rate in NARROWBAND_RATES_HZ:
@@ -290,6 +308,8 @@ def main(argv: list[str] | None = None) -> None:
         return
     if args.walk is not None:
         scn = load_scenario(args.walk)
+        if args.mc_walk is not None:
+            scn = seed_scenario(scn, args.mc_walk, first_seed=0)
         walk_truth = None
         if scn.walk.start_still_s - args.start <= 1.0:
             walk = simulate_walk(scn)
@@ -297,9 +317,13 @@ def main(argv: list[str] | None = None) -> None:
         config = segment_config(scn, args.start, walk_truth)
         if args.doppler_check:
             config = replace(config, paths=replace(config.paths, doppler=DopplerConfig(frames=CHECK_FRAMES)))
+        config = replace(config, paths=replace(config.paths, clock_path=args.clock_path))
         run = run_capture(scn, start_s=args.start, seconds=args.seconds, config=config)
         still = scn.walk.start_still_s - args.start
-        report(run, f"{scn.name} from {args.start:g} s", max(still, 0.0), float(run.frames.t_s[-1]) + 1e-9)
+        walk = "" if args.mc_walk is None else f" (Monte Carlo walk {args.mc_walk})"
+        report(run, f"{scn.name}{walk} from {args.start:g} s", max(still, 0.0), float(run.frames.t_s[-1]) + 1e-9)
+        print(f"first-path f_s {run.receiver.first_path_ranging.clock_offset_hz:+.4f} Hz, measured on the "
+              f"{args.clock_path} path (true {true_clock_offset_hz(run):+.4f} Hz)", flush=True)
         return
     cases = [("park-loop-cw", {}, "park-loop, GNSS-disciplined clock"),
              ("park-loop-cw", {"clock": {"preset": "free-running"}}, "park-loop, free-running clock"),
