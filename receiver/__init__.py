@@ -14,8 +14,9 @@ DEFAULT_STATIC_WINDOW_S = 10.0
 DEFAULT_CFO_SEARCH_HZ = 60e3
 
 #: Where the path ranges' f_s is measured over the static window (``receiver.paths.PathConfig.clock_path``):
-#: on the first path, or on the strongest path held through the window. "strongest" was chosen on the
-#: tuning walks 100-105 of both streets: f_s error 0.0-19 mHz against the first path's 0.8-56 mHz where the
-#: start is blocked (street-out), both within 1 mHz in line of sight (street-back) (docs/paths.md).
+#: on the first path, or on the strongest path held through the window. "first" stays the default: on the
+#: tuning walks 100-105 of both streets "strongest" had the smaller f_s error (docs/paths.md), but on the
+#: reporting walks 200-209 of street-out the fusion with it was better on six walks and worse on three
+#: (walk 209: the strongest path held through the window was itself an unresolved pair, 81 mHz off).
 CLOCK_PATHS = ("first", "strongest")
-DEFAULT_CLOCK_PATH = "strongest"
+DEFAULT_CLOCK_PATH = "first"
