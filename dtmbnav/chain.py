@@ -35,7 +35,7 @@ from dtmbnav.core.sensors import (read_capture_start_s, read_gnss, read_imu, rea
                                   read_weinberg_k_m)
 from dtmbnav.errors import NoResult
 from dtmbnav.receive import receive_capture
-from fusion import DEFAULT_CLOCK_MODEL, DEFAULT_PARTICLES
+from fusion import DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DEFAULT_PARTICLES
 from fusion.observations import PathRanges
 from fusion.pdr import PdrConfig, PdrResult, run_pdr
 from fusion.run import FusionConfig, FusionResult, fuse
@@ -316,10 +316,12 @@ def write_fusion(h5: h5py.File, result: FusionResult) -> None:
 def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike, out_path: str | os.PathLike,
                filters: tuple[str, ...], pdr_config: PdrConfig, tower_xy_m: tuple[float, float] | None = None,
                start_xy_m: tuple[float, float] | None = None, n_particles: int | None = None,
-               seed: int = 0, clock_model: str = DEFAULT_CLOCK_MODEL) -> FusionResult:
+               seed: int = 0, clock_model: str = DEFAULT_CLOCK_MODEL,
+               heading_range: str = DEFAULT_HEADING_RANGE) -> FusionResult:
     """``dtmbnav fuse``: receiver range + PDR of the sensors file -> ``/pdr`` and ``/fusion/*``.
 
-    ``clock_model`` is the receiver's clock (:class:`fusion.run.FusionConfig`).
+    ``clock_model`` is the receiver's clock and ``heading_range`` the range eq. 15 is solved on
+    (:class:`fusion.run.FusionConfig`).
 
     Every input is read and checked first, including that both files are of
     one walk (:func:`check_same_walk`).
@@ -347,7 +349,8 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
     pdr = run_pdr(imu, pdr_config)
     if len(pdr.steps) == 0:
         raise NoResult(f"{sensors_path}: /{schema.IMU}: the PDR found no steps; nothing to fuse")
-    config = FusionConfig(n_particles=n_particles or DEFAULT_PARTICLES, seed=seed, clock_model=clock_model)
+    config = FusionConfig(n_particles=n_particles or DEFAULT_PARTICLES, seed=seed, clock_model=clock_model,
+                          heading_range=heading_range)
     result = fuse(pdr.steps, ranges, start_xy_m, tower_xy_m, filters, tower_height_m=height_m,
                   other_towers=other_towers, paths=paths, config=config)
     with atomic_h5(out_path) as h5:

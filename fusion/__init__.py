@@ -18,3 +18,8 @@ FOOT_INS = "zupt-ins"
 CLOCK_MODELS = ("disciplined", "free-running")
 #: The clock model unless a caller says otherwise.
 DEFAULT_CLOCK_MODEL = "disciplined"
+#: The range eq. 15's initial heading is solved on with a disciplined clock (``fusion.run.initial_heading``):
+#: the SI-carrier range (the paper's), or tower 0's first-path range where the path tracker gives one.
+HEADING_RANGES = ("si", "first-path")
+#: The heading range unless a caller says otherwise.
+DEFAULT_HEADING_RANGE = "si"

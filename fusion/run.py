@@ -24,7 +24,8 @@ from typing import Callable
 import numpy as np
 
 from dtmbnav.core.records import PdrSteps, RangeSeries, Track
-from fusion import CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_PARTICLES, FILTER_NAMES
+from fusion import (CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DEFAULT_PARTICLES, FILTER_NAMES,
+                    HEADING_RANGES)
 from fusion.adaptive_kf import run_adaptive_kf
 from fusion.heading_init import HeadingSolution, solve_initial_heading
 from fusion.integrity import IntegrityConfig
@@ -64,6 +65,9 @@ class FusionConfig:
         The path channels' aggregation.
     standstills : StandstillConfig
         Where the standstill epochs go.
+    heading_range : {"si", "first-path"}
+        The range eq. 15 is solved on with a disciplined clock
+        (:func:`initial_heading`).
     """
 
     noise: ModelNoise = field(default_factory=ModelNoise)
@@ -76,10 +80,13 @@ class FusionConfig:
     integrity: IntegrityConfig = field(default_factory=IntegrityConfig)
     paths: PathAggregationConfig = field(default_factory=PathAggregationConfig)
     standstills: StandstillConfig = field(default_factory=StandstillConfig)
+    heading_range: str = DEFAULT_HEADING_RANGE
 
     def __post_init__(self) -> None:
         if self.clock_model not in CLOCK_MODELS:
             raise ValueError(f"clock_model {self.clock_model!r}: expected one of {', '.join(CLOCK_MODELS)}")
+        if self.heading_range not in HEADING_RANGES:
+            raise ValueError(f"heading_range {self.heading_range!r}: expected one of {', '.join(HEADING_RANGES)}")
         self.clock()
 
     def clock(self) -> ClockModel:
@@ -96,7 +103,12 @@ def initial_heading(pdr: PdrSteps, range_epochs: RangeEpochs, path_epochs: PathE
     of degrees; the difference of two towers' first paths (an SFN) is free of
     the clock, so with ``clock_model="free-running"`` eq. 15 is solved on the
     first tower difference that constrains the heading, and on the range to
-    tower 0 otherwise.
+    tower 0 otherwise. With a disciplined clock that range is the SI-carrier
+    one (the paper's), or with ``heading_range="first-path"`` tower 0's
+    first-path range where it constrains the heading (in a street whose
+    direct path is blocked the SI carriers follow a reflection). A first-path
+    epoch that starts from a new origin (a slip, a re-found path) is left
+    out, so that eq. 15 gives the run after it a free offset.
     """
     if config.clock().has_state and path_epochs is not None:
         for k in range(path_epochs.range_difference_m.shape[1]):
@@ -105,6 +117,12 @@ def initial_heading(pdr: PdrSteps, range_epochs: RangeEpochs, path_epochs: PathE
                                              geometry, difference_tower=k + 1)
             except ValueError:  # too few epochs of this difference: try the next, then the range
                 continue
+    if config.heading_range == "first-path" and path_epochs is not None:
+        first = np.where(path_epochs.first_path_new_origin[:, 0], np.nan, path_epochs.first_path_range_m[:, 0])
+        try:
+            return solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, first[at_steps], geometry)
+        except ValueError:  # too few first-path epochs: the SI-carrier range
+            pass
     return solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, range_epochs.range_change_m[at_steps], geometry)
 
 

@@ -5,7 +5,8 @@ import pytest
 from fusion_synth import clock_range_m, exact_paths, exact_ranges, park_like_walk, path_series
 
 from dtmbnav.core.records import PathRangeSeries, RangeSeries
-from fusion.metrics import error_stats, place_pdr, position_errors_m
+from fusion import HEADING_RANGES
+from fusion.metrics import error_stats, heading_error_rad, place_pdr, position_errors_m
 from fusion.model import (CLOCK_STATE_SIZE, ClockModel, EpochObservation, Geometry, ModelNoise, ObservationLayout,
                           StepControl, observation_jacobian, observe, propagate, transition_jacobian)
 from fusion.observations import (FilterEpochs, PathAggregationConfig, PathRanges, StandstillConfig, aggregate_path,
@@ -182,6 +183,25 @@ def test_a_range_difference_corrects_a_heading_error_under_a_free_running_clock(
                          config)
         assert both < 0.4 * pdr_at_fix95, (name, both, pdr_at_fix95)
         assert si_only > 0.6 * pdr_at_fix95, (name, si_only, pdr_at_fix95)
+
+
+def test_heading_range_first_path_solves_eq_15_where_the_si_range_follows_a_reflection():
+    """A disciplined clock, the SI range bent by a reflection's Doppler, the first path exact: eq. 15 on each."""
+    walk = park_like_walk(gain=1.1, seed=2)
+    ranges = exact_ranges(walk)
+    bent = RangeSeries(ranges.t_s, ranges.range_change_m + 0.6 * np.clip(ranges.t_s - 10.0, 0.0, None),
+                       ranges.snr_db, ranges.valid)   # 0.6 m/s from the first step on
+    tower = (walk.geometry.tower_x_m, walk.geometry.tower_y_m)
+    errors = {}
+    for heading_range in HEADING_RANGES:
+        result = fuse(walk.pdr, bent, (0.0, 0.0), tower, ("ukf",), tower_height_m=walk.geometry.tower_height_m,
+                      paths=exact_paths(walk), config=FusionConfig(heading_range=heading_range))
+        errors[heading_range] = abs(np.rad2deg(heading_error_rad(result.heading.heading_rad,
+                                                                 walk.initial_heading_rad)))
+    assert errors["first-path"] < 3.0
+    assert errors["si"] > 3.0 * errors["first-path"]
+    with pytest.raises(ValueError, match="heading_range"):
+        FusionConfig(heading_range="gnss")
 
 
 def test_fuse_takes_the_towers_and_the_paths():
