@@ -69,6 +69,14 @@ SI_COLUMNS = RangeColumns("cfo_hz", "range_change_m", "doppler_hz", "velocity_mp
 FIRST_PATH_COLUMNS = RangeColumns("first_path_cfo_hz", "first_path_range_change_m")
 
 
+def mean_frequency_hz(cfo_hz: np.ndarray, dt_s: np.ndarray) -> float:
+    """Time-weighted mean of per-frame frequencies: the phase advance over the frames divided by their duration.
+
+    The f_s of a static window (eq. 9), for the SI carriers' or one path's frequencies alike.
+    """
+    return float(np.sum(cfo_hz * dt_s) / np.sum(dt_s))
+
+
 def held_doppler(doppler_hz: np.ndarray, last_hz: float) -> np.ndarray:
     """``doppler_hz`` with each NaN replaced by the last finite value before it (``last_hz`` before the first)."""
     missing = ~np.isfinite(doppler_hz)
@@ -150,7 +158,7 @@ class RangeIntegrator:
         if measured is not None:
             self.clock_offset_hz = measured
         elif np.any(usable):
-            self.clock_offset_hz = float(np.sum(cfo[usable] * dt[usable]) / np.sum(dt[usable]))
+            self.clock_offset_hz = mean_frequency_hz(cfo[usable], dt[usable])
         elif self.fallback is not None and self.fallback.clock_offset_hz is not None:
             self.clock_offset_hz = self.fallback.clock_offset_hz
         else:
@@ -207,8 +215,7 @@ class PathRanging:
         Among the queued paths (every tower's: the towers of an SFN share the
         carrier) whose rows cover at least ``min_coverage`` of the window
         without a cycle slip, the one with the highest mean SNR
-        (linear) gives its time-weighted mean carrier offset over the window,
-        i.e. its phase advance over the window divided by its duration, as
+        (linear) gives its :func:`mean_frequency_hz` over the window, as
         :class:`RangeIntegrator` measures the first path's. None when no path
         qualifies (the caller then measures f_s as it would without this).
         The window is ``[t_from_s, t_to_s)`` from the first path row in it on
@@ -229,7 +236,7 @@ class PathRanging:
                 continue
             snr = float(np.mean(10.0 ** (path.snr_db[ok] / 10.0)))
             if best is None or snr > best[0]:
-                best = (snr, float(np.sum(path.cfo_hz[ok] * dt[ok]) / np.sum(dt[ok])))
+                best = (snr, mean_frequency_hz(path.cfo_hz[ok], dt[ok]))
         return None if best is None else best[1]
 
     def release(self, clock_offset_hz: float | None, until_t_s: float) -> PathBatch:
