@@ -559,7 +559,8 @@ def _add_receiver_options(p: argparse.ArgumentParser) -> None:
 def _add_heading_range_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--heading-range", choices=HEADING_RANGES, default=DEFAULT_HEADING_RANGE,
                    help="the range eq. 15's initial heading is solved on with a disciplined clock: the SI "
-                        f"carriers' (the paper's) or tower 0's first path (default {DEFAULT_HEADING_RANGE})")
+                        f"carriers' (the paper's) or tower 0's first path, the SI carriers where there is none "
+                        f"(default {DEFAULT_HEADING_RANGE})")
 
 
 def _add_pdr_options(p: argparse.ArgumentParser) -> None:

@@ -21,5 +21,7 @@ DEFAULT_CLOCK_MODEL = "disciplined"
 #: The range eq. 15's initial heading is solved on with a disciplined clock (``fusion.run.initial_heading``):
 #: the SI-carrier range (the paper's), or tower 0's first-path range where the path tracker gives one.
 HEADING_RANGES = ("si", "first-path")
-#: The heading range unless a caller says otherwise.
-DEFAULT_HEADING_RANGE = "si"
+#: The heading range unless a caller says otherwise: the first path, which is the direct path's range
+#: where the SI carriers follow a reflection (a blocked street) and the same range in the open (docs/method.md §4).
+#: Without a path tracker (the observation level, ``--no-paths``) eq. 15 falls back to the SI carriers.
+DEFAULT_HEADING_RANGE = "first-path"
