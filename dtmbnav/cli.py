@@ -626,8 +626,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="move the first path to the Doppler line whose earliest path comes first (off by default: "
                         "it helped the street walk it was set on and hurt held-out ones; docs/paths.md)")
     p.add_argument("--clock-path", choices=CLOCK_PATHS, default=DEFAULT_CLOCK_PATH,
-                   help="measure the path ranges' f_s at the standstill on the first path or on the strongest "
-                        f"path held through it (default {DEFAULT_CLOCK_PATH}; docs/paths.md)")
+                   help="measure the path ranges' f_s at the standstill on the first path or on the path whose "
+                        f"phase is steadiest there (default {DEFAULT_CLOCK_PATH}; docs/paths.md)")
     p.add_argument("--dump", metavar="FILE", type=Path,
                    help="also write the stages' intermediate outputs, one row per frame, to an HDF5 file")
     p.add_argument("--dump-stages", metavar="LIST",

@@ -14,9 +14,9 @@ DEFAULT_STATIC_WINDOW_S = 10.0
 DEFAULT_CFO_SEARCH_HZ = 60e3
 
 #: Where the path ranges' f_s is measured over the static window (``receiver.paths.PathConfig.clock_path``):
-#: on the first path, or on the strongest path held through the window. "first" stays the default: on the
-#: tuning walks 100-105 of both streets "strongest" had the smaller f_s error (docs/paths.md), but on the
-#: reporting walks 200-209 of street-out the fusion with it was better on six walks and worse on three
-#: (walk 209: the strongest path held through the window was itself an unresolved pair, 81 mHz off).
-CLOCK_PATHS = ("first", "strongest")
-DEFAULT_CLOCK_PATH = "first"
+#: on the first path, or on the path whose phase is steadiest there. Chosen on the tuning walks 100-111 of
+#: street-out (docs/paths.md, "Which path measures f_s"): the first path's f_s was up to 273 mHz off where
+#: the direct path is blocked at the start, the steadiest path's at most 43 mHz (within 1 mHz on nine of
+#: twelve); with the direct path in sight (street-back, park-loop) both within 1 mHz.
+CLOCK_PATHS = ("first", "steadiest")
+DEFAULT_CLOCK_PATH = "steadiest"

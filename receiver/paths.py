@@ -145,12 +145,11 @@ class PathConfig:
     doppler : DopplerConfig
         The first path's Doppler check (:class:`receiver.delay_doppler.FirstPathDoppler`;
         ``frames=0`` switches it off).
-    clock_path : {"first", "strongest"}
+    clock_path : {"first", "steadiest"}
         Which path's mean carrier offset over the static window is the f_s of
-        the path ranges (eq. 9): the first path's own, or that of the
-        strongest path tracked through the whole window
-        (:meth:`receiver.ranging.PathRanging.strongest_path_offset_hz`), whose
-        phase the scatter around it disturbs least.
+        the path ranges (eq. 9): the first path's own, or that of the path
+        whose phase stays closest to a straight line there
+        (:meth:`receiver.ranging.PathRanging.steadiest_path_offset_hz`).
     """
 
     taps_before: int | None = None

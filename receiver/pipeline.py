@@ -319,13 +319,13 @@ class Receiver:
         # Noise per received sample -> noise per carrier (in per-sample units): white noise fills the
         # 7.56 Msps band only up to the resampler's noise bandwidth.
         self._carrier_noise_scale = SYMBOL_RATE_HZ / self.resampler.noise_bandwidth_hz
-        # The first path's eq. 9-11 (its own f_s from the same window, or the strongest path's there; the SI
-        # f_s if it had no frame there).
+        # The first path's eq. 9-11 (f_s from the same window: the steadiest path's there, or the first path's
+        # own; the SI f_s if it had no frame there).
         self.path_ranging = PathRanging(carrier_hz)
-        strongest = self.config.paths.clock_path == "strongest"
+        steadiest = self.config.paths.clock_path == "steadiest"
         self.first_path_ranging = RangeIntegrator(
             carrier_hz, self.config.clock_offset_hz, self.config.static_window_s, FIRST_PATH_COLUMNS,
-            fallback=self.ranging, calibration=self.path_ranging.strongest_path_offset_hz if strongest else None)
+            fallback=self.ranging, calibration=self.path_ranging.steadiest_path_offset_hz if steadiest else None)
         self._path_tracker: PathTracker | None = None
         self._paths_out: list[PathBatch] = []
         self._modes = (self.config.pn_mode,) if self.config.pn_mode else tuple(PnMode)

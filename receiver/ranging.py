@@ -36,9 +36,11 @@ path disturbs its phase. In a street whose direct path is blocked, the
 first path is 20 dB down and merges with diffuse scatter (which moves while
 the walker stands: environmental motion), so its mean frequency over a few
 seconds can be off by tenths of a hertz, and that error grows the range by
-tens of metres over a walk; a strong wall reflection there holds its phase.
-:meth:`PathRanging.strongest_path_offset_hz` measures f_s on the strongest
-path tracked through the whole window instead (``PathConfig.clock_path``).
+tens of metres over a walk; a wall reflection there may hold its phase.
+:meth:`PathRanging.steadiest_path_offset_hz` measures f_s on the path whose
+phase stays closest to a straight line over the window instead
+(``PathConfig.clock_path``): power does not tell a clean path from a
+composite whose parts beat, phase linearity does.
 """
 
 from __future__ import annotations
@@ -105,7 +107,7 @@ class RangeIntegrator:
         ``columns.cfo`` (instead of an error); it must have calibrated first.
     calibration : callable, optional
         ``calibration(t_from_s, t_to_s)`` measures f_s over the static window
-        elsewhere (e.g. :meth:`PathRanging.strongest_path_offset_hz`); where it
+        elsewhere (e.g. :meth:`PathRanging.steadiest_path_offset_hz`); where it
         returns None, f_s comes from ``columns.cfo`` as without it.
     """
 
@@ -209,34 +211,43 @@ class PathRanging:
         if len(rows):
             self._pending.append(rows)
 
-    def strongest_path_offset_hz(self, t_from_s: float, t_to_s: float, min_coverage: float = 0.9) -> float | None:
-        """f_s measured on the strongest path tracked through a static window (module docstring), Hz.
+    def steadiest_path_offset_hz(self, t_from_s: float, t_to_s: float, min_coverage: float = 0.25) -> float | None:
+        """f_s measured on the steadiest path tracked through a static window (module docstring), Hz.
 
-        Among the queued paths (every tower's: the towers of an SFN share the
+        Every queued path (every tower's: the towers of an SFN share the
         carrier) whose rows cover at least ``min_coverage`` of the window
-        without a cycle slip, the one with the highest mean SNR
-        (linear) gives its :func:`mean_frequency_hz` over the window, as
-        :class:`RangeIntegrator` measures the first path's. None when no path
-        qualifies (the caller then measures f_s as it would without this).
-        The window is ``[t_from_s, t_to_s)`` from the first path row in it on
-        (a path is confirmed a few hundred frames after the lock).
+        without a cycle slip is a candidate. Standing still, each one's phase
+        advances at f_s; scatter merged with a path, or a second path not yet
+        resolved from it, bends its phase away from that straight line. The
+        score of a path is the RMS of its integrated phase about a fitted
+        line, in cycles, divided by the time its rows cover, s: the frequency
+        error its wander allows, Hz. The lowest score gives its
+        :func:`mean_frequency_hz` over the window (as :class:`RangeIntegrator`
+        measures the first path's). None when no path qualifies (the caller
+        then measures f_s as it would without this). The window is
+        ``[t_from_s, t_to_s)`` from the first path row in it on (a path is
+        confirmed a few hundred frames after the lock, some only seconds later).
         """
         rows = PathBatch.concatenate(self._pending)
         rows = rows.select((rows.t_s >= t_from_s) & (rows.t_s < t_to_s))
         if len(rows) == 0:
             return None
         window_s = t_to_s - float(rows.t_s.min())
-        best: tuple[float, float] | None = None          # (mean SNR, f_s)
+        best: tuple[float, float] | None = None          # (score, f_s)
         for path_id in np.unique(rows.path_id):
             path = rows.select(rows.path_id == path_id)
             dt = np.diff(path.t_s, prepend=np.nan)
             ok = np.isfinite(path.cfo_hz) & np.isfinite(dt)
-            if (np.any(path.flags & PathFlag.CYCLE_SLIP) or not ok.any()
-                    or np.sum(dt[ok]) < min_coverage * window_s):
+            covered_s = float(np.sum(dt[ok]))
+            if np.any(path.flags & PathFlag.CYCLE_SLIP) or ok.sum() < 3 or covered_s < min_coverage * window_s:
                 continue
-            snr = float(np.mean(10.0 ** (path.snr_db[ok] / 10.0)))
-            if best is None or snr > best[0]:
-                best = (snr, mean_frequency_hz(path.cfo_hz[ok], dt[ok]))
+            f_s = mean_frequency_hz(path.cfo_hz[ok], dt[ok])
+            t = path.t_s[ok] - float(np.mean(path.t_s[ok]))
+            phase_cycles = np.cumsum((path.cfo_hz[ok] - f_s) * dt[ok])
+            slope, offset = np.polyfit(t, phase_cycles, 1)
+            score = float(np.sqrt(np.mean((phase_cycles - slope * t - offset) ** 2))) / covered_s
+            if best is None or score < best[0]:
+                best = (score, f_s)
         return None if best is None else best[1]
 
     def release(self, clock_offset_hz: float | None, until_t_s: float) -> PathBatch:

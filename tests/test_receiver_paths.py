@@ -177,22 +177,25 @@ def _path_rows(path_id, t, cfo_hz, snr_db, flags=0):
                      flags=np.full(n, flags, np.uint8))
 
 
-def test_strongest_path_offset_is_the_mean_frequency_of_the_strongest_path_held_through_the_window():
+def test_steadiest_path_offset_is_the_mean_frequency_of_the_path_whose_phase_wanders_least():
     ranging = PathRanging(CARRIER)
     t = np.arange(0.0, 2.0, 1e-3)
-    assert ranging.strongest_path_offset_hz(0.0, 2.0) is None                  # nothing tracked
-    wander = 0.3 * np.cos(2 * np.pi * 0.4 * t)                                 # a weak path's phase wander
-    ranging.push(_path_rows(1, t, 5.0 + wander, 0.0))                          # weak, merged with scatter
-    ranging.push(_path_rows(2, t, np.where(t < 1.0, 5.0, 5.2), 20.0))          # strongest: its mean is 5.1
-    ranging.push(_path_rows(3, t[t > 1.5], np.full((t > 1.5).sum(), 9.0), 30.0))   # stronger, born late
-    slipped = _path_rows(4, t, np.full(len(t), 7.0), 40.0)
-    slipped.flags[500] = PathFlag.CYCLE_SLIP                                   # stronger still, but slipped
+    assert ranging.steadiest_path_offset_hz(0.0, 2.0) is None                  # nothing tracked
+    beat = 0.3 * np.cos(2 * np.pi * 0.4 * t)                                   # a composite's beat: 0.3 Hz swings
+    ranging.push(_path_rows(1, t, 5.0 + beat, 30.0))                           # the strongest, but it wanders
+    ranging.push(_path_rows(2, t, np.where(t < 1.0, 5.0, 5.02), 0.0))          # weak, steady: its mean is 5.01
+    ranging.push(_path_rows(3, t[t > 1.6], np.full((t > 1.6).sum(), 9.0), 0.0))   # constant, but 20 % of the window
+    slipped = _path_rows(4, t, np.full(len(t), 7.0), 0.0)
+    slipped.flags[500] = PathFlag.CYCLE_SLIP                                   # constant, but slipped
     ranging.push(slipped)
-    assert ranging.strongest_path_offset_hz(0.0, 2.0) == pytest.approx(5.1, abs=1e-3)
-    assert ranging.strongest_path_offset_hz(0.0, 1.0) == pytest.approx(5.0, abs=1e-9)   # the window only
+    assert ranging.steadiest_path_offset_hz(0.0, 2.0) == pytest.approx(5.01, abs=1e-3)
+    assert ranging.steadiest_path_offset_hz(0.0, 1.0) == pytest.approx(5.0, abs=1e-9)   # the window only
+    # a steady path held for half the window beats one that bends over the whole of it
+    ranging.push(_path_rows(5, t[t >= 1.0], np.full((t >= 1.0).sum(), 4.0), 0.0))
+    assert ranging.steadiest_path_offset_hz(0.0, 2.0) == pytest.approx(4.0, abs=1e-9)
 
 
-def test_clock_path_strongest_takes_f_s_from_the_strong_path_not_the_wandering_first_path():
+def test_clock_path_steadiest_takes_f_s_from_the_steady_path_not_the_wandering_first_path():
     # Standing still: every path carries only the clock's 1.5 Hz; the first path, 20 dB under a wall
     # reflection 2 chips later, also turns 0.3 extra cycles during the 2 s static window (scatter merged
     # with it), which the first path's own f_s would take for clock and integrate for the rest of the capture.
@@ -204,7 +207,7 @@ def test_clock_path_strongest_takes_f_s_from_the_strong_path_not_the_wandering_f
     for clock_path in CLOCK_PATHS:
         _, _, rx = run_receiver(x, ReceiverConfig(static_window_s=2.0, paths=PathConfig(clock_path=clock_path)))
         estimates[clock_path] = rx.first_path_ranging.clock_offset_hz
-    assert estimates["strongest"] == pytest.approx(clock_hz, abs=0.01)
+    assert estimates["steadiest"] == pytest.approx(clock_hz, abs=0.01)
     assert estimates["first"] - clock_hz > 0.1          # the wander, over the part of the window the path was held
     with pytest.raises(ValueError, match="clock_path"):
         PathConfig(clock_path="loudest")
