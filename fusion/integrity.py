@@ -19,18 +19,27 @@ through the process model with the PDR's steps alone
 :func:`fusion.model.transition_jacobian`): ``x_n|m``, ``P_n|m = Phi P_m
 Phi^T + Q_acc`` and ``C = Phi P_m``, where no range has pulled them.
 
-**Consistency test.** At epoch n, a channel with observation ``z_n`` (sigma
-``s_n``) is set against the oldest kept epoch m of its window that has one
-(``z_m``, ``s_m``):
+**Consistency test.** At epoch n, a channel with observation ``z_n`` is set
+against the oldest kept epoch m of its window that has one (``z_m``):
 
     d = (z_n - z_m) - (g(x_n|m) - g(x_m))
-    Var(d) = s_n^2 + s_m^2 + J_n P_n|m J_n^T + J_m P_m J_m^T - 2 J_n C J_m^T
+    Var(d) = 2 e^2 + (r (t_n - t_m))^2 + J_n P_n|m J_n^T + J_m P_m J_m^T - 2 J_n C J_m^T
 
 with ``g`` the channel's range, range difference or clock range
 (:func:`fusion.model.observe`; the origin cancels) and ``J`` its Jacobian,
 plus ``range_offset_m^2`` (:class:`fusion.model.ModelNoise`) for each epoch
 in between without the channel's data: across a gap the range may have
 jumped, as the filters themselves allow.
+The channel's own part is that of a *change* of a carrier-phase range:
+``e`` (``change_noise_m``) the white error of one epoch's value and ``r``
+(``rate_sigma_mps``) the range-rate error a consistent channel may carry
+over the span. It is not the observation's sigma ``s`` that the filters
+weigh it by (:mod:`fusion.observations`), ``s_n^2 + s_m^2``: that sigma
+describes the range's error about the truth, most of it an offset that a
+change cancels, and inflates it where the path is weak (1-2 m for a
+street's attenuated direct path); counted twice as independent, it let a
+first path that gained 8 m in 10 s at a corner pass as consistent
+(street-out, docs/paths.md).
 The channel agrees with the PDR while ``d^2 <= chi2_1(1 - false_alarm)
 Var(d)`` (``chi2_1(p)``: the p quantile of the chi-square distribution
 with one degree of freedom). When it does not, the channel is dropped (its epochs count as
@@ -85,13 +94,19 @@ class IntegrityConfig:
         The return test passes below this quantile of the consistency
         statistic's chi-square distribution: a consistent channel passes it
         this often, a biased one far less (module docstring).
+    change_noise_m : float
+        White error of one epoch's range in a change, m (``e``).
+    rate_sigma_mps : float
+        Range-rate error a consistent channel may carry, m/s (``r``).
     """
 
     enabled: bool = True
     window: int = 20
     false_alarm: float = 1e-3
-    readmit_window: int = 10
+    readmit_window: int = 20
     return_quantile: float = 0.5
+    change_noise_m: float = 0.05
+    rate_sigma_mps: float = 0.05
 
     def __post_init__(self) -> None:
         if self.window < 2 or not 2 <= self.readmit_window <= self.window:
@@ -100,6 +115,9 @@ class IntegrityConfig:
         if not 0.0 < self.false_alarm < 1.0 or not 0.0 < self.return_quantile < 1.0:
             raise ValueError(f"integrity false_alarm and return_quantile must be in (0, 1), got {self.false_alarm}, "
                              f"{self.return_quantile}")
+        if self.change_noise_m < 0.0 or self.rate_sigma_mps < 0.0:
+            raise ValueError(f"integrity change_noise_m and rate_sigma_mps must be >= 0, got {self.change_noise_m}, "
+                             f"{self.rate_sigma_mps}")
 
 
 class IntegrityMonitor:
@@ -140,12 +158,12 @@ class IntegrityMonitor:
         self._drop_limit = float(chi2.ppf(1.0 - config.false_alarm, 1))
         self._return_limit = float(chi2.ppf(config.return_quantile, 1))
         self._index = -1
+        self._t_s = 0.0
         self._z = np.full(n, np.nan)
-        self._sigma = np.full(n, np.nan)
-        # The kept epochs, oldest first: index, observations, posterior, open-loop prediction since.
+        # The kept epochs, oldest first: index, time, observations, posterior, open-loop prediction since.
         self._kept_index = np.empty(0, dtype=np.int64)
+        self._kept_t_s = np.empty(0)
         self._kept_z = np.empty((0, n))
-        self._kept_sigma = np.empty((0, n))
         self._x = self._x_open = self._P = self._P_open = self._cross = None
         self.dropped_epochs = np.zeros(n, dtype=np.int64)
         self.fallbacks = 0
@@ -153,6 +171,7 @@ class IntegrityMonitor:
     def predict(self, control: StepControl) -> None:
         """Carry every kept epoch's open-loop prediction over one more control."""
         self._index += 1
+        self._t_s += control.elapsed_s
         if not self.config.enabled or not len(self._kept_index):
             return
         f = transition_jacobian(self._x_open, control)
@@ -160,14 +179,14 @@ class IntegrityMonitor:
         self._P_open = f @ self._P_open @ np.swapaxes(f, -1, -2) + process_covariance(self.noise, control, self.clock)
         self._cross = f @ self._cross
 
-    def assess(self, z: np.ndarray, sigma: np.ndarray, new_origin: np.ndarray
+    def assess(self, z: np.ndarray, new_origin: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
         """Which channels to use this epoch, which come back as a new origin, and any fallback state.
 
         Parameters
         ----------
-        z, sigma : ndarray
-            Observation and its standard deviation per range channel (NaN: none this epoch).
+        z : ndarray
+            Observation per range channel, m (NaN: none this epoch).
         new_origin : ndarray of bool
             Channels whose data restart from a new origin this epoch: the
             filter re-anchors them when they are in use, and their windows
@@ -185,7 +204,7 @@ class IntegrityMonitor:
             the filter is to take instead of its own.
         """
         present = np.isfinite(z)
-        self._z, self._sigma = z.copy(), sigma.copy()
+        self._z = z.copy()
         use = present.copy()
         reanchor = np.zeros(len(z), dtype=bool)
         if not self.config.enabled:
@@ -197,12 +216,12 @@ class IntegrityMonitor:
                 continue
             candidates = np.flatnonzero((self._kept_index > self._since[j]) & np.isfinite(self._kept_z[:, j]))
             if self._in_use[j]:
-                if len(candidates) and not self._agrees(candidates[0], j, z[j], sigma[j], self._drop_limit):
+                if len(candidates) and not self._agrees(candidates[0], j, z[j], self._drop_limit):
                     self._in_use[j] = False
                     self._since[j] = self._index
                     fallback = candidates[0] if fallback is None else min(fallback, candidates[0])
             elif (len(candidates) + 1 >= self.config.readmit_window
-                  and self._agrees(candidates[0], j, z[j], sigma[j], self._return_limit)):
+                  and self._agrees(candidates[0], j, z[j], self._return_limit)):
                 self._in_use[j] = True
                 self._since[j] = self._index
                 reanchor[j] = True
@@ -230,10 +249,10 @@ class IntegrityMonitor:
             self._P_open = np.concatenate([self._P_open[keep:], P])
             self._cross = np.concatenate([self._cross[keep:], P])
         self._kept_index = np.concatenate([self._kept_index[keep:], [self._index]])
+        self._kept_t_s = np.concatenate([self._kept_t_s[keep:], [self._t_s]])
         self._kept_z = np.concatenate([self._kept_z[keep:], self._z[None]])
-        self._kept_sigma = np.concatenate([self._kept_sigma[keep:], self._sigma[None]])
 
-    def _agrees(self, start: int, channel: int, z: float, sigma: float, limit: float) -> bool:
+    def _agrees(self, start: int, channel: int, z: float, limit: float) -> bool:
         """Consistency test of ``channel`` from kept epoch ``start`` to now (module docstring): ``d^2 <= limit Var(d)``."""
         row = self._rows[channel]
         x_then, x_now = self._x[start], self._x_open[start]
@@ -242,7 +261,9 @@ class IntegrityMonitor:
         j_now = observation_jacobian(x_now, self.geometry)[row]
         d = (z - self._kept_z[start, channel]) - (g[1] - g[0])
         gaps = np.count_nonzero(~np.isfinite(self._kept_z[start + 1:, channel]))
-        variance = (sigma**2 + self._kept_sigma[start, channel] ** 2 + j_now @ self._P_open[start] @ j_now
+        span_s = self._t_s - self._kept_t_s[start]
+        variance = (2.0 * self.config.change_noise_m**2 + (self.config.rate_sigma_mps * span_s) ** 2
+                    + j_now @ self._P_open[start] @ j_now
                     + j_then @ self._P[start] @ j_then - 2.0 * j_now @ self._cross[start] @ j_then
                     + gaps * self.noise.range_offset_m**2)
         return d * d <= limit * variance

@@ -442,7 +442,7 @@ class ParticleFilter:
         state (:meth:`fall_back`).
         """
         z, sigma, new_origin = observation.range_channels(self.layout.n_towers)
-        use, returning, fallback = self.monitor.assess(z, sigma, new_origin)
+        use, returning, fallback = self.monitor.assess(z, new_origin)
         if fallback is not None:
             self.fall_back(fallback[0])
         channels = np.arange(self.layout.n_channels)
