@@ -35,7 +35,7 @@ from dtmbnav.core.sensors import (read_capture_start_s, read_gnss, read_imu, rea
                                   read_weinberg_k_m)
 from dtmbnav.errors import NoResult
 from dtmbnav.receive import receive_capture
-from fusion import DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DEFAULT_PARTICLES
+from fusion import DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DEFAULT_PARTICLES, DEFAULT_SI_RANGE_USE
 from fusion.observations import PathRanges
 from fusion.pdr import PdrConfig, PdrResult, run_pdr
 from fusion.run import FusionConfig, FusionResult, fuse
@@ -317,11 +317,11 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
                filters: tuple[str, ...], pdr_config: PdrConfig, tower_xy_m: tuple[float, float] | None = None,
                start_xy_m: tuple[float, float] | None = None, n_particles: int | None = None,
                seed: int = 0, clock_model: str = DEFAULT_CLOCK_MODEL,
-               heading_range: str = DEFAULT_HEADING_RANGE) -> FusionResult:
+               heading_range: str = DEFAULT_HEADING_RANGE, si_range: str = DEFAULT_SI_RANGE_USE) -> FusionResult:
     """``dtmbnav fuse``: receiver range + PDR of the sensors file -> ``/pdr`` and ``/fusion/*``.
 
-    ``clock_model`` is the receiver's clock and ``heading_range`` the range eq. 15 is solved on
-    (:class:`fusion.run.FusionConfig`).
+    ``clock_model`` is the receiver's clock, ``heading_range`` the range eq. 15 is solved on and
+    ``si_range`` where the filters take the SI-carrier range (:class:`fusion.run.FusionConfig`).
 
     Every input is read and checked first, including that both files are of
     one walk (:func:`check_same_walk`).
@@ -350,7 +350,7 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
     if len(pdr.steps) == 0:
         raise NoResult(f"{sensors_path}: /{schema.IMU}: the PDR found no steps; nothing to fuse")
     config = FusionConfig(n_particles=n_particles or DEFAULT_PARTICLES, seed=seed, clock_model=clock_model,
-                          heading_range=heading_range)
+                          heading_range=heading_range, si_range=si_range)
     result = fuse(pdr.steps, ranges, start_xy_m, tower_xy_m, filters, tower_height_m=height_m,
                   other_towers=other_towers, paths=paths, config=config)
     with atomic_h5(out_path) as h5:

@@ -40,8 +40,8 @@ from pathlib import Path
 
 from dtmbnav.errors import NoResult, UsageError
 from dtmbnav.seeds import LEVELS, REPORTING_SEEDS, TUNING_SEEDS
-from fusion import (CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DEFAULT_PARTICLES, FILTER_NAMES,
-                    FOOT_INS, HEADING_RANGES)
+from fusion import (CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DEFAULT_PARTICLES,
+                    DEFAULT_SI_RANGE_USE, FILTER_NAMES, FOOT_INS, HEADING_RANGES, SI_RANGE_USES)
 from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH, DEFAULT_STATIC_WINDOW_S
 
 EXIT_OK = 0
@@ -383,7 +383,7 @@ def cmd_fuse(args: argparse.Namespace) -> int:
     result = fuse_files(args.receiver, args.sensors, args.output, filters=args.filters,
                         pdr_config=_pdr_config(args), tower_xy_m=args.tower, start_xy_m=args.start,
                         n_particles=args.particles, seed=args.seed, clock_model=args.clock_model,
-                        heading_range=args.heading_range)
+                        heading_range=args.heading_range, si_range=args.si_range)
     print(f"initial heading {result.heading.describe()}", file=sys.stderr)
     print(f"fused {', '.join(result.tracks)} -> {args.output}", file=sys.stderr)
     return EXIT_OK
@@ -471,7 +471,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
         print(pdr_table(scenarios))
         return EXIT_OK
-    config = FusionConfig(n_particles=args.particles or DEFAULT_PARTICLES, heading_range=args.heading_range)
+    config = FusionConfig(n_particles=args.particles or DEFAULT_PARTICLES, heading_range=args.heading_range,
+                          si_range=args.si_range)
     with contextlib.ExitStack() as stack:
         on_walk = None
         if args.walks:
@@ -556,11 +557,14 @@ def _add_receiver_options(p: argparse.ArgumentParser) -> None:
                    help="skip the path tracker (/receiver/paths, first-path and range-difference columns)")
 
 
-def _add_heading_range_option(p: argparse.ArgumentParser) -> None:
+def _add_range_use_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--heading-range", choices=HEADING_RANGES, default=DEFAULT_HEADING_RANGE,
                    help="the range eq. 15's initial heading is solved on with a disciplined clock: the SI "
                         f"carriers' (the paper's) or tower 0's first path, the SI carriers where there is none "
                         f"(default {DEFAULT_HEADING_RANGE})")
+    p.add_argument("--si-range", choices=SI_RANGE_USES, default=DEFAULT_SI_RANGE_USE,
+                   help="where the filters take the SI-carrier range: at every epoch, or only where no first "
+                        f"path is observed (default {DEFAULT_SI_RANGE_USE}; the same without a path tracker)")
 
 
 def _add_pdr_options(p: argparse.ArgumentParser) -> None:
@@ -657,7 +661,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--clock-model", choices=CLOCK_MODELS, default=DEFAULT_CLOCK_MODEL,
                    help="the receiver's clock: disciplined (GNSS/GPSDO; the default) or free-running (a TCXO: the "
                         "filters carry its frequency as a state and, in an SFN, eq. 15 uses the tower difference)")
-    _add_heading_range_option(p)
+    _add_range_use_options(p)
     _add_pdr_options(p)
     p.set_defaults(handler=cmd_fuse)
 
@@ -694,7 +698,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--filters", type=_filter_list((*FILTER_NAMES, FOOT_INS)), default=FILTER_NAMES,
                    help=f"{FILTERS_HELP}; {FOOT_INS} adds the foot-mounted ZUPT INS")
     p.add_argument("--particles", type=_positive_int, help=f"particle-filter Np (default {DEFAULT_PARTICLES})")
-    _add_heading_range_option(p)
+    _add_range_use_options(p)
     p.add_argument("--json", metavar="FILE", help="also write the table as JSON ('-' for stdout)")
     p.add_argument("--walks", metavar="FILE",
                    help="also write each walk's figures as a JSON line when it finishes (a stopped run keeps them)")

@@ -25,3 +25,10 @@ HEADING_RANGES = ("si", "first-path")
 #: where the SI carriers follow a reflection (a blocked street) and the same range in the open (docs/method.md §4).
 #: Without a path tracker (the observation level, ``--no-paths``) eq. 15 falls back to the SI carriers.
 DEFAULT_HEADING_RANGE = "first-path"
+#: When the filters take the SI-carrier range (``fusion.observations.si_range_epochs``): at every epoch it
+#: passes its rules, or only at epochs without a first-path observation (the SI carriers measure the
+#: power-weighted mix of all paths, so where the path tracker holds the direct path they add a reflection's
+#: bias, not information).
+SI_RANGE_USES = ("always", "without-first-path")
+#: The SI range's use unless a caller says otherwise. Without a path tracker both are the same.
+DEFAULT_SI_RANGE_USE = "without-first-path"

@@ -79,11 +79,12 @@ repeated at every stop. The filters report no track row for them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from dtmbnav.core.records import ColumnRecord, PathRangeSeries, PdrSteps, RangeSeries
+from fusion import SI_RANGE_USES
 from fusion.model import EpochObservation, StepControl, wrap_angle
 from fusion.pdr.steps import StepDetectorConfig
 
@@ -593,6 +594,39 @@ def step_durations_s(pdr: PdrSteps) -> np.ndarray:
         gaps = np.diff(pdr.t_s, prepend=pdr.t_s[0] - np.median(np.diff(pdr.t_s)))
         dt = np.where(bad, gaps, dt)
     return dt
+
+
+def si_range_epochs(range_epochs: RangeEpochs, paths: PathEpochs | None, use: str) -> RangeEpochs:
+    """The SI-carrier range epochs the filters take.
+
+    Parameters
+    ----------
+    range_epochs : RangeEpochs
+        :func:`aggregate_ranges`.
+    paths : PathEpochs or None
+        :func:`aggregate_paths` at the same epochs (None: no path tracker).
+    use : {"always", "without-first-path"}
+        ``"without-first-path"`` drops the SI range at every epoch where some
+        tower's first path is observed (``fusion.SI_RANGE_USES``).
+
+    Returns
+    -------
+    RangeEpochs
+        ``range_epochs`` itself, or a copy with those epochs' range and sigma
+        NaN; a new origin among them moves to the next epoch kept.
+    """
+    if use not in SI_RANGE_USES:
+        raise ValueError(f"si range use {use!r}: expected one of {', '.join(SI_RANGE_USES)}")
+    if use == "always" or paths is None:
+        return range_epochs
+    first_path = np.any(np.isfinite(np.asarray(paths.first_path_range_m).reshape(len(paths.t_s), -1)), axis=1)
+    kept = np.flatnonzero(np.isfinite(range_epochs.range_change_m) & ~first_path)
+    origins = np.cumsum(range_epochs.new_origin)
+    new_origin = np.zeros(len(first_path), dtype=bool)
+    new_origin[kept] = origins[kept] > np.concatenate([[0], origins[kept[:-1]]])
+    nan = np.float64(np.nan)
+    return replace(range_epochs, range_change_m=np.where(first_path, nan, range_epochs.range_change_m),
+                   sigma_m=np.where(first_path, nan, range_epochs.sigma_m), new_origin=new_origin)
 
 
 def build_epochs(pdr: PdrSteps, range_epochs: RangeEpochs, initial_heading_rad: float,

@@ -24,15 +24,15 @@ from typing import Callable
 import numpy as np
 
 from dtmbnav.core.records import PdrSteps, RangeSeries, Track
-from fusion import (CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DEFAULT_PARTICLES, FILTER_NAMES,
-                    HEADING_RANGES)
+from fusion import (CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DEFAULT_PARTICLES, DEFAULT_SI_RANGE_USE,
+                    FILTER_NAMES, HEADING_RANGES, SI_RANGE_USES)
 from fusion.adaptive_kf import run_adaptive_kf
 from fusion.heading_init import HeadingSolution, solve_initial_heading
 from fusion.integrity import IntegrityConfig
 from fusion.model import ClockModel, Geometry, ModelNoise
 from fusion.observations import (AggregationConfig, FilterEpochs, PathAggregationConfig, PathEpochs, PathRanges,
                                  RangeEpochs, StandstillConfig, aggregate_paths, aggregate_ranges, build_epochs,
-                                 epoch_times)
+                                 epoch_times, si_range_epochs)
 from fusion.particle_filter import run_particle_filter
 from fusion.rank_kf import run_rank_kf
 from fusion.ukf import run_ukf
@@ -68,6 +68,9 @@ class FusionConfig:
     heading_range : {"si", "first-path"}
         The range eq. 15 is solved on with a disciplined clock
         (:func:`initial_heading`).
+    si_range : {"always", "without-first-path"}
+        Where the filters take the SI-carrier range
+        (:func:`fusion.observations.si_range_epochs`); eq. 15 sees all of it.
     """
 
     noise: ModelNoise = field(default_factory=ModelNoise)
@@ -81,12 +84,15 @@ class FusionConfig:
     paths: PathAggregationConfig = field(default_factory=PathAggregationConfig)
     standstills: StandstillConfig = field(default_factory=StandstillConfig)
     heading_range: str = DEFAULT_HEADING_RANGE
+    si_range: str = DEFAULT_SI_RANGE_USE
 
     def __post_init__(self) -> None:
         if self.clock_model not in CLOCK_MODELS:
             raise ValueError(f"clock_model {self.clock_model!r}: expected one of {', '.join(CLOCK_MODELS)}")
         if self.heading_range not in HEADING_RANGES:
             raise ValueError(f"heading_range {self.heading_range!r}: expected one of {', '.join(HEADING_RANGES)}")
+        if self.si_range not in SI_RANGE_USES:
+            raise ValueError(f"si_range {self.si_range!r}: expected one of {', '.join(SI_RANGE_USES)}")
         self.clock()
 
     def clock(self) -> ClockModel:
@@ -204,6 +210,7 @@ def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], to
     at_steps = np.searchsorted(t_s, pdr.t_s)
     path_epochs = None if paths is None else aggregate_paths(paths, t_s, geometry.n_towers, config.paths)
     heading = initial_heading(pdr, range_epochs, path_epochs, at_steps, geometry, config)
-    epochs = build_epochs(pdr, range_epochs, heading.heading_rad, path_epochs)
+    epochs = build_epochs(pdr, si_range_epochs(range_epochs, path_epochs, config.si_range), heading.heading_rad,
+                          path_epochs)
     tracks = {name: FILTERS[name](epochs, geometry, config) for name in filters}
     return FusionResult(tracks=tracks, heading=heading, epochs=epochs)

@@ -5,12 +5,13 @@ import pytest
 from fusion_synth import clock_range_m, exact_paths, exact_ranges, park_like_walk, path_series
 
 from dtmbnav.core.records import PathRangeSeries, RangeSeries
-from fusion import HEADING_RANGES
+from fusion import HEADING_RANGES, SI_RANGE_USES
 from fusion.metrics import error_stats, heading_error_rad, place_pdr, position_errors_m
 from fusion.model import (CLOCK_STATE_SIZE, ClockModel, EpochObservation, Geometry, ModelNoise, ObservationLayout,
                           StepControl, observation_jacobian, observe, propagate, transition_jacobian)
-from fusion.observations import (FilterEpochs, PathAggregationConfig, PathRanges, StandstillConfig, aggregate_path,
-                                 aggregate_paths, aggregate_ranges, build_epochs, epoch_times, standstill_times)
+from fusion.observations import (FilterEpochs, PathAggregationConfig, PathEpochs, PathRanges, RangeEpochs,
+                                 StandstillConfig, aggregate_path, aggregate_paths, aggregate_ranges, build_epochs,
+                                 epoch_times, si_range_epochs, standstill_times)
 from fusion.run import FILTERS, FusionConfig, fuse
 
 SFN = Geometry(3.0, -2.0, 2000.0, 2200.0, 150.0, other_towers=((-1800.0, 1500.0, 100.0), (500.0, -2500.0, 60.0)))
@@ -202,6 +203,47 @@ def test_heading_range_first_path_solves_eq_15_where_the_si_range_follows_a_refl
     assert errors["si"] > 3.0 * errors["first-path"]
     with pytest.raises(ValueError, match="heading_range"):
         FusionConfig(heading_range="gnss")
+
+
+def test_si_range_is_kept_only_where_no_first_path_is_observed():
+    t = np.arange(8.0)
+    nan = np.nan
+    si_range = np.where(t == 6.0, nan, t)                     # the SI range itself dropped at 6
+    si = RangeEpochs(t, si_range, np.where(np.isfinite(si_range), 0.3, nan), np.full(8, 20.0), np.full(8, 10.0),
+                     np.array([True, False, False, True, False, False, False, False]))
+    first = np.array([[nan, nan], [nan, 1.0], [2.0, nan], [3.0, 3.0], [4.0, nan], [nan, nan], [nan, nan], [nan, nan]])
+    paths = PathEpochs(t, first, np.where(np.isfinite(first), 0.2, nan), np.zeros((8, 2), bool), np.empty((8, 0)),
+                       np.empty((8, 0)), np.empty((8, 0), bool))
+    kept = si_range_epochs(si, paths, "without-first-path")
+    np.testing.assert_array_equal(np.isfinite(kept.range_change_m), [True, False, False, False, False, True, False, True])
+    np.testing.assert_array_equal(np.isfinite(kept.sigma_m), np.isfinite(kept.range_change_m))
+    assert kept.new_origin.tolist() == [True, False, False, False, False, True, False, False]  # 3's origin moves to 5
+    for unchanged in (si_range_epochs(si, paths, "always"), si_range_epochs(si, None, "without-first-path")):
+        assert unchanged is si
+    with pytest.raises(ValueError, match="si range use"):
+        si_range_epochs(si, paths, "never")
+    with pytest.raises(ValueError, match="si_range"):
+        FusionConfig(si_range="never")
+
+
+def test_a_slowly_bent_si_range_is_left_out_where_the_first_path_is_tracked():
+    """The SI range bent by 0.1 m/s from the first step on (a reflection's Doppler in the mix; too slow for the
+    integrity monitor's 10 s window), the first path exact: taking the SI range too drags the filters."""
+    walk = park_like_walk(gain=1.1, drift_dps=0.2, seed=2, laps=2)
+    ranges = exact_ranges(walk)
+    bent = RangeSeries(ranges.t_s, ranges.range_change_m + 0.1 * np.clip(ranges.t_s - 10.0, 0.0, None),
+                       ranges.snr_db, ranges.valid)
+    pdr95 = error_stats(position_errors_m(place_pdr(walk.pdr, 0.0, 0.0, walk.initial_heading_rad), walk.truth)).p95_m
+    fused = {}
+    for use in SI_RANGE_USES:
+        result = fuse(walk.pdr, bent, (0.0, 0.0), (walk.geometry.tower_x_m, walk.geometry.tower_y_m), ("pf", "ukf"),
+                      tower_height_m=walk.geometry.tower_height_m, paths=exact_paths(walk),
+                      config=FusionConfig(n_particles=1000, si_range=use))
+        fused[use] = {name: error_stats(position_errors_m(track, walk.truth)).p95_m
+                      for name, track in result.tracks.items()}
+    for name in ("pf", "ukf"):
+        assert fused["without-first-path"][name] < 0.35 * pdr95, (name, fused, pdr95)
+        assert fused["always"][name] > 1.5 * fused["without-first-path"][name], (name, fused)
 
 
 def test_fuse_takes_the_towers_and_the_paths():
