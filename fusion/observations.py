@@ -619,14 +619,13 @@ def si_range_epochs(range_epochs: RangeEpochs, paths: PathEpochs | None, use: st
         raise ValueError(f"si range use {use!r}: expected one of {', '.join(SI_RANGE_USES)}")
     if use == "always" or paths is None:
         return range_epochs
-    first_path = np.any(np.isfinite(np.asarray(paths.first_path_range_m).reshape(len(paths.t_s), -1)), axis=1)
-    kept = np.flatnonzero(np.isfinite(range_epochs.range_change_m) & ~first_path)
-    origins = np.cumsum(range_epochs.new_origin)
-    new_origin = np.zeros(len(first_path), dtype=bool)
-    new_origin[kept] = origins[kept] > np.concatenate([[0], origins[kept[:-1]]])
+    first_path = np.isfinite(paths.first_path_range_m).any(axis=1)
+    kept = np.isfinite(range_epochs.range_change_m) & ~first_path
+    t_s = range_epochs.t_s
     nan = np.float64(np.nan)
     return replace(range_epochs, range_change_m=np.where(first_path, nan, range_epochs.range_change_m),
-                   sigma_m=np.where(first_path, nan, range_epochs.sigma_m), new_origin=new_origin)
+                   sigma_m=np.where(first_path, nan, range_epochs.sigma_m),
+                   new_origin=new_origins(t_s, range_epochs.new_origin, t_s, kept))
 
 
 def build_epochs(pdr: PdrSteps, range_epochs: RangeEpochs, initial_heading_rad: float,
