@@ -57,10 +57,13 @@ class HeadingSolution:
     heading_rad : float
         Chosen initial heading (the lowest-cost minimum), rad.
     confidence : float
-        ``(cost_second - cost_best) / max(cost_second, COST_FLOOR_M)`` in
-        [0, 1]: 0 when the mirror solution is as good as the best, 1 when
-        there is a single minimum. Costs below the floor (a few centimetres,
-        the integrated range's noise) count as equally good.
+        ``(c_second - c_best) / c_second`` in [0, 1] with each cost raised to
+        :data:`COST_FLOOR_M` first: 0 when the mirror solution is as good as
+        the best, 1 when there is a single minimum. Costs below the floor (a
+        few centimetres, the integrated range's noise) count as equally good:
+        on a straight street leg walked across the line to the tower the
+        mirror fitted 0.01 m and the truth 0.03 m, which without the clamp
+        read as confidence 0.4 and chose the mirror (180 deg off).
     n_used : int
         Number of epochs with a range observation that entered the cost.
     """
@@ -260,6 +263,7 @@ def _solve_window(x: np.ndarray, y: np.ndarray, rc: np.ndarray, geometry: Geomet
         return None
     found.sort()
     costs_m, minima_rad, solved_scales = (np.array(v) for v in zip(*found))
-    confidence = float((costs_m[1] - costs_m[0]) / max(costs_m[1], COST_FLOOR_M)) if len(costs_m) > 1 else 1.0
+    floored = np.maximum(costs_m, COST_FLOOR_M)
+    confidence = float((floored[1] - floored[0]) / floored[1]) if len(costs_m) > 1 else 1.0
     return HeadingSolution(minima_rad=minima_rad, costs_m=costs_m, scales=solved_scales,
                            heading_rad=float(minima_rad[0]), confidence=confidence, n_used=len(rc))

@@ -44,8 +44,17 @@ The channel agrees with the PDR while ``d^2 <= chi2_1(1 - false_alarm)
 Var(d)`` (``chi2_1(p)``: the p quantile of the chi-square distribution
 with one degree of freedom). When it does not, the channel is dropped (its epochs count as
 having no such range), and the filter **falls back**: its state is replaced
-by the open-loop prediction from epoch m (the oldest one the channel was
-tested against), discarding what the channel did to the track since.
+by the open-loop prediction from the oldest kept epoch, up to ``window``
+epochs back, discarding what the ranges did to the track since. Not only
+from epoch m: a channel's test span restarts at each new origin, but the
+track it dragged does not. A path tracker that slides onto a reflection at
+a corner and is then re-acquired (street-out: a first path that turned
+0.8 m/s away from the truth for 10 s, re-acquired, and failed its test
+half a second later) is caught only after the new origin, with the track
+already 10 m off; falling back to its window's start then undid nothing.
+The kept epochs after the one fallen back to are forgotten (their
+posteriors belong to the abandoned track), so a later fallback never lands
+on one of them.
 
 **Return.** A dropped channel is tested in the same way from its first
 observation after the drop onwards, once ``readmit_window`` observations are
@@ -209,7 +218,7 @@ class IntegrityMonitor:
         reanchor = np.zeros(len(z), dtype=bool)
         if not self.config.enabled:
             return use, reanchor, None
-        fallback = None
+        dropped = False
         for j in np.flatnonzero(present):
             if new_origin[j]:
                 self._since[j] = self._index
@@ -219,7 +228,7 @@ class IntegrityMonitor:
                 if len(candidates) and not self._agrees(candidates[0], j, z[j], self._drop_limit):
                     self._in_use[j] = False
                     self._since[j] = self._index
-                    fallback = candidates[0] if fallback is None else min(fallback, candidates[0])
+                    dropped = True
             elif (len(candidates) + 1 >= self.config.readmit_window
                   and self._agrees(candidates[0], j, z[j], self._return_limit)):
                 self._in_use[j] = True
@@ -228,10 +237,12 @@ class IntegrityMonitor:
             if not self._in_use[j]:
                 use[j] = False
                 self.dropped_epochs[j] += 1
-        if fallback is None:
+        if not dropped:
             return use, reanchor, None
         self.fallbacks += 1
-        return use, reanchor, (self._x_open[fallback].copy(), self._P_open[fallback].copy())
+        fallback = (self._x_open[0].copy(), self._P_open[0].copy())
+        self._forget_after_oldest()
+        return use, reanchor, fallback
 
     def posterior(self, x: np.ndarray, P: np.ndarray) -> None:
         """Keep the filter's state after this epoch's update as a start of later tests."""
@@ -251,6 +262,12 @@ class IntegrityMonitor:
         self._kept_index = np.concatenate([self._kept_index[keep:], [self._index]])
         self._kept_t_s = np.concatenate([self._kept_t_s[keep:], [self._t_s]])
         self._kept_z = np.concatenate([self._kept_z[keep:], self._z[None]])
+
+    def _forget_after_oldest(self) -> None:
+        """Keep only the oldest kept epoch: the filter falls back to it, so the later posteriors are abandoned."""
+        self._x, self._x_open, self._P, self._P_open, self._cross = (
+            a[:1] for a in (self._x, self._x_open, self._P, self._P_open, self._cross))
+        self._kept_index, self._kept_t_s, self._kept_z = self._kept_index[:1], self._kept_t_s[:1], self._kept_z[:1]
 
     def _agrees(self, start: int, channel: int, z: float, limit: float) -> bool:
         """Consistency test of ``channel`` from kept epoch ``start`` to now (module docstring): ``d^2 <= limit Var(d)``."""

@@ -143,6 +143,26 @@ def test_straight_start_widens_the_window_until_the_mirror_is_resolved():
     assert heading_error_rad(sol.heading_rad, true_heading) < np.deg2rad(0.2)
 
 
+def test_mirror_and_truth_both_within_the_noise_floor_tie():
+    """A straight leg walked across the line to the tower, its range over the first 45 s the mirror's (a few cm off
+    the truth's, as a PDR's wobble and the range noise make it on a street): mirror 0.00 m, truth 0.02 m. Both are
+    below the cost floor, so they tie and the window widens to the turn; read as a confidence of 0.42 they chose
+    the mirror, 180 deg off (street-out tuning walk 107)."""
+    truth = polyline_truth([[0, 0], [0.12, 40], [0, 80], [60, 80], [60, 120]])
+    pdr, _ = make_pdr(truth, 10.0)
+    flat = Geometry(0.0, 0.0, 2000.0, 2200.0, 0.0)
+    across = np.arctan2(2000.0, 2200.0) + np.pi / 2
+    exact = measured_range((pdr.x_m, pdr.y_m), across, flat)
+    mirror_error = measured_range((pdr.x_m, pdr.y_m), across - np.pi, flat) - exact
+    early = pdr.t_s <= pdr.t_s[0] + 45.0
+    measured = exact + np.where(early, mirror_error, mirror_error[early][-1])
+    first = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, measured, flat, max_duration_s=45.0, min_confidence=0.0)
+    assert first.costs_m[1] < 0.05 and first.confidence == 0.0
+    sol = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, measured, flat, max_duration_s=45.0)
+    assert sol.n_used > first.n_used
+    assert heading_error_rad(sol.heading_rad, across) < np.deg2rad(0.5)
+
+
 def test_a_range_jump_across_a_gap_gets_a_free_offset():
     """After a stretch without range the range returns 10 m off: the later run's offset is free, the fit exact."""
     walk = park_like_walk()

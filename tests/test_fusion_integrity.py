@@ -74,6 +74,21 @@ def test_the_bend_is_dropped_within_seconds_and_the_range_returns_as_a_new_origi
     assert abs(f.start_range_m - origin) > 20.0               # re-anchored: the bend left 60 m in the range
 
 
+@pytest.mark.parametrize("name", ["pf", "ukf"])
+def test_the_fallback_undoes_a_bend_from_before_a_new_origin(name):
+    """A path tracker slides onto a reflection (the range bends 1 m/s from 60 s), then re-acquires it (a new origin
+    at 63 s, before the bend is caught). The new origin restarts the channel's test, but the track was dragged
+    before it: the fallback must go back past the new origin (street-out: the track was 10 m off when the
+    re-acquired range failed its test)."""
+    walk, epochs, pdr_at_fix95 = bent_walk(1.0)
+    reacquired = epochs.range_new_origin.copy()
+    reacquired[np.searchsorted(epochs.t_s, BEND_START_S + 3.0)] = True
+    epochs = dataclasses.replace(epochs, range_new_origin=reacquired)
+    track = FILTERS[name](epochs, walk.geometry, FusionConfig(n_particles=1000))
+    errors = position_errors_m(track, walk.truth)
+    assert error_stats(errors).p95_m <= 1.05 * pdr_at_fix95, (error_stats(errors).p95_m, pdr_at_fix95)
+
+
 @pytest.mark.parametrize("runner", [lambda e, g: pf.run_particle_filter(e, g, n_particles=500, seed=1),
                                     lambda e, g: FILTERS["rank-kf"](e, g, FusionConfig())])
 def test_a_good_range_is_never_dropped_and_a_gap_may_end_off(runner, monkeypatch):
