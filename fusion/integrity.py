@@ -210,7 +210,8 @@ class IntegrityMonitor:
             this observation rather than weighed.
         fallback : (x, P) or None
             Where a channel was dropped: the open-loop state and covariance
-            the filter is to take instead of its own.
+            from the oldest kept epoch, which the filter is to take instead
+            of its own.
         """
         present = np.isfinite(z)
         self._z = z.copy()
