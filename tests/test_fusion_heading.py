@@ -6,7 +6,7 @@ from fusion_synth import make_pdr, park_like_walk, polyline_truth
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from fusion.heading_init import predicted_range_change, rotate_pdr, solve_initial_heading
+from fusion.heading_init import COST_FLOOR_M, predicted_range_change, rotate_pdr, solve_initial_heading
 from fusion.metrics import heading_error_rad
 from fusion.model import Geometry
 
@@ -157,7 +157,7 @@ def test_mirror_and_truth_both_within_the_noise_floor_tie():
     early = pdr.t_s <= pdr.t_s[0] + 45.0
     measured = exact + np.where(early, mirror_error, mirror_error[early][-1])
     first = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, measured, flat, max_duration_s=45.0, min_confidence=0.0)
-    assert first.costs_m[1] < 0.05 and first.confidence == 0.0
+    assert first.costs_m[1] < COST_FLOOR_M and first.confidence == 0.0
     sol = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, measured, flat, max_duration_s=45.0)
     assert sol.n_used > first.n_used
     assert heading_error_rad(sol.heading_rad, across) < np.deg2rad(0.5)
