@@ -75,7 +75,7 @@ the filter, and its window starts afresh.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 from scipy.stats import chi2
@@ -129,6 +129,52 @@ class IntegrityConfig:
                              f"{self.rate_sigma_mps}")
 
 
+@dataclass
+class KeptEpochs:
+    """The epochs the monitor keeps, oldest first: each row one epoch (module docstring).
+
+    Attributes
+    ----------
+    index : ndarray of int, (K,)
+        Epoch index.
+    t_s : ndarray, (K,)
+        Epoch time since the first control, s.
+    z : ndarray, (K, n_channels)
+        The epoch's observations (NaN: none), m.
+    x, P : ndarray, (K, S), (K, S, S)
+        The filter's posterior state and covariance at the epoch.
+    x_open, P_open : ndarray
+        Their open-loop prediction (PDR only) from the epoch to now.
+    cross : ndarray, (K, S, S)
+        ``Phi P_m``: the covariance of the prediction with the posterior.
+    """
+
+    index: np.ndarray
+    t_s: np.ndarray
+    z: np.ndarray
+    x: np.ndarray
+    P: np.ndarray
+    x_open: np.ndarray
+    P_open: np.ndarray
+    cross: np.ndarray
+
+    @classmethod
+    def single(cls, index: int, t_s: float, z: np.ndarray, x: np.ndarray, P: np.ndarray) -> KeptEpochs:
+        """One epoch, whose open-loop prediction starts at its posterior."""
+        return cls(np.array([index]), np.array([t_s]), z[None], x[None], P[None], x[None].copy(), P[None].copy(),
+                   P[None].copy())
+
+    def appended(self, epoch: KeptEpochs, window: int) -> KeptEpochs:
+        """The last ``window - 1`` of these epochs, then ``epoch``."""
+        keep = -(window - 1)
+        return KeptEpochs(*(np.concatenate([getattr(self, f.name)[keep:], getattr(epoch, f.name)])
+                            for f in fields(self)))
+
+    def oldest(self) -> KeptEpochs:
+        """Only the oldest epoch."""
+        return KeptEpochs(*(getattr(self, f.name)[:1] for f in fields(self)))
+
+
 class IntegrityMonitor:
     """Decides per epoch which range channels a filter uses (module docstring).
 
@@ -169,11 +215,7 @@ class IntegrityMonitor:
         self._index = -1
         self._t_s = 0.0
         self._z = np.full(n, np.nan)
-        # The kept epochs, oldest first: index, time, observations, posterior, open-loop prediction since.
-        self._kept_index = np.empty(0, dtype=np.int64)
-        self._kept_t_s = np.empty(0)
-        self._kept_z = np.empty((0, n))
-        self._x = self._x_open = self._P = self._P_open = self._cross = None
+        self._kept: KeptEpochs | None = None
         self.dropped_epochs = np.zeros(n, dtype=np.int64)
         self.fallbacks = 0
 
@@ -181,12 +223,13 @@ class IntegrityMonitor:
         """Carry every kept epoch's open-loop prediction over one more control."""
         self._index += 1
         self._t_s += control.elapsed_s
-        if not self.config.enabled or not len(self._kept_index):
+        kept = self._kept
+        if not self.config.enabled or kept is None:
             return
-        f = transition_jacobian(self._x_open, control)
-        self._x_open = propagate(self._x_open, control)
-        self._P_open = f @ self._P_open @ np.swapaxes(f, -1, -2) + process_covariance(self.noise, control, self.clock)
-        self._cross = f @ self._cross
+        f = transition_jacobian(kept.x_open, control)
+        kept.x_open = propagate(kept.x_open, control)
+        kept.P_open = f @ kept.P_open @ np.swapaxes(f, -1, -2) + process_covariance(self.noise, control, self.clock)
+        kept.cross = f @ kept.cross
 
     def assess(self, z: np.ndarray, new_origin: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
@@ -224,7 +267,8 @@ class IntegrityMonitor:
             if new_origin[j]:
                 self._since[j] = self._index
                 continue
-            candidates = np.flatnonzero((self._kept_index > self._since[j]) & np.isfinite(self._kept_z[:, j]))
+            candidates = (np.empty(0, dtype=np.int64) if self._kept is None else
+                          np.flatnonzero((self._kept.index > self._since[j]) & np.isfinite(self._kept.z[:, j])))
             if self._in_use[j]:
                 if len(candidates) and not self._agrees(candidates[0], j, z[j], self._drop_limit):
                     self._in_use[j] = False
@@ -241,47 +285,32 @@ class IntegrityMonitor:
         if not dropped:
             return use, reanchor, None
         self.fallbacks += 1
-        fallback = (self._x_open[0].copy(), self._P_open[0].copy())
-        self._forget_after_oldest()
+        fallback = (self._kept.x_open[0].copy(), self._kept.P_open[0].copy())
+        # The filter falls back to the oldest kept epoch, so the later posteriors are abandoned.
+        self._kept = self._kept.oldest()
         return use, reanchor, fallback
 
     def posterior(self, x: np.ndarray, P: np.ndarray) -> None:
         """Keep the filter's state after this epoch's update as a start of later tests."""
         if not self.config.enabled:
             return
-        x = np.array(x, dtype=np.float64)[None]
-        P = np.array(P, dtype=np.float64)[None]
-        keep = -(self.config.window - 1)
-        if not len(self._kept_index):
-            self._x, self._x_open, self._P, self._P_open, self._cross = x, x.copy(), P, P.copy(), P.copy()
-        else:
-            self._x = np.concatenate([self._x[keep:], x])
-            self._x_open = np.concatenate([self._x_open[keep:], x])
-            self._P = np.concatenate([self._P[keep:], P])
-            self._P_open = np.concatenate([self._P_open[keep:], P])
-            self._cross = np.concatenate([self._cross[keep:], P])
-        self._kept_index = np.concatenate([self._kept_index[keep:], [self._index]])
-        self._kept_t_s = np.concatenate([self._kept_t_s[keep:], [self._t_s]])
-        self._kept_z = np.concatenate([self._kept_z[keep:], self._z[None]])
-
-    def _forget_after_oldest(self) -> None:
-        """Keep only the oldest kept epoch: the filter falls back to it, so the later posteriors are abandoned."""
-        self._x, self._x_open, self._P, self._P_open, self._cross = (
-            a[:1] for a in (self._x, self._x_open, self._P, self._P_open, self._cross))
-        self._kept_index, self._kept_t_s, self._kept_z = self._kept_index[:1], self._kept_t_s[:1], self._kept_z[:1]
+        epoch = KeptEpochs.single(self._index, self._t_s, self._z, np.array(x, dtype=np.float64),
+                                  np.array(P, dtype=np.float64))
+        self._kept = epoch if self._kept is None else self._kept.appended(epoch, self.config.window)
 
     def _agrees(self, start: int, channel: int, z: float, limit: float) -> bool:
         """Consistency test of ``channel`` from kept epoch ``start`` to now (module docstring): ``d^2 <= limit Var(d)``."""
         row = self._rows[channel]
-        x_then, x_now = self._x[start], self._x_open[start]
+        kept = self._kept
+        x_then, x_now = kept.x[start], kept.x_open[start]
         g = observe(np.stack([x_then, x_now]), self.geometry, 0.0)[:, row]
         j_then = observation_jacobian(x_then, self.geometry)[row]
         j_now = observation_jacobian(x_now, self.geometry)[row]
-        d = (z - self._kept_z[start, channel]) - (g[1] - g[0])
-        gaps = np.count_nonzero(~np.isfinite(self._kept_z[start + 1:, channel]))
-        span_s = self._t_s - self._kept_t_s[start]
+        d = (z - kept.z[start, channel]) - (g[1] - g[0])
+        gaps = np.count_nonzero(~np.isfinite(kept.z[start + 1:, channel]))
+        span_s = self._t_s - kept.t_s[start]
         variance = (2.0 * self.config.change_noise_m**2 + (self.config.rate_sigma_mps * span_s) ** 2
-                    + j_now @ self._P_open[start] @ j_now
-                    + j_then @ self._P[start] @ j_then - 2.0 * j_now @ self._cross[start] @ j_then
+                    + j_now @ kept.P_open[start] @ j_now
+                    + j_then @ kept.P[start] @ j_then - 2.0 * j_now @ kept.cross[start] @ j_then
                     + gaps * self.noise.range_offset_m**2)
         return d * d <= limit * variance
