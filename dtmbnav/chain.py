@@ -174,13 +174,6 @@ def read_receiver_paths(path: str | os.PathLike) -> dict[str, np.ndarray] | None
     return read_columns(path, schema.RECEIVER_PATHS)
 
 
-def _run_age_s(t_s: np.ndarray, key: np.ndarray, tracked: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Time since each tracked run of equal ``key`` began (s; NaN where not tracked), and where a run begins."""
-    begins = tracked & ~np.concatenate([[False], tracked[:-1] & (key[1:] == key[:-1])])
-    run_start = np.maximum.accumulate(np.where(begins, np.arange(len(t_s)), 0))
-    return np.where(tracked, t_s - t_s[run_start], np.nan), begins
-
-
 def _tower_first_paths(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray] | None,
                        tower: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per frame: the id, SNR (dB) and cycle-slip flag of a tower's first path in ``/receiver/paths``.
@@ -227,16 +220,9 @@ def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray]
     usable = (frames["flags"].astype(np.int64) & int(UNUSABLE_FLAGS)) == 0
     towers = [_tower_first_paths(frames, rows, k) for k in range(n_towers)]
 
-    def series(values: np.ndarray, key: np.ndarray, tracked: np.ndarray, snr_db: np.ndarray,
-               slip: np.ndarray) -> PathRangeSeries:
-        age, begins = _run_age_s(t, key, tracked)
-        return PathRangeSeries(t_s=t, range_change_m=np.where(tracked, values, 0.0), snr_db=snr_db,
-                               valid=tracked & usable, slip=(slip | begins) & tracked,
-                               path_age_s=np.where(tracked, age, 0.0))
-
     ids0, snr0, slip0 = towers[0]
     rng0 = frames["first_path_range_change_m"]
-    first = {0: series(rng0, ids0, (ids0 >= 0) & np.isfinite(rng0), snr0, slip0)}
+    first = {0: PathRangeSeries.from_runs(t, rng0, ids0, (ids0 >= 0) & np.isfinite(rng0), usable, snr0, slip0)}
     differences = {}
     for k, name in RANGE_DIFFERENCE_COLUMNS.items():
         if k >= n_towers or name not in frames:
@@ -245,7 +231,8 @@ def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray]
         diff = frames[name]
         # A pair key: the difference restarts when either tower's first path changes.
         key = ids0 * (1 << 32) + ids_k if rows is not None else np.zeros(len(t), np.int64)
-        differences[k] = series(diff, key, np.isfinite(diff), np.fmin(snr0, snr_k), slip0 | slip_k)
+        differences[k] = PathRangeSeries.from_runs(t, diff, key, np.isfinite(diff), usable, np.fmin(snr0, snr_k),
+                                                  slip0 | slip_k)
     return PathRanges(first_path=first, differences=differences)
 
 

@@ -61,6 +61,7 @@ from fusion.pdr import PdrConfig, run_pdr
 from fusion.run import FusionConfig, fuse
 from sim.gnss import simulate_start_fix
 from sim.imu import simulate_imu
+from sim.obs_paths import simulate_obs_paths
 from sim.obs_range import exact_range, simulate_obs_range
 from sim.scenario import Scenario, load_scenario
 from sim.variation import vary_scenario
@@ -124,8 +125,11 @@ Chain = Callable[[Scenario, RangeSource, bool], ChainOutput]
 
 
 def obs_range_source(scenario: Scenario, truth: Track) -> Observations:
-    """Observation-level receiver range (:func:`sim.obs_range.simulate_obs_range`); it models no path tracker."""
-    return Observations(simulate_obs_range(scenario, truth))
+    """Observation-level receiver range (:func:`sim.obs_range.simulate_obs_range`) and path tracker
+    (:func:`sim.obs_paths.simulate_obs_paths`): what the IQ level's receiver gives, from the truth."""
+    paths = simulate_obs_paths(scenario, truth)
+    return Observations(simulate_obs_range(scenario, truth),
+                        PathRanges(first_path={0: paths.first_path}, differences=paths.differences))
 
 
 def exact_range_source(scenario: Scenario, truth: Track) -> Observations:

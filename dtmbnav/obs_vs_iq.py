@@ -38,11 +38,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav.core.records import RangeSeries, Track
+from dtmbnav.core.records import PathRangeSeries, RangeSeries, Track
 from dtmbnav.distributed import IN_PROCESS, ClusterConfig, Task, run_tasks
-from dtmbnav.iq_range import iq_ranges
+from dtmbnav.evaluate import Observations
+from dtmbnav.iq_range import iq_observations
 from dtmbnav.seeds import REPORTING_SEEDS, monte_carlo_seed
 from fusion.metrics import interpolate_track
+from fusion.observations import PathRanges
+from sim.obs_paths import ObsPathConfig, simulate_obs_paths
 from sim.obs_range import ObsRangeConfig, simulate_obs_range
 from sim.scenario import Scenario, load_scenario
 from sim.walk import simulate_walk
@@ -111,19 +114,26 @@ class ErrorStats:
 
 @dataclass(frozen=True)
 class LevelErrors:
-    """One walk's errors at one level: integrated and change over :data:`CHANGE_WINDOW_S` (module docstring)."""
+    """One walk's errors at one level: integrated and change over :data:`CHANGE_WINDOW_S` (module docstring),
+    of the SI-carrier range and of tower 0's first path."""
 
     integrated_m: np.ndarray
     change_m: np.ndarray
+    first_integrated_m: np.ndarray
+    first_change_m: np.ndarray
 
     @classmethod
     def pool(cls, parts: Sequence[LevelErrors]) -> LevelErrors:
-        return cls(np.concatenate([p.integrated_m for p in parts]), np.concatenate([p.change_m for p in parts]))
+        return cls(*(np.concatenate([getattr(p, f"{metric}_m") for p in parts]) for metric in METRICS))
+
+
+#: The compared metrics: the SI-carrier range's and the first path's, each integrated and over a change window.
+METRICS = ("integrated", "change", "first_integrated", "first_change")
 
 
 @dataclass(frozen=True)
 class Comparison:
-    """Both levels' range errors on one case (statistics of the pooled errors)."""
+    """Both levels' range errors on one case (statistics of the pooled errors, :data:`METRICS`)."""
 
     label: str
     seeds: tuple[int, ...]
@@ -132,6 +142,10 @@ class Comparison:
     iq_integrated: ErrorStats
     obs_change: ErrorStats
     iq_change: ErrorStats
+    obs_first_integrated: ErrorStats
+    iq_first_integrated: ErrorStats
+    obs_first_change: ErrorStats
+    iq_first_change: ErrorStats
 
     def ratios(self, metric: str = "change") -> tuple[float, float]:
         """Observation level over IQ level of ``metric`` (``"change"`` or ``"integrated"``): (median, 95 %)."""
@@ -143,18 +157,31 @@ class Comparison:
         return all(abs(r - 1.0) <= tolerance for r in self.ratios(metric))
 
 
-def range_errors(scenario: Scenario, truth: Track, ranges: RangeSeries, end_s: float) -> LevelErrors:
-    """A level's integrated and change errors while walking, before ``end_s`` (module docstring)."""
+def range_errors(scenario: Scenario, truth: Track, ranges: RangeSeries | PathRangeSeries,
+                 end_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """A level's integrated and change errors while walking, before ``end_s`` (module docstring).
+
+    A first-path series counts from its first valid sample (its origin) and
+    over its valid samples only.
+    """
     at = interpolate_track(truth, ranges.t_s)
     tower = scenario.tower
     true_m = np.hypot(np.hypot(at.x_m - tower.x_m, at.y_m - tower.y_m),
                       tower.height_m - scenario.channel.antenna_height_m)
-    error = ranges.range_change_m - (true_m - true_m[0])
+    origin = int(np.argmax(ranges.valid)) if isinstance(ranges, PathRangeSeries) else 0
+    error = ranges.range_change_m - (true_m - true_m[origin])
     walk_start = truth.t_s[0] + scenario.walk.start_still_s
-    walking = (ranges.t_s >= walk_start) & (ranges.t_s < end_s)
+    usable = ranges.valid if isinstance(ranges, PathRangeSeries) else np.ones(len(error), dtype=bool)
+    walking = (ranges.t_s >= walk_start) & (ranges.t_s < end_s) & usable
     earlier = np.searchsorted(ranges.t_s, ranges.t_s - CHANGE_WINDOW_S)
-    changing = walking & (ranges.t_s - CHANGE_WINDOW_S >= walk_start)
-    return LevelErrors(np.abs(error[walking]), np.abs(error - error[earlier])[changing])
+    changing = walking & (ranges.t_s - CHANGE_WINDOW_S >= walk_start) & usable[earlier]
+    return np.abs(error[walking] - error[origin]), np.abs(error - error[earlier])[changing]
+
+
+def level_errors(scenario: Scenario, truth: Track, observations: Observations, end_s: float) -> LevelErrors:
+    """:func:`range_errors` of a level's SI-carrier range and of its first path."""
+    return LevelErrors(*range_errors(scenario, truth, observations.ranges, end_s),
+                       *range_errors(scenario, truth, observations.paths.first_path[0], end_s))
 
 
 def walk_errors(scenario: Scenario, seconds: float, obs_draws: int = OBS_DRAWS
@@ -163,9 +190,13 @@ def walk_errors(scenario: Scenario, seconds: float, obs_draws: int = OBS_DRAWS
     truth = simulate_walk(scenario).track
     end_s = float(truth.t_s[0]) + seconds
     short = truth.select(truth.t_s <= end_s + TRACK_MARGIN_S)
-    obs = [range_errors(scenario, short, simulate_obs_range(scenario, short, ObsRangeConfig(noise_draw=draw)), end_s)
-           for draw in range(obs_draws)]
-    return obs, range_errors(scenario, truth, iq_ranges(scenario, truth, seconds=seconds), end_s)
+    obs = []
+    for draw in range(obs_draws):
+        paths = simulate_obs_paths(scenario, short, ObsPathConfig(noise_draw=draw))
+        level = Observations(simulate_obs_range(scenario, short, ObsRangeConfig(noise_draw=draw)),
+                             PathRanges(first_path={0: paths.first_path}))
+        obs.append(level_errors(scenario, short, level, end_s))
+    return obs, level_errors(scenario, truth, iq_observations(scenario, truth, seconds=seconds), end_s)
 
 
 def compare(cases: Sequence[Case], seeds: Sequence[int], seconds: float, still_s: float | None = None,
@@ -210,22 +241,22 @@ def compare(cases: Sequence[Case], seeds: Sequence[int], seconds: float, still_s
         results = outcome.results[i * len(seeds):(i + 1) * len(seeds)]
         obs = LevelErrors.pool([e for draws, _ in results for e in draws])
         iq = LevelErrors.pool([e for _, e in results])
-        rows.append(Comparison(case.label, tuple(seeds), seconds, ErrorStats.of(obs.integrated_m),
-                               ErrorStats.of(iq.integrated_m), ErrorStats.of(obs.change_m),
-                               ErrorStats.of(iq.change_m)))
+        rows.append(Comparison(case.label, tuple(seeds), seconds,
+                               *(ErrorStats.of(getattr(level, f"{metric}_m")) for metric in METRICS
+                                 for level in (obs, iq))))
     return rows
 
 
 def format_comparisons(rows: Sequence[Comparison]) -> str:
     """A fixed-width table: each level's median and 95 % error and their ratios, for both metrics."""
-    header = (f"{'case':<20} {'metric':<10} {'seeds':>5} {'seconds':>7}  {'obs med':>7} {'iq med':>7} {'ratio':>5}  "
+    header = (f"{'case':<20} {'metric':<16} {'seeds':>5} {'seconds':>7}  {'obs med':>7} {'iq med':>7} {'ratio':>5}  "
               f"{'obs 95%':>7} {'iq 95%':>7} {'ratio':>5}  agree")
     lines = [f"range error, m (change: over {CHANGE_WINDOW_S:g} s)", header, "-" * len(header)]
     for r in rows:
-        for metric in ("integrated", "change"):
+        for metric in METRICS:
             obs, iq = getattr(r, f"obs_{metric}"), getattr(r, f"iq_{metric}")
             med, p95 = r.ratios(metric)
-            lines.append(f"{r.label:<20} {metric:<10} {len(r.seeds):>5} {r.seconds:>7.0f}  {obs.median_m:7.3f} "
+            lines.append(f"{r.label:<20} {metric:<16} {len(r.seeds):>5} {r.seconds:>7.0f}  {obs.median_m:7.3f} "
                          f"{iq.median_m:7.3f} {med:5.2f}  {obs.p95_m:7.3f} {iq.p95_m:7.3f} {p95:5.2f}  "
                          f"{'yes' if r.agrees(metric) else 'no'}")
     return "\n".join(lines)

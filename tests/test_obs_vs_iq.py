@@ -42,9 +42,9 @@ def test_range_errors_against_a_constructed_series():
     d = np.hypot(np.hypot(x - tower.x_m, y - tower.y_m), tower.height_m - scn.channel.antenna_height_m)
     offset = np.where(t >= 3.0, 0.5, 0.0)
     ranges = RangeSeries(t_s=t, range_change_m=d - d[0] + offset, snr_db=np.zeros_like(t), valid=np.ones_like(t, bool))
-    errors = range_errors(scn, truth, ranges, end_s=7.0)
+    integrated_m, change_m = range_errors(scn, truth, ranges, end_s=7.0)
     walking = (t >= 2.0) & (t < 7.0)
-    np.testing.assert_allclose(errors.integrated_m, offset[walking], atol=1e-6)
+    np.testing.assert_allclose(integrated_m, offset[walking], atol=1e-6)
     # The change over 0.1 s sees the step in the ten windows that straddle it, and nothing elsewhere.
-    assert np.count_nonzero(errors.change_m > 0.4) == 10
-    assert np.all((errors.change_m < 1e-6) | (np.abs(errors.change_m - 0.5) < 1e-6))
+    assert np.count_nonzero(change_m > 0.4) == 10
+    assert np.all((change_m < 1e-6) | (np.abs(change_m - 0.5) < 1e-6))

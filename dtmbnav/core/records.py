@@ -156,6 +156,23 @@ class PathRangeSeries(ColumnRecord):
     slip: np.ndarray
     path_age_s: np.ndarray
 
+    @classmethod
+    def from_runs(cls, t_s: np.ndarray, range_change_m: np.ndarray, path_key: np.ndarray, tracked: np.ndarray,
+                  usable: np.ndarray, snr_db: np.ndarray, slip: np.ndarray) -> PathRangeSeries:
+        """A series from per-frame values and which path gave each, its age and origin breaks derived.
+
+        A run is a stretch of tracked frames with one ``path_key`` (the path,
+        or the pair of paths of a difference); the path age restarts where a
+        run begins, and that frame is an origin break as a flagged ``slip``
+        is. ``range_change_m`` is set to 0 where nothing is tracked; ``valid``
+        is ``tracked & usable``.
+        """
+        begins = tracked & ~np.concatenate([[False], tracked[:-1] & (path_key[1:] == path_key[:-1])])
+        run_start = np.maximum.accumulate(np.where(begins, np.arange(len(t_s)), 0))
+        return cls(t_s=t_s, range_change_m=np.where(tracked, range_change_m, 0.0), snr_db=snr_db,
+                   valid=tracked & usable, slip=(slip | begins) & tracked,
+                   path_age_s=np.where(tracked, t_s - t_s[run_start], 0.0))
+
 
 @dataclass
 class ImuLog(ColumnRecord):
