@@ -161,21 +161,29 @@ def range_errors(scenario: Scenario, truth: Track, ranges: RangeSeries | PathRan
                  end_s: float) -> tuple[np.ndarray, np.ndarray]:
     """A level's integrated and change errors while walking, before ``end_s`` (module docstring).
 
-    A first-path series counts from its first valid sample (its origin) and
-    over its valid samples only.
+    A first-path series counts over its valid samples only, each run from
+    its origin (its first sample, and every origin break: the range after one
+    starts from an unknown value, as the fusion takes it); a change window
+    that straddles an origin break is left out.
     """
     at = interpolate_track(truth, ranges.t_s)
     tower = scenario.tower
     true_m = np.hypot(np.hypot(at.x_m - tower.x_m, at.y_m - tower.y_m),
                       tower.height_m - scenario.channel.antenna_height_m)
-    origin = int(np.argmax(ranges.valid)) if isinstance(ranges, PathRangeSeries) else 0
-    error = ranges.range_change_m - (true_m - true_m[origin])
+    error = ranges.range_change_m - (true_m - true_m[0])
+    if isinstance(ranges, PathRangeSeries):
+        usable = ranges.valid
+        run = np.cumsum(ranges.slip)
+        run_start = np.maximum.accumulate(np.where(ranges.slip, np.arange(len(error)), 0))
+        error = error - error[run_start]
+    else:
+        usable = np.ones(len(error), dtype=bool)
+        run = np.zeros(len(error), dtype=np.int64)
     walk_start = truth.t_s[0] + scenario.walk.start_still_s
-    usable = ranges.valid if isinstance(ranges, PathRangeSeries) else np.ones(len(error), dtype=bool)
     walking = (ranges.t_s >= walk_start) & (ranges.t_s < end_s) & usable
     earlier = np.searchsorted(ranges.t_s, ranges.t_s - CHANGE_WINDOW_S)
-    changing = walking & (ranges.t_s - CHANGE_WINDOW_S >= walk_start) & usable[earlier]
-    return np.abs(error[walking] - error[origin]), np.abs(error - error[earlier])[changing]
+    changing = walking & (ranges.t_s - CHANGE_WINDOW_S >= walk_start) & usable[earlier] & (run[earlier] == run)
+    return np.abs(error[walking]), np.abs(error - error[earlier])[changing]
 
 
 def level_errors(scenario: Scenario, truth: Track, observations: Observations, end_s: float) -> LevelErrors:
