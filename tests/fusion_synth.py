@@ -53,6 +53,13 @@ def polyline_truth(waypoints_m, speed_mps=1.3, still_s=10.0, rate_hz=100.0, paus
     return Track(t, x, y, heading, np.where(speed > 0.5 * speed_mps, speed_mps, 0.0))
 
 
+
+def loop_truth(scenario) -> Track:
+    """A scenario's loop walked at constant speed, back to its start, after its standstill (no PDR faults)."""
+    waypoints = scenario.walk.waypoints_m
+    return polyline_truth(waypoints + [waypoints[0]], still_s=scenario.walk.start_still_s)
+
+
 def make_pdr(truth: Track, still_s: float, *, step_s=0.54, gain=1.0, drift_radps=0.0, heading_noise_rad=0.0,
              length_noise=0.0, seed=0) -> tuple[PdrSteps, float]:
     """PDR steps from the truth: relative heading (+ drift, noise), step length x gain (+ noise)."""

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from fusion_synth import polyline_truth
+from fusion_synth import loop_truth, polyline_truth
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -27,7 +27,7 @@ def true_range_change(scenario, truth, t_s):
 @pytest.fixture(scope="module")
 def park():
     scn = load_scenario("park-loop-cw")
-    truth = polyline_truth(scn.walk.waypoints_m + [scn.walk.waypoints_m[0]], still_s=scn.walk.start_still_s)
+    truth = loop_truth(scn)
     return scn, truth, simulate_obs_range(scn, truth)
 
 

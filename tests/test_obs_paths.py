@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from fusion_synth import polyline_truth
+from fusion_synth import loop_truth
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -81,7 +81,7 @@ def test_kernel_matches_its_numpy_reference(n_paths, n_times, held, swallowed, s
 @pytest.fixture(scope="module")
 def park():
     scn = load_scenario("park-loop-cw")
-    truth = polyline_truth(scn.walk.waypoints_m + [scn.walk.waypoints_m[0]], still_s=scn.walk.start_still_s)
+    truth = loop_truth(scn)
     return scn, truth, simulate_obs_paths(scn, truth)
 
 
@@ -113,7 +113,7 @@ def test_the_output_does_not_depend_on_the_block_length(park):
 
 def test_tower_difference_cancels_a_free_running_clock():
     scn = load_scenario("sfn-park")
-    truth = polyline_truth(scn.walk.waypoints_m + [scn.walk.waypoints_m[0]], still_s=scn.walk.start_still_s)
+    truth = loop_truth(scn)
     paths = simulate_obs_paths(scn, truth)
     channel = Channel(scn, truth, np.random.default_rng(0))
     t = paths.first_path.t_s

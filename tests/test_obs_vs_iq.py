@@ -44,14 +44,20 @@ def test_obs_and_iq_first_path_errors_agree_in_the_park():
     assert abs(p95 - 1.0) <= AGREEMENT, f"95 %: obs {obs.p95_m:.4f} m, iq {iq.p95_m:.4f} m"
 
 
-def test_range_errors_against_a_constructed_series():
-    """A range that is the truth plus a known offset from 1 s into the walk: integrated and change errors."""
+def straight_walk():
+    """A 10 m straight walk after a 2 s standstill: scenario, truth, a 100 Hz grid and the true range on it."""
     scn = load_scenario("park-loop-cw").replace(walk={"start_still_s": 2.0})
     tower = scn.tower
     truth = polyline_truth([[0.0, 0.0], [0.0, 10.0]], still_s=2.0)
     t = np.arange(0.0, 8.0, 0.01)
     x, y = np.interp(t, truth.t_s, truth.x_m), np.interp(t, truth.t_s, truth.y_m)
-    d = np.hypot(np.hypot(x - tower.x_m, y - tower.y_m), tower.height_m - scn.channel.antenna_height_m)
+    return scn, truth, t, np.hypot(np.hypot(x - tower.x_m, y - tower.y_m),
+                                   tower.height_m - scn.channel.antenna_height_m)
+
+
+def test_range_errors_against_a_constructed_series():
+    """A range that is the truth plus a known offset from 1 s into the walk: integrated and change errors."""
+    scn, truth, t, d = straight_walk()
     offset = np.where(t >= 3.0, 0.5, 0.0)
     ranges = RangeSeries(t_s=t, range_change_m=d - d[0] + offset, snr_db=np.zeros_like(t), valid=np.ones_like(t, bool))
     integrated_m, change_m = range_errors(scn, truth, ranges, end_s=7.0)
@@ -64,12 +70,7 @@ def test_range_errors_against_a_constructed_series():
 
 def test_first_path_errors_restart_at_each_origin_break():
     """A first-path range that jumps 0.5 m at a flagged origin break has no integrated error after it."""
-    scn = load_scenario("park-loop-cw").replace(walk={"start_still_s": 2.0})
-    tower = scn.tower
-    truth = polyline_truth([[0.0, 0.0], [0.0, 10.0]], still_s=2.0)
-    t = np.arange(0.0, 8.0, 0.01)
-    x, y = np.interp(t, truth.t_s, truth.x_m), np.interp(t, truth.t_s, truth.y_m)
-    d = np.hypot(np.hypot(x - tower.x_m, y - tower.y_m), tower.height_m - scn.channel.antenna_height_m)
+    scn, truth, t, d = straight_walk()
     jump = np.where(t >= 3.0, 0.5, 0.0)
     series = PathRangeSeries.from_runs(t, d - d[0] + jump, np.where(t >= 3.0, 2, 1), t >= 0.5, np.ones_like(t, bool),
                                        np.zeros_like(t), np.zeros_like(t, bool))
