@@ -256,16 +256,16 @@ def compare(cases: Sequence[Case], seeds: Sequence[int], seconds: float, still_s
 
 
 def format_comparisons(rows: Sequence[Comparison]) -> str:
-    """A fixed-width table: each level's median and 95 % error and their ratios, for both metrics."""
-    header = (f"{'case':<20} {'metric':<16} {'seeds':>5} {'seconds':>7}  {'obs med':>7} {'iq med':>7} {'ratio':>5}  "
-              f"{'obs 95%':>7} {'iq 95%':>7} {'ratio':>5}  agree")
+    """A fixed-width table: each level's median and 95 % error (to 0.1 mm) and their ratios, for every metric."""
+    header = (f"{'case':<20} {'metric':<16} {'seeds':>5} {'seconds':>7}  {'obs med':>8} {'iq med':>8} {'ratio':>5}  "
+              f"{'obs 95%':>8} {'iq 95%':>8} {'ratio':>5}  agree")
     lines = [f"range error, m (change: over {CHANGE_WINDOW_S:g} s)", header, "-" * len(header)]
     for r in rows:
         for metric in METRICS:
             obs, iq = getattr(r, f"obs_{metric}"), getattr(r, f"iq_{metric}")
             med, p95 = r.ratios(metric)
-            lines.append(f"{r.label:<20} {metric:<16} {len(r.seeds):>5} {r.seconds:>7.0f}  {obs.median_m:7.3f} "
-                         f"{iq.median_m:7.3f} {med:5.2f}  {obs.p95_m:7.3f} {iq.p95_m:7.3f} {p95:5.2f}  "
+            lines.append(f"{r.label:<20} {metric:<16} {len(r.seeds):>5} {r.seconds:>7.0f}  {obs.median_m:8.4f} "
+                         f"{iq.median_m:8.4f} {med:5.2f}  {obs.p95_m:8.4f} {iq.p95_m:8.4f} {p95:5.2f}  "
                          f"{'yes' if r.agrees(metric) else 'no'}")
     return "\n".join(lines)
 
