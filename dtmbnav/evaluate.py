@@ -5,7 +5,7 @@ scenario (with the walk's seed, :mod:`dtmbnav.seeds`, and by default its own
 layout, :func:`sim.variation.vary_scenario`) -> walk -> phone IMU -> PDR, and
 a range source -> :func:`fusion.run.fuse` -> error of every filter against
 the truth at the PDR step times. The range comes from the observation-level
-model (``level="obs"``, :mod:`sim.obs_range`) or from the IQ transmitter,
+model (``level="obs"``, :mod:`sim.obs_range` and :mod:`sim.obs_paths`) or from the IQ transmitter,
 channel and receiver (``level="iq"``, :mod:`dtmbnav.iq_range`), or is the
 direct path's exact range change (``level="exact"``: what the filters and
 the single-tower geometry allow with a perfect receiver). Each walk is
@@ -113,7 +113,7 @@ class Observations:
         The SI-carrier range.
     paths : PathRanges or None
         First-path ranges and tower differences (``docs/paths.md``); None
-        where the source has no path tracker (the observation level).
+        where the source has no path tracker (the exact level).
     """
 
     ranges: RangeSeries
