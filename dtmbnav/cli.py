@@ -426,6 +426,8 @@ def _rerun_walk(args: argparse.Namespace, failure) -> str:
                f"--filters {','.join(args.filters)}", "--workers 0"]
     if args.particles is not None:
         options.append(f"--particles {args.particles}")
+    if args.filter_seed:
+        options.append(f"--filter-seed {args.filter_seed}")
     if not args.vary_geometry:
         options.append("--no-vary-geometry")
     return f"dtmbnav evaluate {failure.argument} {' '.join(options)}"
@@ -471,8 +473,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
         print(pdr_table(scenarios))
         return EXIT_OK
-    config = FusionConfig(n_particles=args.particles or DEFAULT_PARTICLES, heading_range=args.heading_range,
-                          si_range=args.si_range)
+    config = FusionConfig(n_particles=args.particles or DEFAULT_PARTICLES, seed=args.filter_seed,
+                          heading_range=args.heading_range, si_range=args.si_range)
     with contextlib.ExitStack() as stack:
         on_walk = None
         if args.walks:
@@ -698,6 +700,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--filters", type=_filter_list((*FILTER_NAMES, FOOT_INS)), default=FILTER_NAMES,
                    help=f"{FILTERS_HELP}; {FOOT_INS} adds the foot-mounted ZUPT INS")
     p.add_argument("--particles", type=_positive_int, help=f"particle-filter Np (default {DEFAULT_PARTICLES})")
+    p.add_argument("--filter-seed", type=_seed, default=0,
+                   help="particle-filter seed (default 0): other seeds show the filter's own Monte Carlo spread")
     _add_range_use_options(p)
     p.add_argument("--json", metavar="FILE", help="also write the table as JSON ('-' for stdout)")
     p.add_argument("--walks", metavar="FILE",

@@ -168,6 +168,13 @@ def test_evaluate_one_seed(tmp_path):
                  "--json", str(table), "--workers", "0"]) == EXIT_OK
     rows = json.loads(table.read_text())
     assert {r["filter"] for r in rows} >= {"pdr", "pf"}
+    # Another particle-filter seed moves the filter's figure and nothing else.
+    other = tmp_path / "other.json"
+    assert main(["evaluate", "park-loop-cw", "--seeds", "1", "--filters", "pf", "--particles", "300",
+                 "--filter-seed", "1", "--json", str(other), "--workers", "0"]) == EXIT_OK
+    p95 = {r["filter"]: r["p95_m"] for r in rows}
+    other_p95 = {r["filter"]: r["p95_m"] for r in json.loads(other.read_text())}
+    assert other_p95["pdr"] == p95["pdr"] and other_p95["pf"] != p95["pf"]
 
 
 def test_bench_quick(tmp_path):
