@@ -40,11 +40,9 @@ import numpy as np
 
 from dtmbnav.core.records import PathRangeSeries, RangeSeries, Track
 from dtmbnav.distributed import IN_PROCESS, ClusterConfig, Task, run_tasks
-from dtmbnav.evaluate import Observations
 from dtmbnav.iq_range import iq_observations
 from dtmbnav.seeds import REPORTING_SEEDS, monte_carlo_seed
 from fusion.metrics import interpolate_track
-from fusion.observations import PathRanges
 from sim.obs_paths import ObsPathConfig, simulate_obs_paths
 from sim.obs_range import ObsRangeConfig, simulate_obs_range
 from sim.scenario import Scenario, load_scenario
@@ -186,10 +184,11 @@ def range_errors(scenario: Scenario, truth: Track, ranges: RangeSeries | PathRan
     return np.abs(error[walking]), np.abs(error - error[earlier])[changing]
 
 
-def level_errors(scenario: Scenario, truth: Track, observations: Observations, end_s: float) -> LevelErrors:
-    """:func:`range_errors` of a level's SI-carrier range and of its first path."""
-    return LevelErrors(*range_errors(scenario, truth, observations.ranges, end_s),
-                       *range_errors(scenario, truth, observations.paths.first_path[0], end_s))
+def level_errors(scenario: Scenario, truth: Track, ranges: RangeSeries, first_path: PathRangeSeries,
+                 end_s: float) -> LevelErrors:
+    """:func:`range_errors` of a level's SI-carrier range and of its (tower 0's) first path."""
+    return LevelErrors(*range_errors(scenario, truth, ranges, end_s),
+                       *range_errors(scenario, truth, first_path, end_s))
 
 
 def walk_errors(scenario: Scenario, seconds: float, obs_draws: int = OBS_DRAWS
@@ -198,13 +197,11 @@ def walk_errors(scenario: Scenario, seconds: float, obs_draws: int = OBS_DRAWS
     truth = simulate_walk(scenario).track
     end_s = float(truth.t_s[0]) + seconds
     short = truth.select(truth.t_s <= end_s + TRACK_MARGIN_S)
-    obs = []
-    for draw in range(obs_draws):
-        paths = simulate_obs_paths(scenario, short, ObsPathConfig(noise_draw=draw))
-        level = Observations(simulate_obs_range(scenario, short, ObsRangeConfig(noise_draw=draw)),
-                             PathRanges(first_path={0: paths.first_path}))
-        obs.append(level_errors(scenario, short, level, end_s))
-    return obs, level_errors(scenario, truth, iq_observations(scenario, truth, seconds=seconds), end_s)
+    obs = [level_errors(scenario, short, simulate_obs_range(scenario, short, ObsRangeConfig(noise_draw=draw)),
+                        simulate_obs_paths(scenario, short, ObsPathConfig(noise_draw=draw)).first_path, end_s)
+           for draw in range(obs_draws)]
+    iq = iq_observations(scenario, truth, seconds=seconds)
+    return obs, level_errors(scenario, truth, iq.ranges, iq.paths.first_path[0], end_s)
 
 
 def compare(cases: Sequence[Case], seeds: Sequence[int], seconds: float, still_s: float | None = None,

@@ -73,8 +73,7 @@ from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
 from dtmbnav.core.gb20600 import PnMode
 from dtmbnav.core.records import PathRangeSeries, Track
 from sim.channel import Channel
-from sim.frames import FrameConfig
-from sim.frontend import mean_signal_power
+from sim.obs_range import ObsRangeConfig, noise_variance, observation_times_s
 from sim.oscillator import scenario_oscillator
 from sim.rf import STREAM_CHANNEL, STREAM_CLOCK
 from sim.scenario import Scenario
@@ -112,14 +111,14 @@ class ObsPathConfig:
         Which draw of the receiver's phase noise.
     """
 
-    decimation: int = 8
+    decimation: int = ObsRangeConfig.decimation
     min_separation_chips: float = 0.35
     weak_separation_chips: float = 0.7
     weak_power_db: float = 15.0
     survival_snr_db: float = 6.0
     power_time_s: float = 0.2
     confirm_s: float = 0.9
-    calibration_guard_s: float = 1.0
+    calibration_guard_s: float = ObsRangeConfig.calibration_guard_s
     noise_draw: int = 0
 
 
@@ -334,7 +333,7 @@ def simulate_obs_paths(scenario: Scenario, truth: Track, config: ObsPathConfig =
         raise ValueError(f"decimation and block_samples must be >= 1, got {config.decimation}, {block_samples}")
     tower = scenario.tower
     mode = PnMode.parse(tower.pn_mode)
-    t_s = np.arange(truth.t_s[0], truth.t_s[-1], mode.value.frame_duration_s)[::config.decimation]
+    t_s = observation_times_s(scenario, truth, config.decimation)
     cal_end = truth.t_s[0] + max(scenario.walk.start_still_s - config.calibration_guard_s, 0.0)
     cal = int(np.searchsorted(t_s, cal_end))
     if cal < 2 or cal >= len(t_s):
@@ -343,8 +342,7 @@ def simulate_obs_paths(scenario: Scenario, truth: Track, config: ObsPathConfig =
     channel = Channel(scenario, truth, np.random.default_rng([scenario.seed, STREAM_CHANNEL, 0, 1]))
     # Per-sample SNR of a path (signal relative to a unit-power data symbol through the unobstructed path, as
     # sim.obs_range), and the header correlation's gain to the per-frame tap SNR the tracker's threshold sees.
-    noise_var = (mean_signal_power(FrameConfig(pn_mode=mode, si_power_db=tower.si_power_db))
-                 / 10.0 ** (scenario.receiver.cn_db / 10.0))
+    noise_var = noise_variance(scenario)
     header_gain = mode.value.header_power_ratio * mode.value.period
     pulse = pulse_gain_table()
     survival = 10.0 ** (config.survival_snr_db / 10.0)
@@ -396,7 +394,7 @@ def simulate_obs_paths(scenario: Scenario, truth: Track, config: ObsPathConfig =
         both = reported[0] & reported[k]
         start = int(np.argmax(both)) if both.any() else 0
         difference_m = geometric_m[k] - geometric_m[0] + phase_noise_m[k] - phase_noise_m[0]
-        pair = identity[0] * n_towers * 1024 + identity[k]
+        pair = identity[0] * channel.num_paths + identity[k]
         differences[k] = PathRangeSeries.from_runs(t_s, difference_m - difference_m[start], pair, both, usable,
                                                    np.fmin(snr_db[0], snr_db[k]), broken[0] | broken[k])
     return ObsPaths(first_path=first, differences=differences)

@@ -250,6 +250,23 @@ def si_carrier_grid_hz() -> tuple[float, float, int]:
     return float(baseband[0]), float(spacing[0]), len(baseband)
 
 
+def noise_variance(scenario: Scenario) -> float:
+    """Receiver noise per sample relative to a unit-power data symbol through the unobstructed path.
+
+    The scenario's C/N is that of the whole signal, whose mean power the
+    boosted PN headers raise above the body's (:func:`sim.frontend.mean_signal_power`).
+    """
+    tower = scenario.tower
+    return (mean_signal_power(FrameConfig(pn_mode=PnMode.parse(tower.pn_mode), si_power_db=tower.si_power_db))
+            / 10.0 ** (scenario.receiver.cn_db / 10.0))
+
+
+def observation_times_s(scenario: Scenario, truth: Track, decimation: int) -> np.ndarray:
+    """The observation level's output grid: every ``decimation``-th signal frame over the truth track, s."""
+    frame_s = PnMode.parse(scenario.tower.pn_mode).value.frame_duration_s
+    return np.arange(truth.t_s[0], truth.t_s[-1], frame_s)[::decimation]
+
+
 def simulate_obs_range(scenario: Scenario, truth: Track, config: ObsRangeConfig = ObsRangeConfig(),
                        block_frames: int = BLOCK_FRAMES) -> RangeSeries:
     """The receiver's integrated range for a truth track, from the model of the module.
@@ -292,8 +309,7 @@ def simulate_obs_range(scenario: Scenario, truth: Track, config: ObsRangeConfig 
     carrier_rng = np.random.default_rng([scenario.seed, _STREAM_CARRIER_NOISE, config.noise_draw])
     estimate_rng = np.random.default_rng([scenario.seed, _STREAM_NOISE_ESTIMATE, config.noise_draw])
     # Noise per sample (and per carrier) relative to a unit-power data symbol through the unobstructed path.
-    noise_var = (mean_signal_power(FrameConfig(pn_mode=mode, si_power_db=tower.si_power_db))
-                 / 10.0 ** (scenario.receiver.cn_db / 10.0))
+    noise_var = noise_variance(scenario)
     si_amplitude = 10.0 ** ((tower.si_power_db - config.implementation_loss_db) / 20.0)
 
     # The coarse CFO: the clock's offset when the receiver acquires, plus the estimator's error.
@@ -365,8 +381,7 @@ def exact_range(scenario: Scenario, truth: Track, config: ObsRangeConfig = ObsRa
     RangeSeries
         3-D range to tower 0's antenna minus its value at the first row, m.
     """
-    frame_s = PnMode.parse(scenario.tower.pn_mode).value.frame_duration_s
-    t_s = np.arange(truth.t_s[0], truth.t_s[-1], frame_s)[::config.decimation]
+    t_s = observation_times_s(scenario, truth, config.decimation)
     # The channel's seed does not matter: only its deterministic direct-path geometry is read.
     range_m = Channel(scenario, truth, np.random.default_rng(0)).direct(t_s).range_m
     return RangeSeries(t_s=t_s, range_change_m=range_m - range_m[0], snr_db=np.full(len(t_s), EXACT_RANGE_SNR_DB),
