@@ -38,6 +38,7 @@ import traceback
 from collections.abc import Callable
 from pathlib import Path
 
+from dtmbnav.core.settings import parse_setting, with_settings
 from dtmbnav.errors import NoResult, UsageError
 from dtmbnav.seeds import LEVELS, REPORTING_SEEDS, TUNING_SEEDS
 from fusion import (CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DEFAULT_PARTICLES,
@@ -120,6 +121,13 @@ def _seed(text: str) -> int:
 
 def _index(text: str) -> int:
     return _whole(text, 0)
+
+
+def _setting(text: str) -> tuple[str, str]:
+    try:
+        return parse_setting(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _xy(text: str) -> tuple[float, float]:
@@ -383,7 +391,7 @@ def cmd_fuse(args: argparse.Namespace) -> int:
     result = fuse_files(args.receiver, args.sensors, args.output, filters=args.filters,
                         pdr_config=_pdr_config(args), tower_xy_m=args.tower, start_xy_m=args.start,
                         n_particles=args.particles, seed=args.seed, clock_model=args.clock_model,
-                        heading_range=args.heading_range, si_range=args.si_range)
+                        heading_range=args.heading_range, si_range=args.si_range, settings=_fusion_settings(args))
     print(f"initial heading {result.heading.describe()}", file=sys.stderr)
     print(f"fused {', '.join(result.tracks)} -> {args.output}", file=sys.stderr)
     return EXIT_OK
@@ -430,6 +438,7 @@ def _rerun_walk(args: argparse.Namespace, failure) -> str:
         options.append(f"--filter-seed {args.filter_seed}")
     if not args.vary_geometry:
         options.append("--no-vary-geometry")
+    options += [f"--set {name}={value}" for name, value in args.set]
     return f"dtmbnav evaluate {failure.argument} {' '.join(options)}"
 
 
@@ -473,8 +482,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
         print(pdr_table(scenarios))
         return EXIT_OK
-    config = FusionConfig(n_particles=args.particles or DEFAULT_PARTICLES, seed=args.filter_seed,
-                          heading_range=args.heading_range, si_range=args.si_range)
+    config = with_settings(FusionConfig(n_particles=args.particles or DEFAULT_PARTICLES, seed=args.filter_seed,
+                                        heading_range=args.heading_range, si_range=args.si_range),
+                           _fusion_settings(args))
     with contextlib.ExitStack() as stack:
         on_walk = None
         if args.walks:
@@ -567,6 +577,23 @@ def _add_range_use_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--si-range", choices=SI_RANGE_USES, default=DEFAULT_SI_RANGE_USE,
                    help="where the filters take the SI-carrier range: at every epoch, or only where no first "
                         f"path is observed (default {DEFAULT_SI_RANGE_USE}; the same without a path tracker)")
+
+
+def _add_settings_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--set", type=_setting, action="append", default=[], metavar="NAME=VALUE",
+                   help="any other fusion setting by its dotted name, e.g. integrity.rate_sigma_mps=0.05 or "
+                        "noise.heading_rad=0.01 (repeatable; an unknown name lists the known ones)")
+
+
+def _fusion_settings(args: argparse.Namespace) -> tuple[tuple[str, str], ...]:
+    """``--set`` settings, checked against the fusion's configuration before any work starts."""
+    from fusion.run import FusionConfig
+
+    try:
+        with_settings(FusionConfig(), args.set)
+    except ValueError as exc:
+        raise UsageError(f"--set: {exc}") from None
+    return tuple(args.set)
 
 
 def _add_pdr_options(p: argparse.ArgumentParser) -> None:
@@ -664,6 +691,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the receiver's clock: disciplined (GNSS/GPSDO; the default) or free-running (a TCXO: the "
                         "filters carry its frequency as a state and, in an SFN, eq. 15 uses the tower difference)")
     _add_range_use_options(p)
+    _add_settings_option(p)
     _add_pdr_options(p)
     p.set_defaults(handler=cmd_fuse)
 
@@ -703,6 +731,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--filter-seed", type=_seed, default=0,
                    help="particle-filter seed (default 0): other seeds show the filter's own Monte Carlo spread")
     _add_range_use_options(p)
+    _add_settings_option(p)
     p.add_argument("--json", metavar="FILE", help="also write the table as JSON ('-' for stdout)")
     p.add_argument("--walks", metavar="FILE",
                    help="also write each walk's figures as a JSON line when it finishes (a stopped run keeps them)")

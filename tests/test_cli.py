@@ -153,6 +153,13 @@ def test_fuse_and_report_commands(tiny_demo, tmp_path):
     report = tmp_path / "report"
     assert main(["report", str(out), "--truth", str(tiny_demo / "truth.h5"), "-o", str(report)]) == EXIT_OK
     assert (report / "trajectory.png").is_file()
+    # A fusion setting by name reaches the filters (here the particle count, which moves the PF's track).
+    fewer = tmp_path / "fewer.h5"
+    assert main(["fuse", "--receiver", str(tiny_demo / "receiver.h5"), "--sensors", str(tiny_demo / "truth.h5"),
+                 "-o", str(fewer), "--filters", "pf,ukf", "--set", "n_particles=200"]) == EXIT_OK
+    with h5py.File(out, "r") as f, h5py.File(fewer, "r") as g:
+        assert np.array_equal(f["fusion/ukf/x_m"][()], g["fusion/ukf/x_m"][()])
+        assert not np.array_equal(f["fusion/pf/x_m"][()], g["fusion/pf/x_m"][()])
 
 
 def test_run_on_a_capture_set(tiny_sim, tmp_path, capsys):
@@ -175,6 +182,16 @@ def test_evaluate_one_seed(tmp_path):
     p95 = {r["filter"]: r["p95_m"] for r in rows}
     other_p95 = {r["filter"]: r["p95_m"] for r in json.loads(other.read_text())}
     assert other_p95["pdr"] == p95["pdr"] and other_p95["pf"] != p95["pf"]
+    # --set reaches any fusion setting: the filter's seed by its name gives the same table as its flag.
+    by_name = tmp_path / "by_name.json"
+    assert main(["evaluate", "park-loop-cw", "--seeds", "1", "--filters", "pf", "--set", "n_particles=300",
+                 "--set", "seed=1", "--json", str(by_name), "--workers", "0"]) == EXIT_OK
+    assert json.loads(by_name.read_text()) == json.loads(other.read_text())
+
+
+def test_an_unknown_fusion_setting_is_a_usage_error(capsys):
+    assert main(["evaluate", "park-loop-cw", "--seeds", "1", "--set", "integrity.rate_sigma=0.1"]) == 2
+    assert "unknown setting 'integrity.rate_sigma'; known:" in capsys.readouterr().err
 
 
 def test_bench_quick(tmp_path):

@@ -115,7 +115,7 @@ def test_a_good_range_is_never_dropped_and_a_gap_may_end_off(runner, monkeypatch
 def test_a_slow_bend_of_a_weak_range_is_dropped_though_its_sigma_is_large(make):
     """A street's direct path, 20 dB down, has a 1.5 m sigma for the filters to weigh it by; most of that error is
     an offset that a change cancels, so the test of the change must not hide a 0.4 m/s bend behind it (dropped here
-    after 12 s, 5 m; with the sigma counted in the test it never was)."""
+    after 10.5 s, 4 m; with the sigma counted in the test it never was)."""
     walk, epochs, _ = bent_walk(0.4)
     weak = dataclasses.replace(epochs, range_sigma_m=np.where(np.isfinite(epochs.range_sigma_m), 1.5, np.nan))
     f = make(walk.geometry, weak)
