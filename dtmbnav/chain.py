@@ -31,12 +31,10 @@ import numpy as np
 from dtmbnav.core import schema
 from dtmbnav.core.h5io import atomic_folder, atomic_h5, open_h5, read_attrs, read_columns, write_columns
 from dtmbnav.core.records import FrameFlag, ImuLog, PathFlag, PathRangeSeries, RangeSeries
-from dtmbnav.core.settings import with_settings
 from dtmbnav.core.sensors import (read_capture_start_s, read_gnss, read_imu, read_tower, read_walk_truth,
                                   read_weinberg_k_m)
 from dtmbnav.errors import NoResult
 from dtmbnav.receive import receive_capture
-from fusion import DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DEFAULT_PARTICLES, DEFAULT_SI_RANGE_USE
 from fusion.observations import PathRanges
 from fusion.pdr import PdrConfig, PdrResult, run_pdr
 from fusion.run import FusionConfig, FusionResult, fuse
@@ -303,15 +301,12 @@ def write_fusion(h5: h5py.File, result: FusionResult) -> None:
 
 def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike, out_path: str | os.PathLike,
                filters: tuple[str, ...], pdr_config: PdrConfig, tower_xy_m: tuple[float, float] | None = None,
-               start_xy_m: tuple[float, float] | None = None, n_particles: int | None = None,
-               seed: int = 0, clock_model: str = DEFAULT_CLOCK_MODEL,
-               heading_range: str = DEFAULT_HEADING_RANGE, si_range: str = DEFAULT_SI_RANGE_USE,
-               settings: tuple[tuple[str, str], ...] = ()) -> FusionResult:
+               start_xy_m: tuple[float, float] | None = None,
+               config: FusionConfig = FusionConfig()) -> FusionResult:
     """``dtmbnav fuse``: receiver range + PDR of the sensors file -> ``/pdr`` and ``/fusion/*``.
 
-    ``clock_model`` is the receiver's clock, ``heading_range`` the range eq. 15 is solved on and
-    ``si_range`` where the filters take the SI-carrier range (:class:`fusion.run.FusionConfig`);
-    ``settings`` any further fields of it, by dotted name (:func:`dtmbnav.core.settings.with_settings`).
+    ``config`` carries the receiver's clock model, the range eq. 15 is solved on, where the
+    filters take the SI-carrier range and every filter setting (:class:`fusion.run.FusionConfig`).
 
     Every input is read and checked first, including that both files are of
     one walk (:func:`check_same_walk`).
@@ -339,9 +334,6 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
     pdr = run_pdr(imu, pdr_config)
     if len(pdr.steps) == 0:
         raise NoResult(f"{sensors_path}: /{schema.IMU}: the PDR found no steps; nothing to fuse")
-    config = with_settings(FusionConfig(n_particles=n_particles or DEFAULT_PARTICLES, seed=seed,
-                                        clock_model=clock_model, heading_range=heading_range, si_range=si_range),
-                           settings)
     result = fuse(pdr.steps, ranges, start_xy_m, tower_xy_m, filters, tower_height_m=height_m,
                   other_towers=other_towers, paths=paths, config=config)
     with atomic_h5(out_path) as h5:

@@ -37,6 +37,7 @@ import sys
 import traceback
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from dtmbnav.core.settings import parse_setting, with_settings
 from dtmbnav.errors import NoResult, UsageError
@@ -44,6 +45,9 @@ from dtmbnav.seeds import LEVELS, REPORTING_SEEDS, TUNING_SEEDS
 from fusion import (CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DEFAULT_PARTICLES,
                     DEFAULT_SI_RANGE_USE, FILTER_NAMES, FOOT_INS, HEADING_RANGES, SI_RANGE_USES)
 from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH, DEFAULT_STATIC_WINDOW_S
+
+if TYPE_CHECKING:  # the fusion's modules are imported by the handlers that run them (module docstring)
+    from fusion.run import FusionConfig
 
 EXIT_OK = 0
 EXIT_NO_RESULT = 1
@@ -388,10 +392,9 @@ def cmd_pdr(args: argparse.Namespace) -> int:
 def cmd_fuse(args: argparse.Namespace) -> int:
     from dtmbnav.chain import fuse_files
 
+    config = _fusion_config(args, seed=args.seed, clock_model=args.clock_model)
     result = fuse_files(args.receiver, args.sensors, args.output, filters=args.filters,
-                        pdr_config=_pdr_config(args), tower_xy_m=args.tower, start_xy_m=args.start,
-                        n_particles=args.particles, seed=args.seed, clock_model=args.clock_model,
-                        heading_range=args.heading_range, si_range=args.si_range, settings=_fusion_settings(args))
+                        pdr_config=_pdr_config(args), tower_xy_m=args.tower, start_xy_m=args.start, config=config)
     print(f"initial heading {result.heading.describe()}", file=sys.stderr)
     print(f"fused {', '.join(result.tracks)} -> {args.output}", file=sys.stderr)
     return EXIT_OK
@@ -470,7 +473,6 @@ def cmd_doppler_map(args: argparse.Namespace) -> int:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from dtmbnav import evaluate
     from dtmbnav.core.h5io import atomic_path
-    from fusion.run import FusionConfig
 
     scenarios = evaluate.expand_scenarios(args.scenarios)
     for name in scenarios:
@@ -482,9 +484,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
         print(pdr_table(scenarios))
         return EXIT_OK
-    config = with_settings(FusionConfig(n_particles=args.particles or DEFAULT_PARTICLES, seed=args.filter_seed,
-                                        heading_range=args.heading_range, si_range=args.si_range),
-                           _fusion_settings(args))
+    config = _fusion_config(args, seed=args.filter_seed)
     with contextlib.ExitStack() as stack:
         on_walk = None
         if args.walks:
@@ -585,15 +585,17 @@ def _add_settings_option(p: argparse.ArgumentParser) -> None:
                         "noise.heading_rad=0.01 (repeatable; an unknown name lists the known ones)")
 
 
-def _fusion_settings(args: argparse.Namespace) -> tuple[tuple[str, str], ...]:
-    """``--set`` settings, checked against the fusion's configuration before any work starts."""
+def _fusion_config(args: argparse.Namespace, **fields: object) -> FusionConfig:
+    """The fusion's configuration from the command's flags (``--particles``, the range uses, ``fields``) and
+    its ``--set`` settings, built before any work starts so that a bad setting costs nothing."""
     from fusion.run import FusionConfig
 
     try:
-        with_settings(FusionConfig(), args.set)
+        return with_settings(FusionConfig(n_particles=args.particles or DEFAULT_PARTICLES,
+                                          heading_range=args.heading_range, si_range=args.si_range, **fields),
+                             args.set)
     except ValueError as exc:
         raise UsageError(f"--set: {exc}") from None
-    return tuple(args.set)
 
 
 def _add_pdr_options(p: argparse.ArgumentParser) -> None:

@@ -23,7 +23,7 @@ from dtmbnav.iq_range import generated_chunks, simulated_receiver_config
 from dtmbnav.report import write_report
 from dtmbnav.simulation import simulate_capture_set
 from fusion.pdr import PdrConfig
-from fusion.run import FILTERS
+from fusion.run import FILTERS, FusionConfig
 from receiver.pipeline import Receiver, receive_into_sink
 from receiver.writer import FrameSink
 from sim.rf import CaptureGenerator
@@ -67,7 +67,7 @@ def run_demo(out_dir: Path, scenario: str = "park-loop", seconds: float | None =
     print("[3/4] PDR, initial heading and fusion", file=sys.stderr)
     results_path = out_dir / "results.h5"
     result = fuse_files(rx_path, truth_path, results_path, tuple(FILTERS), PdrConfig(),
-                        clock_model=receiver_clock_model(scn))
+                        config=FusionConfig(clock_model=receiver_clock_model(scn)))
     print(f"      initial heading {result.heading.describe()}", file=sys.stderr)
     print("[4/4] writing the report", file=sys.stderr)
     report = write_report(results_path, out_dir / "report", truth_path=truth_path)
