@@ -28,7 +28,8 @@ from typing import Any
 import h5py
 import numpy as np
 
-from dtmbnav.core import schema
+from dtmbnav.core import gb20600, schema
+from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
 from dtmbnav.core.h5io import atomic_folder, atomic_h5, open_h5, read_attrs, read_columns, write_columns
 from dtmbnav.core.records import FrameFlag, ImuLog, PathFlag, PathRangeSeries, RangeSeries
 from dtmbnav.core.sensors import (read_capture_start_s, read_gnss, read_imu, read_tower, read_walk_truth,
@@ -199,8 +200,43 @@ def _tower_first_paths(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray
     return ids, snr, slip
 
 
+def first_path_code_range_m(frames: dict[str, np.ndarray], attrs: dict[str, Any]) -> np.ndarray | None:
+    """Per frame, the code range of tower 0's first path, m (docs/paths.md, "The first path's code range").
+
+    ``c (t_s + first_path_delay_s - frame_index T_frame)``: the path's
+    arrival time on the receiver's clock less the frame's transmit time (up
+    to a constant), plus ``lambda f_s t_s``, which takes out the clock's drift
+    as the first-path carrier range's f_s does (a receiver clock that runs
+    fast by ``eps`` counts ``eps t`` more time and sees the carrier
+    ``f_s = -eps f_c`` low). The receiver's frame counter keeps counting
+    across gaps; should it slip by whole frames there, the value is taken
+    modulo ``c T_frame`` (166 km in PN420) next to the first frame's.
+    None without the attributes it needs (``pn_mode``, ``carrier_hz``,
+    ``first_path_clock_offset_hz``: a file from a receiver without the path
+    tracker, or that found no signal); NaN where no first path is tracked.
+    """
+    try:
+        period_s = gb20600.PnMode.parse(str(attrs["pn_mode"])).value.frame_duration_s
+        wavelength_m = SPEED_OF_LIGHT_MPS / float(attrs["carrier_hz"])
+        f_s_hz = float(attrs["first_path_clock_offset_hz"])
+    except (KeyError, ValueError):
+        return None
+    if not np.isfinite(f_s_hz):
+        return None
+    t_s = np.asarray(frames["t_s"], dtype=np.float64)
+    # The transmit time in the frame's own period (the t_s and frame counter's common part cancels).
+    arrival_s = (t_s - t_s[0]) + frames["first_path_delay_s"] - (frames["frame_index"] - frames["frame_index"][0]) * period_s
+    ambiguity_m = SPEED_OF_LIGHT_MPS * period_s
+    code_m = SPEED_OF_LIGHT_MPS * arrival_s + wavelength_m * f_s_hz * (t_s - t_s[0])
+    known = np.isfinite(code_m)
+    if not known.any():
+        return code_m
+    start = code_m[np.argmax(known)]
+    return start + (code_m - start + ambiguity_m / 2.0) % ambiguity_m - ambiguity_m / 2.0
+
+
 def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray] | None, n_towers: int,
-                      time_offset_s: float = 0.0) -> PathRanges | None:
+                      time_offset_s: float = 0.0, attrs: dict[str, Any] | None = None) -> PathRanges | None:
     """The path tracker's output of a receiver file -> the :class:`PathRanges` fusion consumes (docs/paths.md).
 
     Tower 0's first-path range is the ``first_path_range_change_m`` column;
@@ -210,8 +246,10 @@ def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray]
     break (``slip``) is a cycle slip of a first path (``/receiver/paths``
     ``CYCLE_SLIP``) or a change of first path: the path age restarts there,
     and for a difference also where it starts again after a gap. Frames
-    flagged as a gap or low quality are invalid. Returns None for a file
-    without the first-path columns (path tracker off).
+    flagged as a gap or low quality are invalid. Tower 0's first path
+    carries its code range (:func:`first_path_code_range_m`) when the
+    receiver's ``attrs`` are given. Returns None for a file without the
+    first-path columns (path tracker off).
     """
     if "first_path_range_change_m" not in frames:
         return None
@@ -221,7 +259,9 @@ def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray]
 
     ids0, snr0, slip0 = towers[0]
     rng0 = frames["first_path_range_change_m"]
-    first = {0: PathRangeSeries.from_runs(t, rng0, ids0, (ids0 >= 0) & np.isfinite(rng0), usable, snr0, slip0)}
+    code0 = None if attrs is None else first_path_code_range_m(frames, attrs)
+    first = {0: PathRangeSeries.from_runs(t, rng0, ids0, (ids0 >= 0) & np.isfinite(rng0), usable, snr0, slip0,
+                                          code0)}
     differences = {}
     for k, name in RANGE_DIFFERENCE_COLUMNS.items():
         if k >= n_towers or name not in frames:
@@ -330,7 +370,8 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
         tower_xy_m = (tower_xy[0], tower_xy[1])
         other_towers = read_other_towers(sensors_path)
     ranges = ranges_from_frames(frames, capture_start_s)
-    paths = paths_from_frames(frames, read_receiver_paths(receiver_path), 1 + len(other_towers), capture_start_s)
+    paths = paths_from_frames(frames, read_receiver_paths(receiver_path), 1 + len(other_towers), capture_start_s,
+                              rx_attrs)
     pdr = run_pdr(imu, pdr_config)
     if len(pdr.steps) == 0:
         raise NoResult(f"{sensors_path}: /{schema.IMU}: the PDR found no steps; nothing to fuse")

@@ -122,7 +122,8 @@ def iq_observations(scenario: Scenario, track: Track, seconds: float | None = No
     columns = FrameBatch.concatenate(frames).columns()
     path_rows = PathBatch.concatenate(rows).columns() if receiver.config.track_paths else None
     return Observations(ranges_from_frames(columns),
-                        paths_from_frames(columns, path_rows, len(scenario.sites)) if path_rows is not None else None)
+                        paths_from_frames(columns, path_rows, len(scenario.sites), attrs=receiver.attributes())
+                        if path_rows is not None else None)
 
 
 def iq_range_source(scenario: Scenario, truth: Track) -> Observations:

@@ -71,6 +71,30 @@ there.
 A channel whose data restart from a new origin (a cycle slip, a re-acquired
 path; or a Kalman filter's re-anchoring after a long gap) is re-anchored by
 the filter, and its window starts afresh.
+
+**Late first path.** None of this sees a tracker that has taken a wall
+reflection for the first path where the reflection's range changes as the
+truth's does (walking along the wall): its carrier range is consistent, but
+the path is not the direct one, and at the next corner its carrier bends
+with the wall (street-out, docs/paths.md). The code range of the first path
+(:class:`dtmbnav.core.records.PathRangeSeries`) can tell: it is absolute up
+to a constant, and a reflection only ever arrives *late*. Its constant
+``b`` is calibrated on the first ``code_calibration_epochs`` epochs that
+have one, as the median of ``code - g(x)`` with ``x`` the open-loop
+prediction of the epoch (the filter's prior, PDR only) and ``g`` the
+first-path channel's range; at the start the walker stands at the fix. From
+then on a first path whose excess ``e = code - b - g(x)`` exceeds
+``code_late_m`` is taken to follow a reflection, and the filters go without
+that epoch's first-path range (as if the receiver had none;
+:attr:`IntegrityMonitor.late_epochs` counts them). The street tuning walks
+chose this over a bound that grows with the prior's range variance ``J P
+J^T``: the particle filter's cloud is metres wide in range where its mean is
+right, and such a bound let a reflection 4-5 m late through (docs/method.md
+§8). Nor does ``b`` move where the excess is as far below zero (a path can
+arrive no earlier than the direct one, so it would say ``b`` was calibrated
+on a late path): a prior dragged off by a reflection moved it, and the direct
+path counted as late from then on. The heading solution (eq. 15) is not
+affected: reflections along the street serve it (docs/paths.md).
 """
 
 from __future__ import annotations
@@ -112,6 +136,21 @@ class IntegrityConfig:
         tuning walks, where a first path that follows a wall reflection round
         a corner bends by a few tenths of a metre per second (docs/method.md
         §8).
+    code_gate : bool
+        Whether a late first path (module docstring) is kept from the filters.
+    code_calibration_epochs : int
+        Epochs with a code range the constant ``b`` is calibrated on.
+    code_late_m : float
+        Excess of the code range over the prior's range beyond which the
+        first path is late, m: above the IQ receiver's code error (0.6 m RMS
+        in 0.2 s on a street's diffracted direct path, docs/paths.md) plus
+        the prior's range error where the filter is right.
+    code_change_m : float or None
+        A late first path is kept while its excess stays within this of its
+        value where the late stretch began (a reflection off a wall along the
+        walk changes its range as the direct path does), and dropped from the
+        first epoch it does not until the stretch ends, m; None: dropped
+        throughout.
     """
 
     enabled: bool = True
@@ -121,6 +160,10 @@ class IntegrityConfig:
     return_quantile: float = 0.5
     change_noise_m: float = 0.05
     rate_sigma_mps: float = 0.02
+    code_gate: bool = True
+    code_calibration_epochs: int = 10
+    code_late_m: float = 3.0
+    code_change_m: float | None = None
 
     def __post_init__(self) -> None:
         if self.window < 2 or not 2 <= self.readmit_window <= self.window:
@@ -132,6 +175,9 @@ class IntegrityConfig:
         if self.change_noise_m < 0.0 or self.rate_sigma_mps < 0.0:
             raise ValueError(f"integrity change_noise_m and rate_sigma_mps must be >= 0, got {self.change_noise_m}, "
                              f"{self.rate_sigma_mps}")
+        if self.code_calibration_epochs < 1 or self.code_late_m < 0.0:
+            raise ValueError(f"integrity code gate: need code_calibration_epochs >= 1 and code_late_m >= 0, got "
+                             f"{self.code_calibration_epochs}, {self.code_late_m}")
 
 
 @dataclass
@@ -202,6 +248,8 @@ class IntegrityMonitor:
         Per channel, how many of its observations were not used.
     fallbacks : int
         How often the filter was sent back to an open-loop prediction.
+    late_epochs : ndarray of int
+        Per channel, how many of its observations the code range found late.
     """
 
     def __init__(self, geometry: Geometry, noise: ModelNoise, clock: ClockModel = ClockModel(),
@@ -223,6 +271,11 @@ class IntegrityMonitor:
         self._kept: KeptEpochs | None = None
         self.dropped_epochs = np.zeros(n, dtype=np.int64)
         self.fallbacks = 0
+        self.late_epochs = np.zeros(n, dtype=np.int64)
+        self._code_offsets: list[list[float]] = [[] for _ in range(n)]   # code - g(x) while calibrating
+        self._code_origin = np.full(n, np.nan)                            # the constant b per channel
+        self._late_excess = np.full(n, np.nan)                            # excess where a late stretch began
+        self._late_dropped = np.zeros(n, dtype=bool)                      # the stretch's path has been dropped
 
     def predict(self, control: StepControl) -> None:
         """Carry every kept epoch's open-loop prediction over one more control."""
@@ -236,7 +289,7 @@ class IntegrityMonitor:
         kept.P_open = f @ kept.P_open @ np.swapaxes(f, -1, -2) + process_covariance(self.noise, control, self.clock)
         kept.cross = f @ kept.cross
 
-    def assess(self, z: np.ndarray, new_origin: np.ndarray
+    def assess(self, z: np.ndarray, new_origin: np.ndarray, code_m: np.ndarray | None = None
                ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
         """Which channels to use this epoch, which come back as a new origin, and any fallback state.
 
@@ -248,6 +301,10 @@ class IntegrityMonitor:
             Channels whose data restart from a new origin this epoch: the
             filter re-anchors them when they are in use, and their windows
             start afresh.
+        code_m : ndarray, optional
+            Code range per range channel, m (NaN: none;
+            :meth:`fusion.model.EpochObservation.code_channels`): a channel
+            whose code range is late is treated as absent this epoch.
 
         Returns
         -------
@@ -261,6 +318,10 @@ class IntegrityMonitor:
             from the oldest kept epoch, which the filter is to take instead
             of its own.
         """
+        if self.config.enabled and code_m is not None:
+            late = self._late(np.asarray(code_m, dtype=np.float64)) & np.isfinite(z)
+            self.late_epochs += late
+            z = np.where(late, np.nan, z)
         present = np.isfinite(z)
         self._z = z.copy()
         use = present.copy()
@@ -302,6 +363,30 @@ class IntegrityMonitor:
         epoch = KeptEpochs.single(self._index, self._t_s, self._z, np.array(x, dtype=np.float64),
                                   np.array(P, dtype=np.float64))
         self._kept = epoch if self._kept is None else self._kept.appended(epoch, self.config.window)
+
+    def _late(self, code_m: np.ndarray) -> np.ndarray:
+        """Channels whose code range says the tracked path arrives late (module docstring, "Late first path")."""
+        config = self.config
+        late = np.zeros(len(code_m), dtype=bool)
+        if not config.code_gate or self._kept is None:
+            return late
+        offsets = code_m - observe(self._kept.x_open[-1], self.geometry, 0.0)[self._rows]
+        for j in np.flatnonzero(np.isfinite(code_m)):
+            if np.isnan(self._code_origin[j]):
+                self._code_offsets[j].append(offsets[j])
+                if len(self._code_offsets[j]) == config.code_calibration_epochs:
+                    self._code_origin[j] = float(np.median(self._code_offsets[j]))
+                continue
+            excess = offsets[j] - self._code_origin[j]
+            if excess <= config.code_late_m:
+                self._late_excess[j], self._late_dropped[j] = np.nan, False
+                continue
+            if np.isnan(self._late_excess[j]):
+                self._late_excess[j] = excess
+            self._late_dropped[j] |= (config.code_change_m is None
+                                      or abs(excess - self._late_excess[j]) > config.code_change_m)
+            late[j] = self._late_dropped[j]
+        return late
 
     def _agrees(self, start: int, channel: int, z: float, limit: float) -> bool:
         """Consistency test of ``channel`` from kept epoch ``start`` to now (module docstring): ``d^2 <= limit Var(d)``."""

@@ -95,7 +95,8 @@ class RangeKalmanFilter(ABC):
     def update(self, observation: EpochObservation) -> None:
         """Vet and re-anchor the range channels (module docstring), then :meth:`correct` with the rest."""
         z, sigma, new_origin = observation.range_channels(self.layout.n_towers)
-        use, returning, fallback = self.monitor.assess(z, new_origin)
+        code_m = observation.code_channels(self.layout.n_towers)
+        use, returning, fallback = self.monitor.assess(z, new_origin, code_m)
         if fallback is not None:
             self.replace_state(*fallback)
         gathered_m = self.noise.range_offset_m * np.sqrt(self._epochs_without)

@@ -621,6 +621,10 @@ class EpochObservation:
         re-acquired path, :mod:`fusion.observations`).
     range_difference_m, range_difference_sigma_m, range_difference_new_origin : ndarray
         The same for the difference of tower k and tower 0 (index k - 1).
+    first_path_code_m : ndarray
+        Code range of tower k's first path (index k), m, up to a constant;
+        NaN where none (:mod:`fusion.integrity` checks the first path against
+        it; no filter weighs it).
     range_new_origin : bool
         Whether the SI-carrier range restarts from an unknown origin (a new
         lock segment, :mod:`fusion.observations`).
@@ -637,6 +641,7 @@ class EpochObservation:
     range_difference_m: np.ndarray = field(default_factory=_empty)
     range_difference_sigma_m: np.ndarray = field(default_factory=_empty)
     range_difference_new_origin: np.ndarray = field(default_factory=_empty)
+    first_path_code_m: np.ndarray = field(default_factory=_empty)
     range_new_origin: bool = False
 
     @property
@@ -652,13 +657,7 @@ class EpochObservation:
         ValueError
             If the epoch has path observations for more towers than ``n_towers``.
         """
-        def padded(values: np.ndarray, n: int, fill: float | bool) -> np.ndarray:
-            values = np.asarray(values)
-            if len(values) > n:
-                raise ValueError(f"epoch {self.index}: path observations for {len(values)} channels, "
-                                 f"the geometry has {n}")
-            return np.concatenate([values, np.full(n - len(values), fill)])
-
+        padded = self._padded
         z = np.concatenate([[self.range_change_m], padded(self.first_path_range_m, n_towers, np.nan),
                             padded(self.range_difference_m, n_towers - 1, np.nan)]).astype(np.float64)
         sigma = np.concatenate([[self.range_sigma_m], padded(self.first_path_sigma_m, n_towers, np.nan),
@@ -667,6 +666,19 @@ class EpochObservation:
                                      padded(self.range_difference_new_origin, n_towers - 1, False)]).astype(bool)
         present = np.isfinite(z) & np.isfinite(sigma)
         return np.where(present, z, np.nan), np.where(present, sigma, np.nan), new_origin & present
+
+    def code_channels(self, n_towers: int = 1) -> np.ndarray:
+        """Per range channel (as :meth:`range_channels`) the code range, m: the first paths' only, NaN elsewhere."""
+        return np.concatenate([[np.nan], self._padded(self.first_path_code_m, n_towers, np.nan),
+                               np.full(n_towers - 1, np.nan)]).astype(np.float64)
+
+    def _padded(self, values: np.ndarray, n: int, fill: float | bool) -> np.ndarray:
+        """Per-tower ``values`` padded with ``fill`` to ``n`` channels."""
+        values = np.asarray(values)
+        if len(values) > n:
+            raise ValueError(f"epoch {self.index}: path observations for {len(values)} channels, "
+                             f"the geometry has {n}")
+        return np.concatenate([values, np.full(n - len(values), fill)])
 
     def kalman(self, noise: ModelNoise, n_towers: int = 1, use: np.ndarray | None = None) -> KalmanObservation:
         """The present components with their sigmas (the PDR's from ``noise``).

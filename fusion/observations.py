@@ -205,6 +205,7 @@ class PathEpochs(ColumnRecord):
     range_difference_m: np.ndarray
     range_difference_sigma_m: np.ndarray
     range_difference_new_origin: np.ndarray
+    first_path_code_m: np.ndarray
 
 
 @dataclass
@@ -275,6 +276,10 @@ class FilterEpochs(ColumnRecord):
         Where column k restarts from a new origin.
     range_difference_m, range_difference_sigma_m, range_difference_new_origin : ndarray, shape (N, T - 1) or None
         The same for the difference of tower k and tower 0 (column k - 1).
+    first_path_code_m : ndarray, shape (N, T) or None
+        Code range of tower k's first path, m, up to a constant (NaN: none;
+        :class:`dtmbnav.core.records.PathRangeSeries`), which the integrity
+        monitor checks the first path against (:mod:`fusion.integrity`).
     range_new_origin : ndarray of bool or None
         Where the range observation restarts from a new origin (a new
         segment, module rule 7); None: nowhere.
@@ -296,6 +301,7 @@ class FilterEpochs(ColumnRecord):
     range_difference_m: np.ndarray | None = None
     range_difference_sigma_m: np.ndarray | None = None
     range_difference_new_origin: np.ndarray | None = None
+    first_path_code_m: np.ndarray | None = None
     range_new_origin: np.ndarray | None = None
 
     def __post_init__(self) -> None:
@@ -306,7 +312,8 @@ class FilterEpochs(ColumnRecord):
             self.range_new_origin = np.zeros(n, dtype=bool)
         for name, fill in (("first_path_range_m", np.nan), ("first_path_sigma_m", np.nan),
                            ("first_path_new_origin", False), ("range_difference_m", np.nan),
-                           ("range_difference_sigma_m", np.nan), ("range_difference_new_origin", False)):
+                           ("range_difference_sigma_m", np.nan), ("range_difference_new_origin", False),
+                           ("first_path_code_m", np.nan)):
             if getattr(self, name) is None:
                 setattr(self, name, np.full((n, 0), fill))
         super().__post_init__()
@@ -339,6 +346,7 @@ class FilterEpochs(ColumnRecord):
                                 range_difference_m=self.range_difference_m[n],
                                 range_difference_sigma_m=self.range_difference_sigma_m[n],
                                 range_difference_new_origin=self.range_difference_new_origin[n],
+                                first_path_code_m=self.first_path_code_m[n],
                                 range_new_origin=bool(self.range_new_origin[n]))
 
 
@@ -508,6 +516,10 @@ def aggregate_path(series: PathRangeSeries, epoch_t_s: np.ndarray,
         Observation and its standard deviation, m (NaN: none).
     new_origin : ndarray of bool
         Epochs whose observation starts from a new origin.
+    code_range_m : ndarray
+        Mean code range of the window's valid frames that have one, m (NaN:
+        too few, as rule 3; not subject to rules 8 and 9: an origin break of
+        the carrier leaves the code's constant as it was).
     """
     _check_ranges(series)
     epoch_t_s = np.asarray(epoch_t_s, dtype=np.float64)
@@ -515,11 +527,14 @@ def aggregate_path(series: PathRangeSeries, epoch_t_s: np.ndarray,
     slip = np.asarray(series.slip, dtype=bool)
     breaks = slip | np.concatenate([[False], np.diff(age) < 0])
     valid = np.asarray(series.valid, dtype=bool) & np.isfinite(series.range_change_m) & ~slip
-    n_valid, range_sum, snr_lin_sum, age_sum, n_breaks = _window_sums(
+    coded = np.asarray(series.valid, dtype=bool) & np.isfinite(series.code_range_m)
+    n_valid, range_sum, snr_lin_sum, age_sum, n_breaks, n_coded, code_sum = _window_sums(
         series.t_s, np.stack([valid.astype(np.float64), np.where(valid, series.range_change_m, 0.0),
                               np.where(valid, 10.0 ** (series.snr_db / 10.0), 0.0), np.where(valid, age, 0.0),
-                              breaks.astype(np.float64)], axis=1), epoch_t_s, config.window_s)
-    fraction = np.minimum(n_valid / (config.window_s / np.median(np.diff(series.t_s))), 1.0)
+                              breaks.astype(np.float64), coded.astype(np.float64),
+                              np.where(coded, series.code_range_m, 0.0)], axis=1), epoch_t_s, config.window_s)
+    expected = config.window_s / np.median(np.diff(series.t_s))
+    fraction = np.minimum(n_valid / expected, 1.0)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_range = range_sum / n_valid
         mean_age = age_sum / n_valid
@@ -528,8 +543,10 @@ def aggregate_path(series: PathRangeSeries, epoch_t_s: np.ndarray,
     keep = ((fraction >= config.min_valid_fraction) & (n_valid > 0) & (n_breaks == 0)
             & (mean_age >= config.min_path_age_s))
     nan = np.full(len(epoch_t_s), np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        code = np.where((n_coded > 0) & (n_coded >= config.min_valid_fraction * expected), code_sum / n_coded, nan)
     return (np.where(keep, mean_range, nan), np.where(keep, sigma, nan),
-            new_origins(series.t_s, breaks, epoch_t_s, keep))
+            new_origins(series.t_s, breaks, epoch_t_s, keep), code)
 
 
 def aggregate_paths(paths: PathRanges, epoch_t_s: np.ndarray, n_towers: int,
@@ -545,7 +562,8 @@ def aggregate_paths(paths: PathRanges, epoch_t_s: np.ndarray, n_towers: int,
     n = len(epoch_t_s)
 
     def columns(series: dict[int, PathRangeSeries], first: int, count: int, what: str) -> list[np.ndarray]:
-        out = [np.full((n, count), np.nan), np.full((n, count), np.nan), np.zeros((n, count), dtype=bool)]
+        out = [np.full((n, count), np.nan), np.full((n, count), np.nan), np.zeros((n, count), dtype=bool),
+               np.full((n, count), np.nan)]
         for k, one in series.items():
             if not first <= k < first + count:
                 raise ValueError(f"paths.{what}: tower {k} outside {first}..{first + count - 1}")
@@ -553,8 +571,10 @@ def aggregate_paths(paths: PathRanges, epoch_t_s: np.ndarray, n_towers: int,
                 column[:, k - first] = values
         return out
 
-    return PathEpochs(epoch_t_s, *columns(paths.first_path, 0, n_towers, "first_path"),
-                      *columns(paths.differences, 1, n_towers - 1, "differences"))
+    first_path = columns(paths.first_path, 0, n_towers, "first_path")
+    # A difference has no code range of its own (both towers' constants are unknown).
+    return PathEpochs(epoch_t_s, *first_path[:3], *columns(paths.differences, 1, n_towers - 1, "differences")[:3],
+                      first_path_code_m=first_path[3])
 
 
 def standstill_times(step_t_s: np.ndarray, start_t_s: float,

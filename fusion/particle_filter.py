@@ -442,7 +442,8 @@ class ParticleFilter:
         state (:meth:`fall_back`).
         """
         z, sigma, new_origin = observation.range_channels(self.layout.n_towers)
-        use, returning, fallback = self.monitor.assess(z, new_origin)
+        code_m = observation.code_channels(self.layout.n_towers)
+        use, returning, fallback = self.monitor.assess(z, new_origin, code_m)
         if fallback is not None:
             self.fall_back(fallback[0])
         channels = np.arange(self.layout.n_channels)

@@ -4,14 +4,14 @@ import dataclasses
 
 import numpy as np
 import pytest
-from fusion_synth import exact_ranges, park_like_walk, ranges_with_blockage
+from fusion_synth import exact_ranges, park_like_walk, path_series, ranges_with_blockage, true_ranges
 
 from dtmbnav.core.records import RangeSeries
 from fusion import particle_filter as pf
 from fusion.integrity import IntegrityConfig
 from fusion.metrics import error_stats, place_pdr, position_errors_m
 from fusion.model import ModelNoise
-from fusion.observations import aggregate_ranges, build_epochs
+from fusion.observations import PathRanges, aggregate_paths, aggregate_ranges, build_epochs
 from fusion.run import FILTERS, FusionConfig
 from fusion.ukf import RangePdrUkf
 
@@ -96,8 +96,8 @@ def test_a_good_range_is_never_dropped_and_a_gap_may_end_off(runner, monkeypatch
     dropped = []
     original = pf.IntegrityMonitor.assess
 
-    def spy(self, z, new_origin):
-        use, reanchor, fallback = original(self, z, new_origin)
+    def spy(self, z, new_origin, code_m=None):
+        use, reanchor, fallback = original(self, z, new_origin, code_m)
         dropped.append(bool(np.any(np.isfinite(z) & ~use)) or fallback is not None)
         return use, reanchor, fallback
 
@@ -127,6 +127,83 @@ def test_a_slow_bend_of_a_weak_range_is_dropped_though_its_sigma_is_large(make):
     assert f.monitor.fallbacks == 1 and f.monitor.dropped_epochs[0] > 0
 
 
+def coded_first_path_epochs(walk, code_excess_m, carrier_bend_m=np.zeros_like):
+    """Epochs with a first path to the tower: its carrier range errs by ``carrier_bend_m(t)``, its code range is the
+    range plus 1000 m plus ``code_excess_m(t)``."""
+    t, r = true_ranges(walk, 50.0)
+    series = dataclasses.replace(path_series(t, r + carrier_bend_m(t)), code_range_m=1000.0 + r + code_excess_m(t))
+    paths = aggregate_paths(PathRanges(first_path={0: series}), walk.pdr.t_s, 1)
+    return build_epochs(walk.pdr, aggregate_ranges(exact_ranges(walk), walk.pdr.t_s), walk.initial_heading_rad,
+                        paths)
+
+
+@pytest.mark.parametrize("make", [lambda g, e, c: RangePdrUkf(g, ModelNoise(), *e.initial_heading_speed(), integrity=c),
+                                  lambda g, e, c: pf.ParticleFilter(g, n_particles=1000, integrity=c)])
+@pytest.mark.parametrize("gate", [True, False])
+def test_a_first_path_whose_code_arrives_late_is_kept_from_the_filter(make, gate):
+    """A reflection taken for the first path from 60 to 90 s: its carrier range is right here, but its code range
+    arrives 8 m late; the monitor keeps exactly those epochs' first path from the filter (when the gate is on)."""
+    walk = park_like_walk(gain=1.05, seed=2)
+    epochs = coded_first_path_epochs(walk, lambda t: np.where((t >= 60.0) & (t < 90.0), 8.0, 0.0))
+    f = make(walk.geometry, epochs, IntegrityConfig(code_gate=gate))
+    if isinstance(f, pf.ParticleFilter):
+        f.initialise(*epochs.initial_heading_speed())
+    monitor = f.monitor  # the first path is range channel 1
+    run_epochs(f, epochs, 0.0, 59.8)
+    assert monitor.late_epochs[1] == 0
+    run_epochs(f, epochs, 59.8, 90.2)
+    inside = np.count_nonzero((epochs.t_s > 60.2) & (epochs.t_s < 89.8))
+    if gate:
+        assert inside <= monitor.late_epochs[1] <= inside + 2
+    else:
+        assert monitor.late_epochs[1] == 0
+    late = monitor.late_epochs[1]
+    run_epochs(f, epochs, 90.2, np.inf)
+    assert monitor.late_epochs[1] == late
+    assert monitor.dropped_epochs[1] == 0 and monitor.fallbacks == 0   # the carrier itself never was inconsistent
+
+
+def test_with_code_change_m_a_late_path_is_kept_until_its_excess_changes():
+    """8 m late from 60 to 120 s; its excess grows by 0.5 m/s from 90 s (a corner): kept to about 96 s, then dropped
+    to the end of the stretch."""
+    walk = park_like_walk(gain=1.05, seed=2)
+
+    def excess(t):
+        return np.where((t >= 60.0) & (t < 120.0), 8.0 + 0.5 * np.clip(t - 90.0, 0.0, None), 0.0)
+
+    epochs = coded_first_path_epochs(walk, excess)
+    f = RangePdrUkf(walk.geometry, ModelNoise(), *epochs.initial_heading_speed(),
+                    integrity=IntegrityConfig(code_change_m=3.0))
+    run_epochs(f, epochs, 0.0, 95.0)
+    assert f.monitor.late_epochs[1] == 0
+    run_epochs(f, epochs, 95.0, 120.2)
+    dropped = np.count_nonzero((epochs.t_s > 97.0) & (epochs.t_s < 119.8))
+    assert dropped <= f.monitor.late_epochs[1] <= dropped + 4
+    late = f.monitor.late_epochs[1]
+    run_epochs(f, epochs, 120.2, np.inf)
+    assert f.monitor.late_epochs[1] == late
+
+
+@pytest.mark.parametrize("name", ["pf", "ukf"])
+def test_a_reflection_that_bends_round_a_corner_does_not_drag_the_track(name):
+    """The street's case: from 40 s the tracker follows a wall reflection 6 m late, whose carrier follows the range
+    for 20 s and then bends away at 0.15 m/s for 80 s (slowly enough for the carrier's own test to let it through).
+    With the code gate the track stays better than the PDR; without it, it is dragged (to 15 m here for the PF)."""
+    walk = park_like_walk(gain=1.1, drift_dps=0.2, seed=0, laps=2)
+
+    def bend(t):
+        return -0.15 * np.clip(t - 60.0, 0.0, 80.0)
+
+    epochs = coded_first_path_epochs(walk, lambda t: np.where(t >= 40.0, 6.0 - bend(t), 0.0), bend)
+    pdr_at_fix95 = error_stats(position_errors_m(place_pdr(walk.pdr, 0.0, 0.0, walk.initial_heading_rad),
+                                                 walk.truth)).p95_m
+    errors = {gate: error_stats(position_errors_m(
+        FILTERS[name](epochs, walk.geometry, FusionConfig(n_particles=1000, integrity=IntegrityConfig(code_gate=gate))),
+        walk.truth)).p95_m for gate in (True, False)}
+    assert errors[True] <= 1.05 * pdr_at_fix95, (errors, pdr_at_fix95)
+    assert errors[False] > errors[True] + 1.0, (errors, pdr_at_fix95)
+
+
 def test_integrity_config_is_checked():
     with pytest.raises(ValueError, match="readmit_window"):
         IntegrityConfig(window=5, readmit_window=10)
@@ -134,3 +211,5 @@ def test_integrity_config_is_checked():
         IntegrityConfig(false_alarm=0.0)
     with pytest.raises(ValueError, match="rate_sigma_mps"):
         IntegrityConfig(rate_sigma_mps=-0.1)
+    with pytest.raises(ValueError, match="code_calibration_epochs"):
+        IntegrityConfig(code_calibration_epochs=0)

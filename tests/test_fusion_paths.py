@@ -81,7 +81,7 @@ def test_a_slip_drops_its_epoch_and_makes_the_next_a_new_origin():
     slip[np.argmin(np.abs(series.t_s - 5.0))] = True
     jumped = np.where(series.t_s >= 5.0, series.range_change_m + 0.45, series.range_change_m)
     series = PathRangeSeries(series.t_s, jumped, series.snr_db, series.valid, slip, series.path_age_s)
-    value, sigma, new_origin = aggregate_path(series, np.array([4.0, 5.0, 6.0, 7.0]))
+    value, sigma, new_origin, _ = aggregate_path(series, np.array([4.0, 5.0, 6.0, 7.0]))
     assert np.isnan(value[1]) and np.isnan(sigma[1])
     assert new_origin.tolist() == [False, False, True, False]
     assert value[2] == pytest.approx(-6.0 + 0.45, abs=1.0 / 200.0)  # the window mean of a sampled ramp: to a frame
@@ -92,7 +92,7 @@ def test_a_reacquired_path_is_a_new_origin_and_a_young_path_is_held_back():
     age = np.where(series.t_s < 8.0, series.path_age_s, series.t_s - 8.0)  # path lost and found at 8 s
     series = PathRangeSeries(series.t_s, series.range_change_m, series.snr_db, series.valid, series.slip, age)
     config = PathAggregationConfig()
-    _, sigma, new_origin = aggregate_path(series, np.array([7.0, 8.2, 9.0, 18.0]), config)
+    _, sigma, new_origin, _ = aggregate_path(series, np.array([7.0, 8.2, 9.0, 18.0]), config)
     assert np.isnan(sigma[1])                                 # younger than min_path_age_s
     assert new_origin.tolist() == [False, False, True, False]
     young = config.base_sigma_m * np.sqrt(1.0 + config.path_settle_s / 1.0)
@@ -107,6 +107,18 @@ def test_path_sigma_grows_like_one_over_snr():
     config = PathAggregationConfig(good_snr_db=10.0)
     ratio = aggregate_path(weak, np.array([15.0]), config)[1] / aggregate_path(series, np.array([15.0]), config)[1]
     assert ratio[0] == pytest.approx(np.sqrt(10.0), rel=1e-6)
+
+
+def test_the_code_range_is_averaged_across_a_slip_and_absent_without_one():
+    series = ramp_path()
+    slip = series.slip.copy()
+    slip[np.argmin(np.abs(series.t_s - 5.0))] = True
+    coded = PathRangeSeries(series.t_s, series.range_change_m, series.snr_db, series.valid, slip, series.path_age_s,
+                            code_range_m=100.0 - 1.0 * series.t_s)
+    value, _, _, code = aggregate_path(coded, np.array([4.0, 5.0, 6.0]))
+    assert np.isnan(value[1])                                 # the carrier's window holds the slip
+    np.testing.assert_allclose(code, 100.0 - np.array([4.0, 5.0, 6.0]), atol=1.0 / 200.0)
+    assert np.isnan(aggregate_path(series, np.array([4.0]))[3]).all()   # no code range given: none
 
 
 def test_aggregate_paths_rejects_a_tower_outside_the_geometry():
@@ -213,7 +225,7 @@ def test_si_range_is_kept_only_where_no_first_path_is_observed():
                      np.array([True, False, False, True, False, False, False, False]))
     first = np.array([[nan, nan], [nan, 1.0], [2.0, nan], [3.0, 3.0], [4.0, nan], [nan, nan], [nan, nan], [nan, nan]])
     paths = PathEpochs(t, first, np.where(np.isfinite(first), 0.2, nan), np.zeros((8, 2), bool), np.empty((8, 0)),
-                       np.empty((8, 0)), np.empty((8, 0), bool))
+                       np.empty((8, 0)), np.empty((8, 0), bool), np.full((8, 2), np.nan))
     kept = si_range_epochs(si, paths, "without-first-path")
     np.testing.assert_array_equal(np.isfinite(kept.range_change_m), [True, False, False, False, False, True, False, True])
     np.testing.assert_array_equal(np.isfinite(kept.sigma_m), np.isfinite(kept.range_change_m))
@@ -308,6 +320,28 @@ def test_receiver_path_columns_become_path_ranges():
     assert list(paths.differences) == [1]                                        # no tower 2 in a 2-tower geometry
     frames.pop("first_path_range_change_m")
     assert paths_from_frames(frames, rows, n_towers=2) is None                    # tracker off: SI range only
+
+
+def test_the_first_path_code_range_is_the_range_up_to_a_constant_on_a_drifting_clock():
+    """A path 500 m + 1.2 m/s t away, a receiver clock 2.3 ppb fast (f_s = -1.5 Hz at 666 MHz), frame starts on the
+    sample grid, and a frame counter that skips one frame in a gap: the code range is the range plus a constant."""
+    from dtmbnav.chain import first_path_code_range_m
+    from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS as c
+    from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
+
+    period_s, carrier_hz, eps = PnMode.PN420.value.frame_duration_s, 666e6, 2.3e-9
+    k = np.arange(20000)
+    range_m = 500.0 + 1.2 * k * period_s
+    arrival_s = (k * period_s + range_m / c) * (1.0 + eps)       # on the receiver's clock
+    t_s = np.floor(arrival_s * SYMBOL_RATE_HZ) / SYMBOL_RATE_HZ     # the frame start the tracker takes
+    frames = {"t_s": t_s, "first_path_delay_s": arrival_s - t_s, "frame_index": k + (k >= 15000)}
+    attrs = {"pn_mode": "PN420", "carrier_hz": carrier_hz, "first_path_clock_offset_hz": -eps * carrier_hz}
+    code = first_path_code_range_m(frames, attrs)
+    error = code - range_m
+    assert np.ptp(error) < 0.01                              # a constant (without the f_s term: 0.7 m/s of drift)
+    assert first_path_code_range_m(frames, {**attrs, "first_path_clock_offset_hz": np.nan}) is None
+    assert first_path_code_range_m(frames, {"pn_mode": "none", "carrier_hz": carrier_hz,
+                                            "first_path_clock_offset_hz": 1.0}) is None
 
 
 def test_the_sensors_file_gives_every_towers_height_above_the_antenna(tmp_path):

@@ -25,7 +25,7 @@ def first_path(power_db, delay_chips, phase_rad=None, snr_db=30.0):
     coef = (np.sqrt(power) * np.exp(1j * phase))[:, None]
     tap_snr = (power * 10.0 ** (snr_db / 10.0))[:, None]
     delay = np.asarray(delay_chips, float)[:, None]
-    identity, amplitude, _ = first_path_kernel(coef, delay, tap_snr, SURVIVAL, WEAK, CONFIG.min_separation_chips,
+    identity, amplitude, _, _ = first_path_kernel(coef, delay, tap_snr, SURVIVAL, WEAK, CONFIG.min_separation_chips,
                                                CONFIG.weak_separation_chips, PULSE, np.array([-1, 0]))
     return int(identity[0]), complex(amplitude[0])
 
@@ -70,10 +70,11 @@ def test_kernel_matches_its_numpy_reference(n_paths, n_times, held, swallowed, s
     tap_snr = np.abs(coef) ** 2 * 10.0 ** rng.uniform(0.0, 3.0)
     args = (SURVIVAL, WEAK, CONFIG.min_separation_chips, CONFIG.weak_separation_chips, PULSE)
     k_held, r_held = np.array([held, swallowed]), np.array([held, swallowed])
-    k_id, k_amp, k_broken = first_path_kernel(coef, delay, tap_snr, *args, k_held)
-    r_id, r_amp, r_broken = first_path_reference(coef, delay, tap_snr, *args, r_held)
+    k_id, k_amp, k_broken, k_anchor = first_path_kernel(coef, delay, tap_snr, *args, k_held)
+    r_id, r_amp, r_broken, r_anchor = first_path_reference(coef, delay, tap_snr, *args, r_held)
     np.testing.assert_array_equal(k_id, r_id)
     np.testing.assert_array_equal(k_broken, r_broken)
+    np.testing.assert_array_equal(k_anchor, r_anchor)
     np.testing.assert_array_equal(k_held, r_held)
     np.testing.assert_allclose(k_amp, r_amp, rtol=1e-9, atol=1e-12)
 
@@ -102,12 +103,17 @@ def test_line_of_sight_first_path_follows_the_direct_path(park):
     np.testing.assert_allclose(fp.path_age_s[fp.valid], fp.t_s[fp.valid] - fp.t_s[first])
     # Per-sample SNR of the unobstructed direct path: near the C/N (the header is boosted above the body).
     assert np.median(fp.snr_db[fp.valid]) == pytest.approx(scn.receiver.cn_db, abs=3.0)
+    # The code range is the direct path's range up to a constant, with decimetres of error at this SNR.
+    code_error = (fp.code_range_m - exact.range_change_m)[fp.valid]
+    code_error -= np.median(code_error)
+    assert 0.01 < np.std(code_error) < 0.3 and np.abs(code_error).max() < 1.5
+    assert np.isnan(fp.code_range_m[~fp.valid & (fp.t_s < CONFIG.confirm_s)]).all()
 
 
 def test_the_output_does_not_depend_on_the_block_length(park):
     scn, truth, paths = park
     other = simulate_obs_paths(scn, truth, block_samples=1000)
-    for name in ("range_change_m", "snr_db", "valid", "slip", "path_age_s"):
+    for name in ("range_change_m", "snr_db", "valid", "slip", "path_age_s", "code_range_m"):
         np.testing.assert_array_equal(getattr(other.first_path, name), getattr(paths.first_path, name))
 
 
@@ -135,9 +141,11 @@ def test_a_held_first_path_is_swallowed_by_a_reflection_that_closes_in_and_resta
     delay = np.array([[10.0, 10.0, 10.0], [11.0, 10.5, 10.8]])
     tap_snr = np.abs(coef) ** 2 * 1e4
     held = np.array([-1, 0])
-    identity, amplitude, broken = first_path_kernel(coef, delay, tap_snr, SURVIVAL, WEAK, CONFIG.min_separation_chips,
-                                                    CONFIG.weak_separation_chips, PULSE, held)
+    identity, amplitude, broken, anchor = first_path_kernel(coef, delay, tap_snr, SURVIVAL, WEAK,
+                                                         CONFIG.min_separation_chips, CONFIG.weak_separation_chips,
+                                                         PULSE, held)
     assert identity.tolist() == [0, 0, 0]           # one path to the tracker throughout: no new origin there
+    assert anchor.tolist() == [0, 1, 0]             # the fit finds the wall's delay while it swallows the path
     assert abs(np.angle(amplitude[0])) < 1e-9       # the direct path alone
     assert abs(np.angle(amplitude[1]) - 2.0) < 0.1  # swallowed: the wall's phase
     assert broken.tolist() == [False, False, True]  # separated again: its phase restarts

@@ -147,6 +147,14 @@ class PathRangeSeries(ColumnRecord):
     path_age_s : ndarray
         How long the path has been tracked without a break, s (of the younger
         path for a difference).
+    code_range_m : ndarray or None
+        Code (delay) range of the path, m, with the receiver clock's f_s
+        drift taken out as from the carrier range, up to an unknown constant
+        that does not change at origin breaks: for the direct path the range
+        plus that constant; a reflection taken for the first path arrives
+        late by its excess path length (docs/paths.md, "The first path's
+        code range"). NaN where unknown (a difference; a file without it);
+        None gives NaN throughout.
     """
 
     t_s: np.ndarray
@@ -155,23 +163,31 @@ class PathRangeSeries(ColumnRecord):
     valid: np.ndarray
     slip: np.ndarray
     path_age_s: np.ndarray
+    code_range_m: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.code_range_m is None:
+            self.code_range_m = np.full(len(self.t_s), np.nan)
+        super().__post_init__()
 
     @classmethod
     def from_runs(cls, t_s: np.ndarray, range_change_m: np.ndarray, path_key: np.ndarray, tracked: np.ndarray,
-                  usable: np.ndarray, snr_db: np.ndarray, slip: np.ndarray) -> PathRangeSeries:
+                  usable: np.ndarray, snr_db: np.ndarray, slip: np.ndarray,
+                  code_range_m: np.ndarray | None = None) -> PathRangeSeries:
         """A series from per-frame values and which path gave each, its age and origin breaks derived.
 
         A run is a stretch of tracked frames with one ``path_key`` (the path,
         or the pair of paths of a difference); the path age restarts where a
         run begins, and that frame is an origin break as a flagged ``slip``
-        is. ``range_change_m`` is set to 0 where nothing is tracked; ``valid``
-        is ``tracked & usable``.
+        is. ``range_change_m`` is set to 0 where nothing is tracked, and
+        ``code_range_m`` to NaN; ``valid`` is ``tracked & usable``.
         """
         begins = tracked & ~np.concatenate([[False], tracked[:-1] & (path_key[1:] == path_key[:-1])])
         run_start = np.maximum.accumulate(np.where(begins, np.arange(len(t_s)), 0))
+        code = None if code_range_m is None else np.where(tracked, code_range_m, np.nan)
         return cls(t_s=t_s, range_change_m=np.where(tracked, range_change_m, 0.0), snr_db=snr_db,
                    valid=tracked & usable, slip=(slip | begins) & tracked,
-                   path_age_s=np.where(tracked, t_s - t_s[run_start], 0.0))
+                   path_age_s=np.where(tracked, t_s - t_s[run_start], 0.0), code_range_m=code)
 
 
 @dataclass
