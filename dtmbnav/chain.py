@@ -225,7 +225,8 @@ def first_path_code_range_m(frames: dict[str, np.ndarray], attrs: dict[str, Any]
         return None
     t_s = np.asarray(frames["t_s"], dtype=np.float64)
     # The transmit time in the frame's own period (the t_s and frame counter's common part cancels).
-    arrival_s = (t_s - t_s[0]) + frames["first_path_delay_s"] - (frames["frame_index"] - frames["frame_index"][0]) * period_s
+    frames_since = frames["frame_index"] - frames["frame_index"][0]
+    arrival_s = (t_s - t_s[0]) + frames["first_path_delay_s"] - frames_since * period_s
     ambiguity_m = SPEED_OF_LIGHT_MPS * period_s
     code_m = SPEED_OF_LIGHT_MPS * arrival_s + wavelength_m * f_s_hz * (t_s - t_s[0])
     known = np.isfinite(code_m)

@@ -385,7 +385,7 @@ def simulate_obs_paths(scenario: Scenario, truth: Track, config: ObsPathConfig =
     smoothing = None
     held = np.tile(np.array([-1, 0], dtype=np.int64), (n_towers, 1))
     broken = np.zeros((n_towers, len(t_s)), dtype=bool)
-    code_m = np.full((n_towers, len(t_s)), np.nan)
+    path_delay_m = np.full(len(t_s), np.nan)   # c x the delay of tower 0's first path as the fit finds it
     for lo in range(0, len(t_s), block_samples):
         hi = min(lo + block_samples, len(t_s))
         state = channel.state(t_s[lo:hi])
@@ -398,8 +398,10 @@ def simulate_obs_paths(scenario: Scenario, truth: Track, config: ObsPathConfig =
             identity[k, lo:hi], amplitude[k, lo:hi], broken[k, lo:hi], anchor = first_path_kernel(
                 state.coef[rows], state.delay_s[rows] * gb20600.SYMBOL_RATE_HZ, seen[rows], survival, weak,
                 config.min_separation_chips, config.weak_separation_chips, pulse, held[k])
-            found = anchor >= 0
-            code_m[k, lo:hi][found] = SPEED_OF_LIGHT_MPS * state.delay_s[rows][anchor[found], np.flatnonzero(found)]
+            if k == 0:   # the receiver gives tower 0's code range only (dtmbnav.chain.first_path_code_range_m)
+                found = anchor >= 0
+                path_delay_m[lo:hi][found] = (SPEED_OF_LIGHT_MPS
+                                              * state.delay_s[rows][anchor[found], np.flatnonzero(found)])
 
     # Each tower's first-path range: its phase steps integrated where the first path stays the same path.
     wavelength_m = SPEED_OF_LIGHT_MPS / tower.carrier_hz
@@ -418,7 +420,7 @@ def simulate_obs_paths(scenario: Scenario, truth: Track, config: ObsPathConfig =
     clock_m = SPEED_OF_LIGHT_MPS * (oscillator.time_error_s(t_s) - oscillator.time_error_s(t_s[:1]))
     clock_m -= clock_m[cal] / (t_s[cal] - t_s[0]) * (t_s - t_s[0])
     snr_db = 10.0 * np.log10(tap_snr / header_gain)
-    code_m = code_m[0] + clock_m + code_error_m(t_s, snr_db[0], config, np.random.default_rng(
+    code_m = path_delay_m + clock_m + code_error_m(t_s, snr_db[0], config, np.random.default_rng(
         [scenario.seed, _STREAM_CODE_NOISE, config.noise_draw]))
 
     usable = np.ones(len(t_s), dtype=bool)
