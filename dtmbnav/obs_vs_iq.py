@@ -18,6 +18,14 @@ segment's end:
   in fades and multipath, with every fade seen in many windows, so a few
   walks give a stable median and 95 %.
 
+Both are taken of the SI-carrier range and of tower 0's first-path range
+(``first_integrated``, ``first_change``), and a third of the first path's
+code range (``first_code``): ``|u(t) - median(u)|`` with ``u = code_range_m -
+d``, the median over the walk's samples: the code range is an absolute range
+up to a constant (``dtmbnav.chain.first_path_code_range_m``), and what the
+integrity monitor's late-path test (``fusion/integrity.py``) sees is how far
+it strays from its constant.
+
 The errors of all seeds of a case are pooled (the observation level's over
 ``obs_draws`` draws of the receiver noise per walk, which only narrows its
 own spread), and each distribution is summarised by its median and 95th
@@ -113,20 +121,22 @@ class ErrorStats:
 @dataclass(frozen=True)
 class LevelErrors:
     """One walk's errors at one level: integrated and change over :data:`CHANGE_WINDOW_S` (module docstring),
-    of the SI-carrier range and of tower 0's first path."""
+    of the SI-carrier range and of tower 0's first path, and the first path's code-range error."""
 
     integrated_m: np.ndarray
     change_m: np.ndarray
     first_integrated_m: np.ndarray
     first_change_m: np.ndarray
+    first_code_m: np.ndarray
 
     @classmethod
     def pool(cls, parts: Sequence[LevelErrors]) -> LevelErrors:
         return cls(*(np.concatenate([getattr(p, f"{metric}_m") for p in parts]) for metric in METRICS))
 
 
-#: The compared metrics: the SI-carrier range's and the first path's, each integrated and over a change window.
-METRICS = ("integrated", "change", "first_integrated", "first_change")
+#: The compared metrics: the SI-carrier range's and the first path's, each integrated and over a change window,
+#: and the first path's code range about its constant.
+METRICS = ("integrated", "change", "first_integrated", "first_change", "first_code")
 
 
 @dataclass(frozen=True)
@@ -144,15 +154,43 @@ class Comparison:
     iq_first_integrated: ErrorStats
     obs_first_change: ErrorStats
     iq_first_change: ErrorStats
+    obs_first_code: ErrorStats
+    iq_first_code: ErrorStats
 
     def ratios(self, metric: str = "change") -> tuple[float, float]:
-        """Observation level over IQ level of ``metric`` (``"change"`` or ``"integrated"``): (median, 95 %)."""
+        """Observation level over IQ level of ``metric`` (one of :data:`METRICS`): (median, 95 %)."""
         obs, iq = getattr(self, f"obs_{metric}"), getattr(self, f"iq_{metric}")
         return obs.median_m / iq.median_m, obs.p95_m / iq.p95_m
 
     def agrees(self, metric: str = "change", tolerance: float = AGREEMENT) -> bool:
         """Whether both statistics of ``metric`` are within ``tolerance`` (relative to the IQ level's)."""
         return all(abs(r - 1.0) <= tolerance for r in self.ratios(metric))
+
+
+def true_range_m(scenario: Scenario, truth: Track, t_s: np.ndarray) -> np.ndarray:
+    """The true 3-D distance from the walker's antenna to tower 0 at times ``t_s``, m."""
+    at = interpolate_track(truth, t_s)
+    tower = scenario.tower
+    return np.hypot(np.hypot(at.x_m - tower.x_m, at.y_m - tower.y_m),
+                    tower.height_m - scenario.channel.antenna_height_m)
+
+
+def walking(scenario: Scenario, truth: Track, t_s: np.ndarray, end_s: float) -> np.ndarray:
+    """Whether each time of ``t_s`` lies after the standstill and before ``end_s``."""
+    walk_start = truth.t_s[0] + scenario.walk.start_still_s
+    return (t_s >= walk_start) & (t_s < end_s)
+
+
+def code_errors(scenario: Scenario, truth: Track, first_path: PathRangeSeries, end_s: float) -> np.ndarray:
+    """The first path's code-range error about its constant while walking, before ``end_s`` (module docstring), m.
+
+    Counts the valid samples that have a code range; empty when the series has none.
+    """
+    if first_path.code_range_m is None:
+        return np.zeros(0)
+    error = first_path.code_range_m - true_range_m(scenario, truth, first_path.t_s)
+    error = error[walking(scenario, truth, first_path.t_s, end_s) & first_path.valid & np.isfinite(error)]
+    return np.abs(error - np.median(error)) if len(error) else error
 
 
 def range_errors(scenario: Scenario, truth: Track, ranges: RangeSeries | PathRangeSeries,
@@ -164,10 +202,7 @@ def range_errors(scenario: Scenario, truth: Track, ranges: RangeSeries | PathRan
     starts from an unknown value, as the fusion takes it); a change window
     that straddles an origin break is left out.
     """
-    at = interpolate_track(truth, ranges.t_s)
-    tower = scenario.tower
-    true_m = np.hypot(np.hypot(at.x_m - tower.x_m, at.y_m - tower.y_m),
-                      tower.height_m - scenario.channel.antenna_height_m)
+    true_m = true_range_m(scenario, truth, ranges.t_s)
     error = ranges.range_change_m - (true_m - true_m[0])
     if isinstance(ranges, PathRangeSeries):
         usable = ranges.valid
@@ -177,18 +212,20 @@ def range_errors(scenario: Scenario, truth: Track, ranges: RangeSeries | PathRan
     else:
         usable = np.ones(len(error), dtype=bool)
         run = np.zeros(len(error), dtype=np.int64)
-    walk_start = truth.t_s[0] + scenario.walk.start_still_s
-    walking = (ranges.t_s >= walk_start) & (ranges.t_s < end_s) & usable
+    counted = walking(scenario, truth, ranges.t_s, end_s) & usable
     earlier = np.searchsorted(ranges.t_s, ranges.t_s - CHANGE_WINDOW_S)
-    changing = walking & (ranges.t_s - CHANGE_WINDOW_S >= walk_start) & usable[earlier] & (run[earlier] == run)
-    return np.abs(error[walking]), np.abs(error - error[earlier])[changing]
+    changing = (counted & walking(scenario, truth, ranges.t_s - CHANGE_WINDOW_S, end_s) & usable[earlier]
+                & (run[earlier] == run))
+    return np.abs(error[counted]), np.abs(error - error[earlier])[changing]
 
 
 def level_errors(scenario: Scenario, truth: Track, ranges: RangeSeries, first_path: PathRangeSeries,
                  end_s: float) -> LevelErrors:
-    """:func:`range_errors` of a level's SI-carrier range and of its (tower 0's) first path."""
+    """:func:`range_errors` of a level's SI-carrier range and of its (tower 0's) first path, and
+    :func:`code_errors` of the first path."""
     return LevelErrors(*range_errors(scenario, truth, ranges, end_s),
-                       *range_errors(scenario, truth, first_path, end_s))
+                       *range_errors(scenario, truth, first_path, end_s),
+                       code_errors(scenario, truth, first_path, end_s))
 
 
 def walk_errors(scenario: Scenario, seconds: float, obs_draws: int = OBS_DRAWS

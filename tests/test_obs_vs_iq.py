@@ -15,7 +15,7 @@ import pytest
 from fusion_synth import polyline_truth
 
 from dtmbnav.core.records import PathRangeSeries, RangeSeries
-from dtmbnav.obs_vs_iq import AGREEMENT, CASES, compare, range_errors
+from dtmbnav.obs_vs_iq import AGREEMENT, CASES, code_errors, compare, range_errors
 from dtmbnav.seeds import REPORTING_SEEDS
 from sim.scenario import load_scenario
 
@@ -81,3 +81,22 @@ def test_first_path_errors_restart_at_each_origin_break():
                                           np.zeros_like(t), np.zeros_like(t, bool))
     integrated_m, _ = range_errors(scn, truth, unflagged, end_s=7.0)
     assert np.count_nonzero(np.abs(integrated_m - 0.5) < 1e-6) == np.count_nonzero((t >= 3.0) & (t < 7.0))
+
+
+def test_code_errors_about_the_constant():
+    """A code range that is the true range plus 40 m, and 3 m more for 1 s of the 5 s walked: the error about its
+    median is 3 m there and 0 elsewhere; samples without a path or before the walk do not count."""
+    scn, truth, t, d = straight_walk()
+    late = (t >= 4.0) & (t < 5.0)
+    tracked = t >= 0.5
+    code = d + 40.0 + np.where(late, 3.0, 0.0)
+    series = PathRangeSeries.from_runs(t, d - d[0], np.ones_like(t, int), tracked, np.ones_like(t, bool),
+                                       np.zeros_like(t), np.zeros_like(t, bool), code)
+    errors_m = code_errors(scn, truth, series, end_s=7.0)
+    walking = (t >= 2.0) & (t < 7.0)
+    assert len(errors_m) == np.count_nonzero(walking)
+    np.testing.assert_allclose(np.sort(errors_m)[-np.count_nonzero(late):], 3.0, atol=1e-6)
+    assert np.count_nonzero(errors_m < 1e-6) == np.count_nonzero(walking & ~late)
+    no_code = PathRangeSeries.from_runs(t, d - d[0], np.ones_like(t, int), tracked, np.ones_like(t, bool),
+                                        np.zeros_like(t), np.zeros_like(t, bool))
+    assert len(code_errors(scn, truth, no_code, end_s=7.0)) == 0
