@@ -25,10 +25,11 @@ hyperbola instead of only measuring motion. :class:`ObservationLayout`
 orders these range channels.
 
 Every single-tower carrier-phase range (the SI-carrier range and each
-first-path range) also carries the receiver clock: with a free-running
-oscillator (:class:`ClockModel`) the filters add a clock state, the range
-the clock has integrated (``c``, m) and its rate (``b``, m/s, the f_s drift
-of eq. 9-10 times c / fc), a random-walk rate::
+first-path range) also carries the receiver clock. With a free-running
+oscillator (:class:`ClockModel`; for a disciplined one in holdover an
+option) the filters add a clock state, the range the clock has integrated
+since the f_s calibration (``c``, m) and its rate (``b``, m/s, the f_s
+drift of eq. 9-10 times c / fc), a random-walk rate::
 
     c_{n+1} = c_n + b_n * dt_n        b_{n+1} = b_n + w_n,  Var(w_n) = q dt_n
 
@@ -283,42 +284,54 @@ def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray | float:
 
 
 
+#: Standard deviation of the clock rate at the first epoch per clock model, m/s. A disciplined clock: what the
+#: f_s calibration of the standstill leaves (0.02 Hz at 666 MHz is 0.009 m/s; docs/method.md §2). A free-running
+#: one: its wander since the calibration as well.
+CLOCK_INITIAL_RATE_MPS = {"disciplined": 0.01, "free-running": 0.5}
+
+
 @dataclass(frozen=True)
 class ClockModel:
     """The receiver clock as the filters model it (module docstring).
 
-    ``disciplined``: a GNSS-disciplined oscillator, whose wander (Allan
-    deviation about 1e-12, docs/paths.md) stays far below the range noise:
-    no clock state. ``free-running``: a TCXO whose frequency wanders by a
-    random walk (random-walk FM); the filters carry the clock states. Its
-    Allan variance is ``q_y tau / 3`` (q_y per second, fractional), so a
-    deviation ``sigma_y`` at ``tau`` gives ``q_y = 3 sigma_y^2 / tau``; in
-    range units the rate's random walk has ``q = c^2 q_y`` (m^2/s^3; 1e-9 of
-    fractional frequency is c * 1e-9 = 0.3 m/s of false radial velocity).
+    ``disciplined``: a GNSS-disciplined oscillator, which once GNSS is lost
+    runs on its own reference (holdover) with an Allan deviation about 1e-12
+    (docs/paths.md): its rate's random walk integrates to sigma 1.6 m of
+    range over 300 s, metres over a street walk; with ``state`` the filters
+    carry its states (docs/method.md §8: off by default, the tuning walks
+    did not favour it), without it there is no clock (the paper's model).
+    ``free-running``: a TCXO whose frequency wanders by a random walk
+    (random-walk FM); the filters always carry its states. Its Allan variance
+    is ``q_y tau / 3`` (q_y per second, fractional), so a deviation
+    ``sigma_y`` at ``tau`` gives ``q_y = 3 sigma_y^2 / tau``; in range units
+    the rate's random walk has ``q = c^2 q_y`` (m^2/s^3; 1e-9 of fractional
+    frequency is c * 1e-9 = 0.3 m/s of false radial velocity).
 
     Attributes
     ----------
     kind : {"disciplined", "free-running"}
     allan_deviation : float or None
-        Allan deviation at ``allan_tau_s`` of the free-running clock; None
-        takes the ``free-running`` preset (:data:`dtmbnav.core.constants.CLOCK_PRESETS`,
-        the clock the simulator draws).
+        Allan deviation at ``allan_tau_s``; None takes the preset of the
+        clock's kind (:data:`dtmbnav.core.constants.CLOCK_PRESETS`, the clocks
+        the simulator draws).
     allan_tau_s : float
         Averaging time of ``allan_deviation``, s.
-    initial_rate_mps : float
-        Standard deviation of the clock rate at the first epoch, m/s: what
-        the receiver's f_s calibration at the start (docs/method.md §2) left,
-        and the wander since.
+    initial_rate_mps : float or None
+        Standard deviation of the clock rate at the first epoch, m/s; None:
+        :data:`CLOCK_INITIAL_RATE_MPS` of the clock's kind.
     initial_bias_m : float
         Standard deviation of the range the clock integrated before the
         first epoch, m.
+    state : bool
+        Whether a disciplined clock has states (a free-running one always has).
     """
 
     kind: str = "disciplined"
     allan_deviation: float | None = None
     allan_tau_s: float = 1.0
-    initial_rate_mps: float = 0.5
+    initial_rate_mps: float | None = None
     initial_bias_m: float = 0.1
+    state: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in CLOCK_MODELS:
@@ -329,13 +342,20 @@ class ClockModel:
             raise ValueError(f"clock Allan tau must be positive, got {self.allan_tau_s}")
 
     @property
+    def free_running(self) -> bool:
+        """Whether the clock runs free (the filters then also use the standstills and, in an SFN, solve eq. 15 on a
+        tower difference: ``fusion.run``)."""
+        return self.kind == "free-running"
+
+    @property
     def has_state(self) -> bool:
         """Whether the filters carry the clock states."""
-        return self.kind == "free-running"
+        return self.free_running or self.state
 
     def rate_psd_m2ps3(self) -> float:
         """q: spectral density of the clock rate's random walk in range units, m^2/s^3."""
-        adev = CLOCK_PRESETS["free-running"][1] if self.allan_deviation is None else self.allan_deviation
+        preset = "free-running" if self.free_running else "gnss-disciplined"
+        adev = CLOCK_PRESETS[preset][1] if self.allan_deviation is None else self.allan_deviation
         return SPEED_OF_LIGHT_MPS**2 * 3.0 * adev**2 / self.allan_tau_s
 
     def process_covariance(self, elapsed_s: float) -> np.ndarray:
@@ -348,7 +368,8 @@ class ClockModel:
         """Covariance of [c, b] at the first epoch."""
         if not self.has_state:
             return np.zeros((2, 2))
-        return np.diag([self.initial_bias_m**2, self.initial_rate_mps**2])
+        rate = CLOCK_INITIAL_RATE_MPS[self.kind] if self.initial_rate_mps is None else self.initial_rate_mps
+        return np.diag([self.initial_bias_m**2, rate**2])
 
 
 @dataclass(frozen=True)

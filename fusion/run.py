@@ -9,7 +9,8 @@ Which filter takes which observation: every filter (``pf``, ``ukf``,
 ``wt-ukf``, ``adaptive-kf``, ``rank-kf``) takes the SI-carrier range, the
 first-path range of every tower and the tower differences (the range
 channels of :class:`fusion.model.ObservationLayout`), the PDR heading and
-speed, and with ``clock_model="free-running"`` carries the clock state; all
+speed, and with ``clock_model="free-running"`` (or ``clock_state``) carries
+the clock's states (:class:`fusion.model.ClockModel`); all
 of them vet the range channels with the same integrity monitor
 (:mod:`fusion.integrity`). The WT-UKF re-estimates the SI-carrier range's
 noise only, the adaptive EKF grades the SI-carrier range's by the link SNR;
@@ -55,10 +56,16 @@ class FusionConfig:
         The receiver clock (:class:`fusion.model.ClockModel`): a free-running
         one gives every filter the clock state and the standstill epochs.
     clock_allan_deviation : float or None
-        Allan deviation of the free-running clock at ``clock_allan_tau_s``;
-        None: the ``free-running`` preset's.
+        Allan deviation of the clock at ``clock_allan_tau_s``; None: the
+        preset of its kind.
     clock_allan_tau_s : float
         Its averaging time, s.
+    clock_state : bool
+        Whether the filters carry a disciplined clock's states too (its
+        holdover wander; :class:`fusion.model.ClockModel`). Off by default
+        (the paper's model, no clock): on the tuning walks it helped the
+        walks whose clock drifted and did not help on average
+        (docs/method.md §8).
     integrity : IntegrityConfig
         The range integrity monitor every filter uses.
     paths : PathAggregationConfig
@@ -80,6 +87,7 @@ class FusionConfig:
     clock_model: str = DEFAULT_CLOCK_MODEL
     clock_allan_deviation: float | None = None
     clock_allan_tau_s: float = 1.0
+    clock_state: bool = False
     integrity: IntegrityConfig = field(default_factory=IntegrityConfig)
     paths: PathAggregationConfig = field(default_factory=PathAggregationConfig)
     standstills: StandstillConfig = field(default_factory=StandstillConfig)
@@ -97,7 +105,8 @@ class FusionConfig:
 
     def clock(self) -> ClockModel:
         """The clock model the filters use."""
-        return ClockModel(self.clock_model, self.clock_allan_deviation, self.clock_allan_tau_s)
+        return ClockModel(self.clock_model, self.clock_allan_deviation, self.clock_allan_tau_s,
+                          state=self.clock_state)
 
 
 def initial_heading(pdr: PdrSteps, range_epochs: RangeEpochs, path_epochs: PathEpochs | None, at_steps: np.ndarray,
@@ -116,7 +125,7 @@ def initial_heading(pdr: PdrSteps, range_epochs: RangeEpochs, path_epochs: PathE
     epoch that starts from a new origin (a slip, a re-found path) is left
     out, so that eq. 15 gives the run after it a free offset.
     """
-    if config.clock().has_state and path_epochs is not None:
+    if config.clock().free_running and path_epochs is not None:
         for k in range(path_epochs.range_difference_m.shape[1]):
             try:
                 return solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, path_epochs.range_difference_m[at_steps, k],
@@ -204,7 +213,7 @@ def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], to
     if unknown:
         raise ValueError(f"fuse: unknown filter(s) {unknown}; known: {', '.join(FILTERS)}")
     geometry = Geometry(start_xy_m[0], start_xy_m[1], tower_xy_m[0], tower_xy_m[1], tower_height_m, other_towers)
-    standstills = config.standstills if config.clock().has_state else None
+    standstills = config.standstills if config.clock().free_running else None
     t_s = epoch_times(pdr.t_s, float(ranges.t_s[0]), standstills)
     range_epochs = aggregate_ranges(ranges, t_s, config.aggregation)
     at_steps = np.searchsorted(t_s, pdr.t_s)
