@@ -26,7 +26,7 @@ def first_path(power_db, delay_chips, phase_rad=None, snr_db=30.0):
     tap_snr = (power * 10.0 ** (snr_db / 10.0))[:, None]
     delay = np.asarray(delay_chips, float)[:, None]
     identity, amplitude, _, _ = first_path_kernel(coef, delay, tap_snr, SURVIVAL, WEAK, CONFIG.min_separation_chips,
-                                               CONFIG.weak_separation_chips, PULSE, np.array([-1, 0]))
+                                                  CONFIG.weak_separation_chips, PULSE, np.array([-1, 0]))
     return int(identity[0]), complex(amplitude[0])
 
 
