@@ -56,6 +56,7 @@ from fusion import FILTER_NAMES, FOOT_INS
 from fusion.foot_ins import ZuptInsRankKf
 from fusion.metrics import (PDR_AT_FIX, PDR_BASELINE, error_stats, heading_error_rad, interpolate_track, pdr_baselines,
                             position_errors_m)
+from fusion.model import CLOCK_MODEL_PRESETS
 from fusion.observations import PathRanges
 from fusion.pdr import PdrConfig, run_pdr
 from fusion.run import FusionConfig, fuse
@@ -165,7 +166,7 @@ def seed_scenario(scenario: Scenario, k: int, first_seed: int = REPORTING_SEEDS.
 def receiver_clock_model(scenario: Scenario) -> str:
     """The fusion's clock model for the scenario's receiver: disciplined for a GNSS-disciplined oscillator,
     free-running for any other (a user knows which clock their SDR has, as ``dtmbnav fuse --clock-model``)."""
-    return "disciplined" if scenario.receiver.clock.preset == "gnss-disciplined" else "free-running"
+    return "disciplined" if scenario.receiver.clock.preset == CLOCK_MODEL_PRESETS["disciplined"] else "free-running"
 
 
 def calibrated_pdr_config(scenario: Scenario) -> PdrConfig:

@@ -283,7 +283,8 @@ def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray | float:
     return (np.asarray(angle_rad) + np.pi) % (2.0 * np.pi) - np.pi
 
 
-
+#: The oscillator preset (:data:`dtmbnav.core.constants.CLOCK_PRESETS`) each clock model stands for.
+CLOCK_MODEL_PRESETS = {"disciplined": "gnss-disciplined", "free-running": "free-running"}
 #: Standard deviation of the clock rate at the first epoch per clock model, m/s. A disciplined clock: what the
 #: f_s calibration of the standstill leaves (0.02 Hz at 666 MHz is 0.009 m/s; docs/method.md §2). A free-running
 #: one: its wander since the calibration as well.
@@ -354,8 +355,9 @@ class ClockModel:
 
     def rate_psd_m2ps3(self) -> float:
         """q: spectral density of the clock rate's random walk in range units, m^2/s^3."""
-        preset = "free-running" if self.free_running else "gnss-disciplined"
-        adev = CLOCK_PRESETS[preset][1] if self.allan_deviation is None else self.allan_deviation
+        adev = self.allan_deviation
+        if adev is None:
+            adev = CLOCK_PRESETS[CLOCK_MODEL_PRESETS[self.kind]][1]
         return SPEED_OF_LIGHT_MPS**2 * 3.0 * adev**2 / self.allan_tau_s
 
     def process_covariance(self, elapsed_s: float) -> np.ndarray:

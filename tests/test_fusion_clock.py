@@ -90,7 +90,6 @@ def test_the_clock_state_keeps_a_tcxo_range_from_dragging_the_track(name):
     assert np.mean(with_clock) < 0.6 * np.mean(without), (with_clock, without)
 
 
-
 def test_the_disciplined_clock_state_takes_a_holdover_drift():
     """Three laps (280 s) with a disciplined clock's holdover drift, a rate ramp to 0.024 m/s (3 m of range at
     250 s, three times the 1e-12 preset's sigma there): the UKF with the clock states ends at least 0.15 m closer to
