@@ -95,6 +95,20 @@ arrive no earlier than the direct one, so it would say ``b`` was calibrated
 on a late path): a prior dragged off by a reflection moved it, and the direct
 path counted as late from then on. The heading solution (eq. 15) is not
 affected: reflections along the street serve it (docs/paths.md).
+
+**Two references.** The prior is the filter's own. A filter that is off
+along the line of sight (dragged before the gate caught a reflection, or
+coasting through a stretch without ranges) sees the direct path late by
+its own error, and dropping it keeps from the filter the one range that
+would bring it back: the gate holds itself shut (street-back at IQ level:
+the direct path dropped for the last 130 s of a walk, the particle filter
+10 m off). With ``code_pdr_reference`` the excess is also taken against
+the PDR alone from the first epoch (the first posterior carried over every
+control since, which no range has moved; its clock columns are the
+prior's), with a constant of its own calibrated alike, and a path is late
+only when it is late against both. A reflection is late against both by
+its excess less each reference's error along the line of sight; the PDR's
+error there is its own drift, which no decision of the gate moves.
 """
 
 from __future__ import annotations
@@ -104,8 +118,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 from scipy.stats import chi2
 
-from fusion.model import (ClockModel, Geometry, ModelNoise, ObservationLayout, StepControl, observation_jacobian,
-                          observe, process_covariance, propagate, transition_jacobian)
+from fusion.model import (STATE_SIZE, ClockModel, Geometry, ModelNoise, ObservationLayout, StepControl,
+                          observation_jacobian, observe, process_covariance, propagate, transition_jacobian)
 
 
 @dataclass(frozen=True)
@@ -151,6 +165,9 @@ class IntegrityConfig:
         walk changes its range as the direct path does), and dropped from the
         first epoch it does not until the stretch ends, m; None: dropped
         throughout.
+    code_pdr_reference : bool
+        Whether a first path counts as late only when it is also late against
+        the PDR alone (module docstring, "Two references").
     """
 
     enabled: bool = True
@@ -164,6 +181,7 @@ class IntegrityConfig:
     code_calibration_epochs: int = 10
     code_late_m: float = 3.0
     code_change_m: float | None = None
+    code_pdr_reference: bool = True
 
     def __post_init__(self) -> None:
         if self.window < 2 or not 2 <= self.readmit_window <= self.window:
@@ -276,11 +294,16 @@ class IntegrityMonitor:
         self._code_origin = np.full(n, np.nan)                            # the constant b per channel
         self._late_excess = np.full(n, np.nan)                            # excess where a late stretch began
         self._late_dropped = np.zeros(n, dtype=bool)                      # the stretch's path has been dropped
+        self._pdr_x: np.ndarray | None = None                             # the PDR alone from the first epoch
+        self._pdr_offsets: list[list[float]] = [[] for _ in range(n)]
+        self._pdr_origin = np.full(n, np.nan)
 
     def predict(self, control: StepControl) -> None:
         """Carry every kept epoch's open-loop prediction over one more control."""
         self._index += 1
         self._t_s += control.elapsed_s
+        if self._pdr_x is not None:
+            self._pdr_x = propagate(self._pdr_x, control)
         kept = self._kept
         if not self.config.enabled or kept is None:
             return
@@ -357,12 +380,15 @@ class IntegrityMonitor:
         return use, reanchor, fallback
 
     def posterior(self, x: np.ndarray, P: np.ndarray) -> None:
-        """Keep the filter's state after this epoch's update as a start of later tests."""
+        """Keep the filter's state after this epoch's update as a start of later tests (the first also starts the
+        PDR reference of the late-first-path gate)."""
         if not self.config.enabled:
             return
         epoch = KeptEpochs.single(self._index, self._t_s, self._z, np.array(x, dtype=np.float64),
                                   np.array(P, dtype=np.float64))
         self._kept = epoch if self._kept is None else self._kept.appended(epoch, self.config.window)
+        if self._pdr_x is None:
+            self._pdr_x = np.array(x, dtype=np.float64)
 
     def _late(self, code_m: np.ndarray) -> np.ndarray:
         """Channels whose code range says the tracked path arrives late (module docstring, "Late first path")."""
@@ -370,14 +396,22 @@ class IntegrityMonitor:
         late = np.zeros(len(code_m), dtype=bool)
         if not config.code_gate or self._kept is None:
             return late
-        offsets = code_m - observe(self._kept.x_open[-1], self.geometry, 0.0)[self._rows]
+        prior = self._kept.x_open[-1]
+        offsets = code_m - observe(prior, self.geometry, 0.0)[self._rows]
+        reference = self._pdr_x.copy()
+        reference[STATE_SIZE:] = prior[STATE_SIZE:]
+        pdr_offsets = code_m - observe(reference, self.geometry, 0.0)[self._rows]
         for j in np.flatnonzero(np.isfinite(code_m)):
             if np.isnan(self._code_origin[j]):
                 self._code_offsets[j].append(offsets[j])
+                self._pdr_offsets[j].append(pdr_offsets[j])
                 if len(self._code_offsets[j]) == config.code_calibration_epochs:
                     self._code_origin[j] = float(np.median(self._code_offsets[j]))
+                    self._pdr_origin[j] = float(np.median(self._pdr_offsets[j]))
                 continue
             excess = offsets[j] - self._code_origin[j]
+            if config.code_pdr_reference:
+                excess = min(excess, pdr_offsets[j] - self._pdr_origin[j])
             if excess <= config.code_late_m:
                 self._late_excess[j], self._late_dropped[j] = np.nan, False
                 continue

@@ -8,9 +8,9 @@ from fusion_synth import exact_ranges, park_like_walk, path_series, ranges_with_
 
 from dtmbnav.core.records import RangeSeries
 from fusion import particle_filter as pf
-from fusion.integrity import IntegrityConfig
+from fusion.integrity import IntegrityConfig, IntegrityMonitor
 from fusion.metrics import error_stats, place_pdr, position_errors_m
-from fusion.model import ModelNoise
+from fusion.model import Geometry, ModelNoise, StepControl, propagate
 from fusion.observations import PathRanges, aggregate_paths, aggregate_ranges, build_epochs
 from fusion.run import FILTERS, FusionConfig
 from fusion.ukf import RangePdrUkf
@@ -213,3 +213,25 @@ def test_integrity_config_is_checked():
         IntegrityConfig(rate_sigma_mps=-0.1)
     with pytest.raises(ValueError, match="code_calibration_epochs"):
         IntegrityConfig(code_calibration_epochs=0)
+
+
+@pytest.mark.parametrize("reference", [True, False])
+def test_a_dragged_filter_does_not_take_the_direct_path_for_a_late_one(reference):
+    """The walker heads straight for a tower 3 km east, the PDR is exact and the first path is the direct one (its
+    code range the range plus 1000 m). From epoch 40 the filter's posterior sits 6 m nearer the tower (dragged by
+    something else): against that prior the direct path looks 6 m late. Against the PDR alone it does not, so with
+    ``code_pdr_reference`` the monitor keeps it; without, it drops every epoch from there on."""
+    geometry = Geometry(0.0, 0.0, 3000.0, 0.0)
+    monitor = IntegrityMonitor(geometry, ModelNoise(), config=IntegrityConfig(code_pdr_reference=reference))
+    control = StepControl(dt_s=0.5)
+    state = np.array([0.0, 0.0, 0.0, np.pi / 2.0, 1.2])
+    no_origin = np.zeros(2, dtype=bool)
+    for n in range(100):
+        if n:
+            monitor.predict(control)
+            state = propagate(state, control)
+        true_range = float(geometry.range_m(state[0], state[1]))
+        monitor.assess(np.array([np.nan, true_range]), no_origin, np.array([np.nan, 1000.0 + true_range]))
+        dragged = state + np.array([6.0, 0.0, 0.0, 0.0, 0.0]) * (n >= 40)
+        monitor.posterior(dragged, np.diag([1.0, 1.0, 1e-6, 1e-4, 1e-2]))
+    assert monitor.late_epochs[1] == (0 if reference else 59)
