@@ -290,13 +290,14 @@ class IntegrityMonitor:
         self.dropped_epochs = np.zeros(n, dtype=np.int64)
         self.fallbacks = 0
         self.late_epochs = np.zeros(n, dtype=np.int64)
-        self._code_offsets: list[list[float]] = [[] for _ in range(n)]   # code - g(x) while calibrating
-        self._code_origin = np.full(n, np.nan)                            # the constant b per channel
+        # Per channel and reference (the filter's prior, then the PDR alone if used): code - g(x) while
+        # calibrating, then the constant b.
+        self._references = 2 if config.code_pdr_reference else 1
+        self._code_offsets: list[list[np.ndarray]] = [[] for _ in range(n)]
+        self._code_origin = np.full((n, self._references), np.nan)
         self._late_excess = np.full(n, np.nan)                            # excess where a late stretch began
         self._late_dropped = np.zeros(n, dtype=bool)                      # the stretch's path has been dropped
         self._pdr_x: np.ndarray | None = None                             # the PDR alone from the first epoch
-        self._pdr_offsets: list[list[float]] = [[] for _ in range(n)]
-        self._pdr_origin = np.full(n, np.nan)
 
     def predict(self, control: StepControl) -> None:
         """Carry every kept epoch's open-loop prediction over one more control."""
@@ -387,7 +388,7 @@ class IntegrityMonitor:
         epoch = KeptEpochs.single(self._index, self._t_s, self._z, np.array(x, dtype=np.float64),
                                   np.array(P, dtype=np.float64))
         self._kept = epoch if self._kept is None else self._kept.appended(epoch, self.config.window)
-        if self._pdr_x is None:
+        if self._pdr_x is None and self._references == 2:
             self._pdr_x = np.array(x, dtype=np.float64)
 
     def _late(self, code_m: np.ndarray) -> np.ndarray:
@@ -396,22 +397,17 @@ class IntegrityMonitor:
         late = np.zeros(len(code_m), dtype=bool)
         if not config.code_gate or self._kept is None:
             return late
-        prior = self._kept.x_open[-1]
-        offsets = code_m - observe(prior, self.geometry, 0.0)[self._rows]
-        reference = self._pdr_x.copy()
-        reference[STATE_SIZE:] = prior[STATE_SIZE:]
-        pdr_offsets = code_m - observe(reference, self.geometry, 0.0)[self._rows]
+        references = np.repeat(self._kept.x_open[-1:], self._references, axis=0)
+        if self._references == 2:
+            references[1, :STATE_SIZE] = self._pdr_x[:STATE_SIZE]   # its clock columns stay the prior's
+        offsets = code_m[:, None] - observe(references, self.geometry, 0.0)[:, self._rows].T
         for j in np.flatnonzero(np.isfinite(code_m)):
-            if np.isnan(self._code_origin[j]):
+            if np.isnan(self._code_origin[j, 0]):
                 self._code_offsets[j].append(offsets[j])
-                self._pdr_offsets[j].append(pdr_offsets[j])
                 if len(self._code_offsets[j]) == config.code_calibration_epochs:
-                    self._code_origin[j] = float(np.median(self._code_offsets[j]))
-                    self._pdr_origin[j] = float(np.median(self._pdr_offsets[j]))
+                    self._code_origin[j] = np.median(self._code_offsets[j], axis=0)
                 continue
-            excess = offsets[j] - self._code_origin[j]
-            if config.code_pdr_reference:
-                excess = min(excess, pdr_offsets[j] - self._pdr_origin[j])
+            excess = float(np.min(offsets[j] - self._code_origin[j]))
             if excess <= config.code_late_m:
                 self._late_excess[j], self._late_dropped[j] = np.nan, False
                 continue
