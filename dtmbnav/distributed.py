@@ -7,6 +7,16 @@ in the order of the list, and report every task that failed with its label
 its arguments (every random draw of a walk comes from its seed), so the
 results are the same for any number of workers and in-process.
 
+That needs one more thing: every task runs with one BLAS (and OpenMP)
+thread, wherever it runs. OpenBLAS splits a matrix product differently for
+different thread counts, and the rounding with it (a complex64 product
+differs in its last bits between one and two threads), and Dask's worker
+processes start with one BLAS thread while this process has one per core.
+The receiver's decisions (a path's detection threshold, a cycle slip) can
+turn on such a bit: the same street walk received in this process and on a
+worker gave first-path ranges 1.5 m apart and particle-filter 95 % errors of
+4.66 and 4.34 m (docs/evaluation.md).
+
 Where the tasks run (:class:`ClusterConfig`):
 
 - ``workers=0``: in this process, one after the other, no Dask;
@@ -33,6 +43,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 #: Environment of local worker processes: one numba thread each (the worker count is the parallelism).
@@ -120,6 +131,18 @@ class ClusterConfig:
 IN_PROCESS = ClusterConfig(workers=0)
 
 
+def _single_threaded(function: Callable[..., Any], *args: Any) -> Any:
+    """``function(*args)`` with one BLAS and OpenMP thread (module docstring).
+
+    The limit is set and left (not restored on return): tasks of one process
+    may run on several threads, and one task restoring the limit while
+    another computes would undo it. :func:`run_tasks` restores this
+    process's own limits after a run.
+    """
+    threadpool_limits(limits=1)
+    return function(*args)
+
+
 def _describe(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"
 
@@ -132,7 +155,7 @@ def _run_here(tasks: Sequence[Task], bar: tqdm, on_result: ResultCallback | None
     outcome = Outcome(results=[None] * len(tasks))
     for i, task in enumerate(tasks):
         try:
-            outcome.results[i] = task.function(*task.args)
+            outcome.results[i] = _single_threaded(task.function, *task.args)
         except Exception as exc:  # noqa: BLE001 - every failure is reported with its task
             outcome.failures.append(Failure(i, task.label, _describe(exc), traceback.format_exc()))
         else:
@@ -163,7 +186,7 @@ def _run_on_dask(tasks: Sequence[Task], config: ClusterConfig, bar: tqdm, on_res
     client = Client(config.scheduler if config.scheduler else cluster)
     try:
         # A fresh key per entry: two equal entries run twice, and runs sharing a scheduler never collide.
-        futures = [client.submit(t.function, *t.args, key=f"dtmbnav-{i}-{uuid.uuid4().hex}")
+        futures = [client.submit(_single_threaded, t.function, *t.args, key=f"dtmbnav-{i}-{uuid.uuid4().hex}")
                    for i, t in enumerate(tasks)]
         index = {f.key: i for i, f in enumerate(futures)}
         outcome = Outcome(results=[None] * len(tasks))
@@ -208,6 +231,7 @@ def run_tasks(tasks: Sequence[Task], cluster: ClusterConfig = IN_PROCESS, progre
     with tqdm(total=len(tasks), desc=description, unit="task", disable=not progress, file=sys.stderr) as bar:
         if not tasks:
             return Outcome(results=[])
-        if cluster.in_process:
-            return _run_here(tasks, bar, on_result)
-        return _run_on_dask(tasks, cluster, bar, on_result)
+        with threadpool_limits(limits=None):   # restores this process's limits after tasks ran in it
+            if cluster.in_process:
+                return _run_here(tasks, bar, on_result)
+            return _run_on_dask(tasks, cluster, bar, on_result)

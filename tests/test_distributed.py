@@ -6,10 +6,13 @@ loaded 2-core machine, and the result of a walk does not depend on the process
 it runs in (``tests/test_cli.py`` runs the command line on worker processes).
 """
 
+import hashlib
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from dtmbnav import evaluate as ev
 from dtmbnav.cli import EXIT_NO_RESULT, EXIT_OK, main
@@ -33,6 +36,29 @@ def test_results_in_task_order_and_failures_named(cluster):
     assert outcome.results == [0, 1, 4, None, 16, 25]
     assert [(f.index, f.label) for f in outcome.failures] == [(3, "x=3")]
     assert outcome.failures[0].error == "ValueError: cannot take 3"
+
+
+def blas_threads() -> list[int]:
+    return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+
+
+def blas_product(seed: int) -> tuple[str, list[int]]:
+    """A complex64 matrix product's bytes (OpenBLAS rounds it differently for one and two threads), and the BLAS
+    thread counts it ran with."""
+    rng = np.random.default_rng(seed)
+    a, b = ((rng.standard_normal(shape) + 1j * rng.standard_normal(shape)).astype(np.complex64)
+            for shape in ((64, 600), (600, 420)))
+    return hashlib.sha256((a @ b).tobytes()).hexdigest(), blas_threads()
+
+
+@pytest.mark.parametrize("cluster", [IN_PROCESS, THREADS_2], ids=["in-process", "2 dask workers"])
+def test_every_task_runs_with_one_blas_thread_and_this_process_keeps_its_own(cluster):
+    before = blas_threads()
+    digest, threads = run_tasks([Task("blas", blas_product, (0,))], cluster, progress=False).results[0]
+    assert threads and set(threads) == {1}
+    with threadpool_limits(limits=1):
+        assert digest == blas_product(0)[0]
+    assert blas_threads() == before
 
 
 def test_two_seed_evaluate_on_a_two_worker_local_cluster_matches_in_process():
