@@ -45,7 +45,10 @@ needs removing); this module separates the paths in it and tracks each one:
    (:func:`slip_kernel`): frames whose phase step departs from the path's
    smoothed frequency by more than ``slip_sigmas`` times its phase noise are
    bridged with the smoothed frequency; a run of them that adds up to half a
-   cycle or more is flagged as a slip.
+   cycle or more is flagged as a slip. A run that lasts the smoothing time
+   constant ``frequency_time_s`` is a lasting frequency step, not a burst:
+   the reference restarts at the run's mean frequency, so one step is one
+   slip rather than a flag that never clears.
 5. **Towers.** Paths within ``tower_gap`` of one another belong to one tower
    (the delay spread of a street is a few chips; the towers of a
    single-frequency network are hundreds of metres apart, tens of chips).
@@ -465,8 +468,8 @@ def fit_paths_reference(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay:
 
 @njit(cache=True)
 def slip_kernel(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarray, smooth_hz: float,
-                run_cycles: float, alpha: float, sigmas: float, min_cycles: float,
-                bridged: np.ndarray, slips: np.ndarray) -> tuple[float, float]:
+                run_cycles: float, run_s: float, alpha: float, sigmas: float, min_cycles: float,
+                bridged: np.ndarray, slips: np.ndarray) -> tuple[float, float, float]:
     """Bridge and flag phase-step outliers of one path over a batch (module docstring, step 4).
 
     Parameters
@@ -481,6 +484,8 @@ def slip_kernel(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarray, 
         Smoothed frequency before the batch (NaN: not yet known).
     run_cycles : float
         Departure accumulated by the outlier run still open at the batch start, cycles.
+    run_s : float
+        Duration of that run so far, s.
     alpha : float
         Smoothing weight per second (``dt / time constant`` per frame).
     sigmas, min_cycles : float
@@ -488,12 +493,23 @@ def slip_kernel(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarray, 
     bridged : (F,) float64, out
         ``cfo_hz`` with outliers replaced by the smoothed frequency.
     slips : (F,) bool, out
-        True on the frames of an outlier run that added up to half a cycle or more.
+        True on the frames of an outlier run that added up to half a cycle or
+        more (of this batch: a run open at the batch start is flagged from the
+        batch's first frame, the earlier ones having been written already).
 
     Returns
     -------
-    smooth_hz, run_cycles : float
+    smooth_hz, run_cycles, run_s : float
         State for the next batch.
+
+    Notes
+    -----
+    The reference is frozen during an outlier run so that a burst does not
+    pull it; a run that outlasts the time constant ``1 / alpha`` is a lasting
+    frequency step (a new dominant phase, a changed Doppler), and the
+    reference restarts at the run's mean frequency ``smooth_hz + run_cycles
+    / run_s``. Without the restart such a step would be flagged, frame after
+    frame, for the rest of the path's life.
     """
     n = cfo_hz.shape[0]
     run_start = 0
@@ -510,21 +526,25 @@ def slip_kernel(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarray, 
             if run_cycles == 0.0:
                 run_start = k
             run_cycles += departure
+            run_s += dt_s[k]
             bridged[k] = smooth_hz
             if abs(run_cycles) >= 0.5:
                 for j in range(run_start, k + 1):
                     slips[j] = True
+            if run_s * alpha >= 1.0:
+                smooth_hz += run_cycles / run_s
+                run_cycles, run_s = 0.0, 0.0
         else:
-            run_cycles = 0.0
+            run_cycles, run_s = 0.0, 0.0
             bridged[k] = f
             smooth_hz += min(alpha * dt_s[k], 1.0) * (f - smooth_hz)
-    return smooth_hz, run_cycles
+    return smooth_hz, run_cycles, run_s
 
 
 def slip_reference(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarray, smooth_hz: float,
-                   run_cycles: float, alpha: float, sigmas: float,
-                   min_cycles: float) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """Plain-Python :func:`slip_kernel` (returns ``bridged, slips, smooth_hz, run_cycles``)."""
+                   run_cycles: float, run_s: float, alpha: float, sigmas: float,
+                   min_cycles: float) -> tuple[np.ndarray, np.ndarray, float, float, float]:
+    """Plain-Python :func:`slip_kernel` (returns ``bridged, slips, smooth_hz, run_cycles, run_s``)."""
     bridged = np.empty(len(cfo_hz))
     slips = np.zeros(len(cfo_hz), dtype=bool)
     run_start = 0
@@ -539,14 +559,18 @@ def slip_reference(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarra
             if run_cycles == 0.0:
                 run_start = k
             run_cycles += departure
+            run_s += dt_s[k]
             bridged[k] = smooth_hz
             if abs(run_cycles) >= 0.5:
                 slips[run_start: k + 1] = True
+            if run_s * alpha >= 1.0:
+                smooth_hz += run_cycles / run_s
+                run_cycles, run_s = 0.0, 0.0
         else:
-            run_cycles = 0.0
+            run_cycles, run_s = 0.0, 0.0
             bridged[k] = f
             smooth_hz += min(alpha * dt_s[k], 1.0) * (f - smooth_hz)
-    return bridged, slips, smooth_hz, run_cycles
+    return bridged, slips, smooth_hz, run_cycles, run_s
 
 
 # ---- detection -----------------------------------------------------------------------------
@@ -660,7 +684,7 @@ class _Path:
     frame) are its delay loop; ``age``, ``steady`` and ``fading`` count
     batches (lived, held still, below the survival SNR); ``prev_*`` carry
     its last amplitude and window start to the next batch's phase step;
-    ``smooth_hz`` and ``run_cycles`` are the slip detector's state; ``power``
+    ``smooth_hz``, ``run_cycles`` and ``run_s`` are the slip detector's state; ``power``
     and ``noise`` its mean amplitude power and amplitude noise over the last
     batch; ``born`` until its first row is written; ``first`` while it is
     its tower's first path.
@@ -678,6 +702,7 @@ class _Path:
     prev_start: int = 0
     smooth_hz: float = np.nan
     run_cycles: float = 0.0
+    run_s: float = 0.0
     power: float = 0.0
     noise: float = 0.0
     born: bool = True
@@ -822,8 +847,9 @@ class PathTracker:
             moved = delay[i] - (p.delay + p.rate * count)
             p.delay, p.rate = float(delay[i]), float(rate[i])
             column, flags = np.empty(count), np.zeros(count, dtype=np.bool_)
-            p.smooth_hz, p.run_cycles = slip_kernel(cfo[:, i], dt, sigma[:, i], p.smooth_hz, p.run_cycles, alpha,
-                                                    cfg.slip_sigmas, cfg.slip_min_cycles, column, flags)
+            p.smooth_hz, p.run_cycles, p.run_s = slip_kernel(cfo[:, i], dt, sigma[:, i], p.smooth_hz, p.run_cycles,
+                                                             p.run_s, alpha, cfg.slip_sigmas, cfg.slip_min_cycles,
+                                                             column, flags)
             bridged[:, i], slips[:, i] = column, flags
             p.prev_amplitude, p.prev_start = complex(amplitudes[-1, i]), int(starts[-1])
             p.power, p.noise = float(mean_power[i]), noise_floor * float(mean_variance[i])

@@ -5,6 +5,8 @@ cycle slip, two towers), no paths from noise or from the SI carriers alone, and 
 import h5py
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from receiver_signals import SignalPath, frame_start_samples, make_paths_signal
 
 from dtmbnav.core import gb20600
@@ -127,20 +129,69 @@ def test_fit_kernel_converges_on_paths_half_a_chip_apart():
     np.testing.assert_allclose(delay, true_delay, atol=0.01)
 
 
-def test_slip_kernel_equals_its_reference():
-    n = 300
+def _slip_run(cfo, dt, sigma, cut=None, alpha=10.0):
+    """slip_kernel over the frames, in one batch or two cut at ``cut``, and its twin in one."""
+    n = len(cfo)
+    bridged, slips = np.empty(n), np.zeros(n, bool)
+    state = (np.nan, 0.0, 0.0)
+    for part in ((slice(0, n),) if cut is None else (slice(0, cut), slice(cut, n))):
+        column, flags = np.empty(part.stop - part.start), np.zeros(part.stop - part.start, bool)
+        state = slip_kernel(cfo[part], dt[part], sigma[part], *state, alpha, 6.0, 0.05, column, flags)
+        bridged[part], slips[part] = column, flags
+    return bridged, slips, state, slip_reference(cfo, dt, sigma, np.nan, 0.0, 0.0, alpha, 6.0, 0.05)
+
+
+def _slip_frames(n=300):
     cfo = 3.0 + 0.2 * RNG.standard_normal(n)
-    dt = np.full(n, 5.556e-4)
+    return cfo, np.full(n, 5.556e-4), np.full(n, 0.01)
+
+
+def test_slip_kernel_equals_its_reference():
+    cfo, dt, sigma = _slip_frames()
     cfo[100:104] += 0.25 / 5.556e-4                      # one cycle over four frames
     cfo[200] = np.nan
-    sigma = np.full(n, 0.01)
-    bridged, slips = np.empty(n), np.zeros(n, bool)
-    state = slip_kernel(cfo, dt, sigma, np.nan, 0.0, 10.0, 6.0, 0.05, bridged, slips)
-    ref = slip_reference(cfo, dt, sigma, np.nan, 0.0, 10.0, 6.0, 0.05)
+    bridged, slips, state, ref = _slip_run(cfo, dt, sigma)
     np.testing.assert_array_equal(bridged, ref[0])
     np.testing.assert_array_equal(slips, ref[1])
     assert state == pytest.approx(ref[2:])
     assert list(np.flatnonzero(slips)) == [100, 101, 102, 103]
+
+
+def test_a_lasting_frequency_step_is_one_slip_not_a_flag_that_never_clears():
+    # 150 Hz more from frame 100 on (0.083 cycles a frame, an outlier against the old reference) for 2000
+    # frames, 1.1 s: the reference (time constant 0.1 s) restarts after 180 frames and the flags stop there.
+    cfo, dt, sigma = _slip_frames(2300)
+    cfo[100:] += 150.0
+    bridged, slips, state, ref = _slip_run(cfo, dt, sigma)
+    np.testing.assert_array_equal(slips, ref[1])
+    flagged = np.flatnonzero(slips)
+    assert flagged[0] == 100 and flagged[-1] == 100 + int(np.ceil(0.1 / 5.556e-4)) - 1
+    assert np.all(np.diff(flagged) == 1)                 # one run: one slip
+    np.testing.assert_array_equal(bridged[flagged[-1] + 1:], cfo[flagged[-1] + 1:])
+    assert state[0] == pytest.approx(153.0, abs=0.5)      # the reference now follows the new frequency
+
+
+@settings(max_examples=60, deadline=None)
+@given(cut=st.integers(1, 599), step_at=st.integers(0, 599), step_hz=st.sampled_from([0.0, 150.0, -400.0]))
+def test_slip_kernel_is_the_same_wherever_the_batches_are_cut(cut, step_at, step_hz):
+    cfo, dt, sigma = _slip_frames(600)
+    cfo[step_at:] += step_hz
+    cfo[350:354] += 0.25 / 5.556e-4
+    bridged, slips, state, ref = _slip_run(cfo, dt, sigma, cut=cut)
+    np.testing.assert_array_equal(bridged, ref[0])
+    assert state == pytest.approx(ref[2:])
+    # Flags are written per batch: a run that crosses the cut and reaches half a cycle after it is flagged
+    # from the cut on, the earlier frames of that run (already written) stay unflagged; all else is equal.
+    np.testing.assert_array_equal(slips[cut:], ref[1][cut:])
+    missed = np.flatnonzero(ref[1][:cut] & ~slips[:cut])
+    assert not np.any(slips[:cut] & ~ref[1][:cut])
+    assert len(missed) == 0 or (np.all(ref[1][missed[0]:cut]) and slips[cut])
+
+
+def test_slip_kernel_flags_a_run_crossing_the_cut_from_the_cut_on():
+    cfo, dt, sigma = _slip_frames(600)
+    cfo[350:354] += 0.25 / 5.556e-4                      # half a cycle after two frames
+    assert list(np.flatnonzero(_slip_run(cfo, dt, sigma, cut=351)[1])) == [351, 352, 353]
 
 
 def test_detection_threshold_has_its_false_alarm_rate():
