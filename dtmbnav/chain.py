@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -175,19 +176,22 @@ def read_receiver_paths(path: str | os.PathLike) -> dict[str, np.ndarray] | None
 
 
 def _tower_first_paths(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray] | None,
-                       tower: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per frame: the id, SNR (dB) and cycle-slip flag of a tower's first path in ``/receiver/paths``.
+                       tower: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per frame: the id, SNR (dB), cycle-slip flag and delay (s) of a tower's first path in ``/receiver/paths``.
 
-    Frames where the tower has none get id -1, NaN and False. Tower 0's id
-    and SNR are the frame columns' (``first_path_id``, ``first_path_snr_db``);
-    without the group no slip is known.
+    Frames where the tower has none (and every frame's delay where the rows have no ``delay_s``) get id -1,
+    NaN, False and NaN. Tower 0's
+    id, SNR and delay are the frame columns' (``first_path_id``,
+    ``first_path_snr_db``, ``first_path_delay_s``); without the group no slip
+    is known.
     """
     n = len(frames["t_s"])
-    ids, snr, slip = np.full(n, -1, np.int64), np.full(n, np.nan), np.zeros(n, bool)
+    ids, snr, slip, delay = np.full(n, -1, np.int64), np.full(n, np.nan), np.zeros(n, bool), np.full(n, np.nan)
     if tower == 0:
         ids, snr = frames["first_path_id"].astype(np.int64), frames["first_path_snr_db"].astype(np.float64)
+        delay = np.asarray(frames.get("first_path_delay_s", delay), dtype=np.float64)
     if rows is None:
-        return ids, snr, slip
+        return ids, snr, slip, delay
     flags = rows["flags"].astype(np.int64)
     sel = np.flatnonzero(((flags & int(PathFlag.FIRST_PATH)) != 0) & (rows["tower_id"] == tower))
     # Join on frame_index (increasing in both groups); rows of frames not in /receiver/frames are left out.
@@ -197,7 +201,9 @@ def _tower_first_paths(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray
     ids[at] = rows["path_id"][sel]
     snr[at] = rows["snr_db"][sel]
     slip[at] = (flags[sel] & int(PathFlag.CYCLE_SLIP)) != 0
-    return ids, snr, slip
+    if "delay_s" in rows:
+        delay[at] = rows["delay_s"][sel]
+    return ids, snr, slip, delay
 
 
 def first_path_code_range_m(frames: dict[str, np.ndarray], attrs: dict[str, Any]) -> np.ndarray | None:
@@ -237,7 +243,8 @@ def first_path_code_range_m(frames: dict[str, np.ndarray], attrs: dict[str, Any]
 
 
 def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray] | None, n_towers: int,
-                      time_offset_s: float = 0.0, attrs: dict[str, Any] | None = None) -> PathRanges | None:
+                      time_offset_s: float = 0.0, attrs: dict[str, Any] | None = None,
+                      transmit_delays_s: Sequence[float] | None = None) -> PathRanges | None:
     """The path tracker's output of a receiver file -> the :class:`PathRanges` fusion consumes (docs/paths.md).
 
     Tower 0's first-path range is the ``first_path_range_change_m`` column;
@@ -249,16 +256,21 @@ def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray]
     and for a difference also where it starts again after a gap. Frames
     flagged as a gap or low quality are invalid. Tower 0's first path
     carries its code range (:func:`first_path_code_range_m`) when the
-    receiver's ``attrs`` are given. Returns None for a file without the
+    receiver's ``attrs`` are given. With the towers' transmit delays
+    (``transmit_delays_s``, one per tower, s; the network plan's), a
+    difference carries its code range difference
+    (:func:`range_difference_code_m`). Returns None for a file without the
     first-path columns (path tracker off).
     """
     if "first_path_range_change_m" not in frames:
         return None
+    if transmit_delays_s is not None and len(transmit_delays_s) < n_towers:
+        raise ValueError(f"transmit_delays_s: one per tower ({n_towers}), got {len(transmit_delays_s)}")
     t = frames["t_s"] + time_offset_s
     usable = (frames["flags"].astype(np.int64) & int(UNUSABLE_FLAGS)) == 0
     towers = [_tower_first_paths(frames, rows, k) for k in range(n_towers)]
 
-    ids0, snr0, slip0 = towers[0]
+    ids0, snr0, slip0, delay0 = towers[0]
     rng0 = frames["first_path_range_change_m"]
     code0 = None if attrs is None else first_path_code_range_m(frames, attrs)
     first = {0: PathRangeSeries.from_runs(t, rng0, ids0, (ids0 >= 0) & np.isfinite(rng0), usable, snr0, slip0,
@@ -267,33 +279,76 @@ def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray]
     for k, name in RANGE_DIFFERENCE_COLUMNS.items():
         if k >= n_towers or name not in frames:
             continue
-        ids_k, snr_k, slip_k = towers[k]
+        ids_k, snr_k, slip_k, delay_k = towers[k]
         diff = frames[name]
         # A pair key: the difference restarts when either tower's first path changes.
         key = ids0 * (1 << 32) + ids_k if rows is not None else np.zeros(len(t), np.int64)
+        code = (None if transmit_delays_s is None or rows is None else
+                range_difference_code_m(delay0, delay_k, transmit_delays_s[0], transmit_delays_s[k]))
         differences[k] = PathRangeSeries.from_runs(t, diff, key, np.isfinite(diff), usable, np.fmin(snr0, snr_k),
-                                                  slip0 | slip_k)
+                                                  slip0 | slip_k, code)
     return PathRanges(first_path=first, differences=differences)
+
+
+def range_difference_code_m(delay_0_s: np.ndarray, delay_k_s: np.ndarray, transmit_delay_0_s: float,
+                            transmit_delay_k_s: float) -> np.ndarray:
+    """Per frame, the range of tower k's first path minus tower 0's, from their delays, m (docs/paths.md).
+
+    ``c ((delay_k - tx_k) - (delay_0 - tx_0))``: both delays are read in
+    the same frame on the same receiver clock, so its offset and drift
+    cancel; once the towers' transmit delay offsets (``tx``, the network
+    plan's, s) are taken out, what is left is the difference of the
+    distances, with no constant: where the walker stands on the hyperbola of
+    the two towers. NaN where either tower has no first path, or either
+    transmit delay is unknown (NaN).
+    """
+    return SPEED_OF_LIGHT_MPS * ((np.asarray(delay_k_s, dtype=np.float64) - transmit_delay_k_s)
+                                 - (np.asarray(delay_0_s, dtype=np.float64) - transmit_delay_0_s))
+
+
+def _recorded_towers(sensors_path: str | os.PathLike) -> list[dict[str, Any]]:
+    """The ``[[towers]]`` of the scenario recorded in ``/truth/frames`` (empty without a record or with one tower)."""
+    with open_h5(sensors_path) as f:
+        text = f[schema.TRUTH_FRAMES].attrs.get("scenario") if schema.TRUTH_FRAMES in f else None
+    if text is None:
+        return []
+    try:
+        sites = tomllib.loads(str(text)).get("towers", [])
+    except tomllib.TOMLDecodeError:
+        sites = None
+    if not isinstance(sites, list) or not all(isinstance(s, dict) for s in sites):
+        raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: unreadable [[towers]] in the scenario record; "
+                         "give --tower X,Y")
+    return sites if len(sites) >= 2 else []
 
 
 def read_other_towers(sensors_path: str | os.PathLike) -> tuple[tuple[float, float, float], ...]:
     """Further towers of a simulated single-frequency network: ``[[towers]]`` after the first, from the
     scenario recorded in ``/truth/frames`` (x, y, m, and height above the receiver's antenna, m, like
     the first tower's in ``/truth/trajectory``); empty when there are none."""
-    with open_h5(sensors_path) as f:
-        text = f[schema.TRUTH_FRAMES].attrs.get("scenario") if schema.TRUTH_FRAMES in f else None
-    if text is None:
+    sites = _recorded_towers(sensors_path)
+    if not sites:
         return ()
     try:
-        sites = tomllib.loads(str(text)).get("towers", [])
-        if len(sites) < 2:
-            return ()
         # The record holds the towers' heights above the ground; the first tower's above the antenna is known.
         antenna_m = float(sites[0]["height_m"]) - read_tower(sensors_path)[2]
         return tuple((float(s["x_m"]), float(s["y_m"]), float(s["height_m"]) - antenna_m) for s in sites[1:])
-    except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError, AttributeError):
+    except (KeyError, TypeError, ValueError):
         raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: unreadable [[towers]] in the scenario record; "
                          "give --tower X,Y") from None
+
+
+def read_transmit_delays(sensors_path: str | os.PathLike) -> tuple[float, ...] | None:
+    """Each tower's transmit delay offset of a simulated single-frequency network, s (the network plan's:
+    ``transmit_delay_s`` of the recorded ``[[towers]]``, 0 where a tower has none); None with one tower."""
+    sites = _recorded_towers(sensors_path)
+    if not sites:
+        return None
+    try:
+        return tuple(float(s.get("transmit_delay_s", 0.0)) for s in sites)
+    except (TypeError, ValueError):
+        raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: unreadable transmit_delay_s in the scenario "
+                         "record's [[towers]]") from None
 
 
 def resolve_pdr_config(config: PdrConfig, sensors_path: str | os.PathLike) -> PdrConfig:
@@ -362,6 +417,7 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
         start_xy_m = (fix.x_m, fix.y_m)
     height_m = 0.0
     other_towers: tuple[tuple[float, float, float], ...] = ()
+    transmit_delays_s: tuple[float, ...] | None = None
     if tower_xy_m is None:
         with open_h5(sensors_path) as f:
             if schema.TRUTH_TRAJECTORY not in f:
@@ -370,9 +426,10 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
         *tower_xy, height_m = read_tower(sensors_path)
         tower_xy_m = (tower_xy[0], tower_xy[1])
         other_towers = read_other_towers(sensors_path)
+        transmit_delays_s = read_transmit_delays(sensors_path)
     ranges = ranges_from_frames(frames, capture_start_s)
     paths = paths_from_frames(frames, read_receiver_paths(receiver_path), 1 + len(other_towers), capture_start_s,
-                              rx_attrs)
+                              rx_attrs, transmit_delays_s)
     pdr = run_pdr(imu, pdr_config)
     if len(pdr.steps) == 0:
         raise NoResult(f"{sensors_path}: /{schema.IMU}: the PDR found no steps; nothing to fuse")

@@ -122,7 +122,8 @@ def iq_observations(scenario: Scenario, track: Track, seconds: float | None = No
     columns = FrameBatch.concatenate(frames).columns()
     path_rows = PathBatch.concatenate(rows).columns() if receiver.config.track_paths else None
     return Observations(ranges_from_frames(columns),
-                        paths_from_frames(columns, path_rows, len(scenario.sites), attrs=receiver.attributes())
+                        paths_from_frames(columns, path_rows, len(scenario.sites), attrs=receiver.attributes(),
+                                          transmit_delays_s=[site.transmit_delay_s for site in scenario.sites])
                         if path_rows is not None else None)
 
 

@@ -13,7 +13,11 @@ channel says only how it changes from there. So does a channel whose data
 restart from a new origin (:mod:`fusion.observations`) and one the integrity
 monitor (:mod:`fusion.integrity`) takes back after dropping it (its epochs
 without the channel count as a gap too); an observation used to re-anchor is
-not weighed (it says nothing about the state). Where the monitor drops a
+not weighed (it says nothing about the state). A tower difference that
+carries its code range difference (docs/paths.md) re-anchors on the code
+instead, its origin the code's value less the observation, and is then
+weighed with the code's sigma added: it places the state on the towers'
+hyperbola, which P0 knows only to the GNSS fix's error. Where the monitor drops a
 channel, the filter takes the monitor's open-loop state instead of its own
 (:meth:`RangeKalmanFilter.replace_state`). With a free-running clock
 (:class:`fusion.model.ClockModel`) the state carries the clock's integrated
@@ -22,13 +26,14 @@ range and rate (:data:`fusion.model.CLOCK_STATE_SIZE` columns).
 
 from __future__ import annotations
 
+import dataclasses
 from abc import ABC, abstractmethod
 
 import numpy as np
 
 from fusion.integrity import IntegrityConfig, IntegrityMonitor
-from fusion.model import (ClockModel, EpochObservation, Geometry, KalmanObservation, ModelNoise, ObservationLayout,
-                          StepControl, observe)
+from fusion.model import (CODE_ANCHOR_GATE_SIGMAS, X, Y, ClockModel, EpochObservation, Geometry, KalmanObservation,
+                          ModelNoise, ObservationLayout, StepControl, observation_jacobian, observe)
 
 #: Re-anchor when the offset gathered without range exceeds this many observation sigmas.
 REANCHOR_SIGMAS = 3.0
@@ -103,12 +108,32 @@ class RangeKalmanFilter(ABC):
         gap = gathered_m > REANCHOR_SIGMAS * np.where(use, sigma, np.inf)
         reanchor = use & (new_origin | returning | gap)
         predicted = observe(self.x, self.geometry, self.origins_m)[self.layout.rows()]
+        anchors = observation.anchor_channels(self.layout.n_towers)
+        on_code = reanchor & self._code_anchors_pass(anchors)
         self.origins_m[reanchor] += predicted[reanchor] - z[reanchor]
+        self.origins_m[on_code] = anchors[on_code] - z[on_code]
         self._epochs_without = np.where(use, 0, self._epochs_without + 1)
-        kalman = observation.kalman(self.noise, self.layout.n_towers, use & ~reanchor)
+        if on_code.any():   # an origin from the code leaves the epoch's range an observation, less sure by its sigma
+            differences = slice(self.layout.n_towers + 1, None)
+            observation = dataclasses.replace(observation, range_difference_sigma_m=np.hypot(
+                sigma[differences], np.where(on_code, self.noise.difference_code_sigma_m, 0.0)[differences]))
+        kalman = observation.kalman(self.noise, self.layout.n_towers, use & (~reanchor | on_code))
         if len(kalman.rows):
             self.correct(kalman, observation.index)
         self.monitor.posterior(self.x, self.P)
+
+    def _code_anchors_pass(self, anchors: np.ndarray) -> np.ndarray:
+        """Per range channel, whether its code value (:meth:`fusion.model.EpochObservation.anchor_channels`) can be
+        its origin: present, a finite ``ModelNoise.difference_code_sigma_m``, and within
+        :data:`fusion.model.CODE_ANCHOR_GATE_SIGMAS` of the state's value (a late first path fails)."""
+        code_sigma = self.noise.difference_code_sigma_m
+        if not np.isfinite(code_sigma) or not np.isfinite(anchors).any():
+            return np.zeros(len(anchors), dtype=bool)
+        geometric = self.layout.geometric_m(self.geometry, self.x[X], self.x[Y])
+        h = observation_jacobian(self.x, self.geometry)[self.layout.rows()]
+        spread = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", h, self.P, h), 0.0))
+        with np.errstate(invalid="ignore"):
+            return np.abs(anchors - geometric) <= CODE_ANCHOR_GATE_SIGMAS * np.hypot(spread, code_sigma)
 
     def estimate(self) -> np.ndarray:
         """The state estimate (a copy)."""

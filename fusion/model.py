@@ -56,6 +56,10 @@ import numpy as np
 from dtmbnav.core.constants import CLOCK_PRESETS, SPEED_OF_LIGHT_MPS
 from fusion import CLOCK_MODELS
 
+#: A tower difference's code value further than this many sigmas (the filter's own spread of the channel and
+#: ``ModelNoise.difference_code_sigma_m`` together) from the filter's value is not taken as its origin.
+CODE_ANCHOR_GATE_SIGMAS = 4.0
+
 #: Column indices of the state vector.
 X, Y, HEADING_RATE, HEADING, SPEED = range(5)
 STATE_SIZE = 5
@@ -242,6 +246,17 @@ class ModelNoise:
         never: the streets' worst walk against the PDR started at the fix
         went from +234 % / +801 % (never) to +15 % / +27 % (10 m; 5 m: +23 %
         / +26 %), the parks' figures unchanged.
+    difference_code_sigma_m : float
+        Standard deviation of a tower difference's origin taken from its
+        code range difference (:meth:`EpochObservation.anchor_channels`),
+        m: where a filter re-anchors a difference that carries one (its
+        first epoch, a new origin, a return), the origin comes from the
+        code, known to this, instead of from the filter's own position,
+        which would inherit the GNSS fix's error; the carrier then holds the
+        walker on that hyperbola. 0.3 m: the IQ receiver's code difference
+        on sfn-park tuning walk 100 has a per-frame scatter of 0.3 m and a
+        bias of 0.1-0.2 m over the walk (docs/paths.md). ``inf``: the
+        towers' transmit delay offsets are not known (the code is not used).
     initial_position_m : float
         Spread of the initial position around P0 (GNSS fix error), m.
     initial_heading_rad : float
@@ -263,6 +278,7 @@ class ModelNoise:
     range_outlier_span_m: float = 100.0
     range_offset_m: float = 1.0
     range_reanchor_m: float = 10.0
+    difference_code_sigma_m: float = 0.3
     initial_position_m: float = 1.5
     initial_heading_rad: float = np.deg2rad(5.0)
     initial_heading_rate_radps: float = np.deg2rad(0.1)
@@ -648,6 +664,9 @@ class EpochObservation:
         Code range of tower k's first path (index k), m, up to a constant;
         NaN where none (:mod:`fusion.integrity` checks the first path against
         it; no filter weighs it).
+    range_difference_code_m : ndarray
+        Code range difference of tower k and tower 0 (index k - 1), m, with
+        no constant; NaN where none (:meth:`anchor_channels`).
     range_new_origin : bool
         Whether the SI-carrier range restarts from an unknown origin (a new
         lock segment, :mod:`fusion.observations`).
@@ -665,6 +684,7 @@ class EpochObservation:
     range_difference_sigma_m: np.ndarray = field(default_factory=_empty)
     range_difference_new_origin: np.ndarray = field(default_factory=_empty)
     first_path_code_m: np.ndarray = field(default_factory=_empty)
+    range_difference_code_m: np.ndarray = field(default_factory=_empty)
     range_new_origin: bool = False
 
     @property
@@ -694,6 +714,19 @@ class EpochObservation:
         """Per range channel (as :meth:`range_channels`) the code range, m: the first paths' only, NaN elsewhere."""
         return np.concatenate([[np.nan], self._padded(self.first_path_code_m, n_towers, np.nan),
                                np.full(n_towers - 1, np.nan)]).astype(np.float64)
+
+    def anchor_channels(self, n_towers: int = 1) -> np.ndarray:
+        """Per range channel (as :meth:`range_channels`) its geometric value from the code, m: NaN but for the
+        tower differences that carry their code range difference.
+
+        A tower difference's carrier phase gives its change from an unknown
+        origin; its code (the two first paths' delays, the towers' transmit
+        delay offsets known) gives the difference itself, to decimetres, so
+        a filter re-anchoring the channel can take the origin from the code
+        instead of from its own position (``ModelNoise.difference_code_sigma_m``).
+        """
+        return np.concatenate([np.full(n_towers + 1, np.nan),
+                               self._padded(self.range_difference_code_m, n_towers - 1, np.nan)]).astype(np.float64)
 
     def _padded(self, values: np.ndarray, n: int, fill: float | bool) -> np.ndarray:
         """Per-tower ``values`` padded with ``fill`` to ``n`` channels."""

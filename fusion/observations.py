@@ -206,6 +206,7 @@ class PathEpochs(ColumnRecord):
     range_difference_sigma_m: np.ndarray
     range_difference_new_origin: np.ndarray
     first_path_code_m: np.ndarray
+    range_difference_code_m: np.ndarray
 
 
 @dataclass
@@ -280,6 +281,11 @@ class FilterEpochs(ColumnRecord):
         Code range of tower k's first path, m, up to a constant (NaN: none;
         :class:`dtmbnav.core.records.PathRangeSeries`), which the integrity
         monitor checks the first path against (:mod:`fusion.integrity`).
+    range_difference_code_m : ndarray, shape (N, T - 1) or None
+        Code range difference of tower k and tower 0 (column k - 1), m, with
+        no constant (NaN: none, or the towers' transmit delays unknown), on
+        which the filters anchor the difference's origin
+        (:meth:`fusion.model.EpochObservation.anchor_channels`).
     range_new_origin : ndarray of bool or None
         Where the range observation restarts from a new origin (a new
         segment, module rule 7); None: nowhere.
@@ -302,6 +308,7 @@ class FilterEpochs(ColumnRecord):
     range_difference_sigma_m: np.ndarray | None = None
     range_difference_new_origin: np.ndarray | None = None
     first_path_code_m: np.ndarray | None = None
+    range_difference_code_m: np.ndarray | None = None
     range_new_origin: np.ndarray | None = None
 
     def __post_init__(self) -> None:
@@ -313,7 +320,7 @@ class FilterEpochs(ColumnRecord):
         for name, fill in (("first_path_range_m", np.nan), ("first_path_sigma_m", np.nan),
                            ("first_path_new_origin", False), ("range_difference_m", np.nan),
                            ("range_difference_sigma_m", np.nan), ("range_difference_new_origin", False),
-                           ("first_path_code_m", np.nan)):
+                           ("first_path_code_m", np.nan), ("range_difference_code_m", np.nan)):
             if getattr(self, name) is None:
                 setattr(self, name, np.full((n, 0), fill))
         super().__post_init__()
@@ -347,6 +354,7 @@ class FilterEpochs(ColumnRecord):
                                 range_difference_sigma_m=self.range_difference_sigma_m[n],
                                 range_difference_new_origin=self.range_difference_new_origin[n],
                                 first_path_code_m=self.first_path_code_m[n],
+                                range_difference_code_m=self.range_difference_code_m[n],
                                 range_new_origin=bool(self.range_new_origin[n]))
 
 
@@ -572,9 +580,9 @@ def aggregate_paths(paths: PathRanges, epoch_t_s: np.ndarray, n_towers: int,
         return out
 
     first_path = columns(paths.first_path, 0, n_towers, "first_path")
-    # A difference has no code range of its own (both towers' constants are unknown).
-    return PathEpochs(epoch_t_s, *first_path[:3], *columns(paths.differences, 1, n_towers - 1, "differences")[:3],
-                      first_path_code_m=first_path[3])
+    differences = columns(paths.differences, 1, n_towers - 1, "differences")
+    return PathEpochs(epoch_t_s, *first_path[:3], *differences[:3], first_path_code_m=first_path[3],
+                      range_difference_code_m=differences[3])
 
 
 def standstill_times(step_t_s: np.ndarray, start_t_s: float,

@@ -37,7 +37,12 @@ that the observation is an inlier, and ``P`` shrinks by the mean of that
 probability. A channel that restarts from a new origin (the data say so, or
 it returns after the integrity monitor dropped it) is re-anchored: each
 particle's offset is set so that the observation agrees with the particle,
-and the observation weighs nothing.
+and the observation weighs nothing. A tower difference that carries its code
+range difference (the towers' transmit delays known; docs/paths.md) takes
+its origin from the code instead, one offset for every particle known to
+decimetres, and its observation then weighs the particles: the difference
+places the cloud on the towers' hyperbola, which the GNSS fix P0 knows only
+to its own error.
 
 Algorithm 1 per epoch: propagate with the transition prior (eq. 17) ->
 weight by the likelihood in the log domain and normalise (eq. 20-21) ->
@@ -81,9 +86,9 @@ from dtmbnav.core.records import Track
 from fusion import DEFAULT_PARTICLES
 from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig, IntegrityMonitor
-from fusion.model import (HEADING, HEADING_RATE, SPEED, STATE_SIZE, ClockModel, EpochObservation, Geometry,
-                          ModelNoise, ObservationLayout, StepControl, X, Y, initial_state, observation_jacobian,
-                          propagate, state_mean, state_residual)
+from fusion.model import (CODE_ANCHOR_GATE_SIGMAS, HEADING, HEADING_RATE, SPEED, STATE_SIZE, ClockModel,
+                          EpochObservation, Geometry, ModelNoise, ObservationLayout, StepControl, X, Y, initial_state,
+                          observation_jacobian, propagate, state_mean, state_residual)
 from fusion.observations import FilterEpochs
 
 # --- numba kernels -------------------------------------------------------------------------
@@ -436,7 +441,9 @@ class ParticleFilter:
         Each range channel the epoch lacks (NaN), or the integrity monitor
         drops, lets its offset's variance grow by one random-walk step
         (module docstring); a channel restarting from a new origin is
-        re-anchored; the others weigh the particles one after the other. The
+        re-anchored (a tower difference on its code where it carries one,
+        and then it weighs too); the others weigh the particles one after
+        the other. The
         PDR heading and speed weigh in epochs with a step. Where the monitor
         drops a channel the cloud first moves to the monitor's open-loop
         state (:meth:`fall_back`).
@@ -450,9 +457,13 @@ class ParticleFilter:
         self.linear_cov[channels[~use], channels[~use]] += self.noise.range_offset_m**2
         lost = self.linear_cov[channels, channels] > self.noise.range_reanchor_m**2
         reanchor = use & (new_origin | returning | lost)
+        anchors = observation.anchor_channels(self.layout.n_towers)
+        on_code = np.zeros(self.layout.n_channels, dtype=bool)   # re-anchored on its code: its range still weighs
         for j in np.flatnonzero(reanchor):
-            self._reanchor(j, z[j], sigma[j])
-        for j in np.flatnonzero(use & ~reanchor):
+            on_code[j] = self._anchor_on_code(j, z[j], anchors[j])
+            if not on_code[j]:
+                self._reanchor(j, z[j], sigma[j])
+        for j in np.flatnonzero(use & (~reanchor | on_code)):
             self._weigh_range(j, z[j], sigma[j])
         if not np.isnan(observation.pdr_heading_rad):
             self.kernels.pdr_likelihood(self.particles, observation.pdr_heading_rad, observation.pdr_speed_mps,
@@ -493,6 +504,31 @@ class ParticleFilter:
         self.linear_cov[channel, :] = 0.0
         self.linear_cov[:, channel] = 0.0
         self.linear_cov[channel, channel] = sigma**2
+
+    def _anchor_on_code(self, channel: int, z: float, code_m: float) -> bool:
+        """Make ``z`` a new origin of ``channel`` taken from its code value ``code_m`` (a tower difference's,
+        :meth:`fusion.model.EpochObservation.anchor_channels`): one offset for every particle, known to
+        ``ModelNoise.difference_code_sigma_m``, so that the epoch's range then weighs the particles.
+
+        Not done (False) without a code value, with an infinite sigma, or where the code lies outside
+        :data:`fusion.model.CODE_ANCHOR_GATE_SIGMAS` of the cloud's own value (a first path taken from a
+        reflection arrives late): the channel re-anchors on the particles instead.
+        """
+        code_sigma = self.noise.difference_code_sigma_m
+        if not (np.isfinite(code_m) and np.isfinite(code_sigma)):
+            return False
+        geometric = tower_distance_m(self.particles, self._towers, int(self._added[channel]))
+        if self._subtracted[channel] >= 0:
+            geometric -= tower_distance_m(self.particles, self._towers, int(self._subtracted[channel]))
+        mean = float(self.weights @ geometric)
+        spread = float(np.sqrt(max(self.weights @ (geometric - mean) ** 2, 0.0)))
+        if abs(code_m - mean) > CODE_ANCHOR_GATE_SIGMAS * np.hypot(spread, code_sigma):
+            return False
+        self.linear[:, channel] = code_m - z
+        self.linear_cov[channel, :] = 0.0
+        self.linear_cov[:, channel] = 0.0
+        self.linear_cov[channel, channel] = code_sigma**2
+        return True
 
     def estimate(self) -> np.ndarray:
         """Weighted mean state (eq. 22), circular mean for the heading, heading in [0, 2 pi)."""

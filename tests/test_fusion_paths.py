@@ -225,7 +225,7 @@ def test_si_range_is_kept_only_where_no_first_path_is_observed():
                      np.array([True, False, False, True, False, False, False, False]))
     first = np.array([[nan, nan], [nan, 1.0], [2.0, nan], [3.0, 3.0], [4.0, nan], [nan, nan], [nan, nan], [nan, nan]])
     paths = PathEpochs(t, first, np.where(np.isfinite(first), 0.2, nan), np.zeros((8, 2), bool), np.empty((8, 0)),
-                       np.empty((8, 0)), np.empty((8, 0), bool), np.full((8, 2), np.nan))
+                       np.empty((8, 0)), np.empty((8, 0), bool), np.full((8, 2), np.nan), np.empty((8, 0)))
     kept = si_range_epochs(si, paths, "without-first-path")
     np.testing.assert_array_equal(np.isfinite(kept.range_change_m), [True, False, False, False, False, True, False, True])
     np.testing.assert_array_equal(np.isfinite(kept.sigma_m), np.isfinite(kept.range_change_m))

@@ -153,8 +153,12 @@ class PathRangeSeries(ColumnRecord):
         that does not change at origin breaks: for the direct path the range
         plus that constant; a reflection taken for the first path arrives
         late by its excess path length (docs/paths.md, "The first path's
-        code range"). NaN where unknown (a difference; a file without it);
-        None gives NaN throughout.
+        code range"). For a difference of two towers whose transmit delay
+        offsets are known, the difference of their first paths' code ranges
+        with those offsets taken out: the range difference itself, with no
+        constant (``dtmbnav.chain.range_difference_code_m``). NaN where
+        unknown (a difference of towers whose offsets are not known; a file
+        without it); None gives NaN throughout.
     """
 
     t_s: np.ndarray
