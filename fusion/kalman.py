@@ -64,6 +64,8 @@ class RangeKalmanFilter(ABC):
         self.origins_m = self.layout.start_values_m(geometry)
         self.monitor = IntegrityMonitor(geometry, noise, clock, integrity)
         self._epochs_without = np.zeros(self.layout.n_channels, dtype=np.int64)
+        #: Per channel, whether its current origin came from its code (:meth:`_code_anchors_pass`).
+        self._origin_from_code = np.zeros(self.layout.n_channels, dtype=bool)
 
     @property
     def start_range_m(self) -> float:
@@ -108,10 +110,13 @@ class RangeKalmanFilter(ABC):
         gap = gathered_m > REANCHOR_SIGMAS * np.where(use, sigma, np.inf)
         reanchor = use & (new_origin | returning | gap)
         predicted = observe(self.x, self.geometry, self.origins_m)[self.layout.rows()]
+        # A channel takes its origin from the code where it has to re-anchor, and where it has one but its
+        # origin has not come from the code yet (its first epochs, a code that failed the gate before).
         anchors = observation.anchor_channels(self.layout.n_towers)
-        on_code = reanchor & self._code_anchors_pass(anchors)
+        on_code = (reanchor | (use & ~self._origin_from_code)) & self._code_anchors_pass(anchors)
         self.origins_m[reanchor] += predicted[reanchor] - z[reanchor]
         self.origins_m[on_code] = anchors[on_code] - z[on_code]
+        self._origin_from_code = on_code | (self._origin_from_code & ~reanchor)
         self._epochs_without = np.where(use, 0, self._epochs_without + 1)
         if on_code.any():   # an origin from the code leaves the epoch's range an observation, less sure by its sigma
             differences = slice(self.layout.n_towers + 1, None)

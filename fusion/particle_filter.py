@@ -351,6 +351,8 @@ class ParticleFilter:
         self.particles = np.zeros((n_particles, STATE_SIZE))
         self.linear = np.zeros((n_particles, n_channels + 2))
         self.linear_cov = np.zeros((n_channels + 2, n_channels + 2))
+        #: Per channel, whether its current origin came from its code (:meth:`_anchor_on_code`).
+        self._origin_from_code = np.zeros(n_channels, dtype=bool)
         self.log_w = np.full(n_particles, -np.log(n_particles))
         self.weights = np.full(n_particles, 1.0 / n_particles)
         self.ess = float(n_particles)
@@ -457,12 +459,15 @@ class ParticleFilter:
         self.linear_cov[channels[~use], channels[~use]] += self.noise.range_offset_m**2
         lost = self.linear_cov[channels, channels] > self.noise.range_reanchor_m**2
         reanchor = use & (new_origin | returning | lost)
+        # A channel takes its origin from the code where it has to re-anchor, and where it has one but its
+        # origin has not come from the code yet (its first epochs, a code that failed the gate before).
         anchors = observation.anchor_channels(self.layout.n_towers)
-        on_code = np.zeros(self.layout.n_channels, dtype=bool)   # re-anchored on its code: its range still weighs
-        for j in np.flatnonzero(reanchor):
+        on_code = np.zeros(self.layout.n_channels, dtype=bool)   # anchored on its code now: its range still weighs
+        for j in np.flatnonzero(reanchor | (use & ~self._origin_from_code & np.isfinite(anchors))):
             on_code[j] = self._anchor_on_code(j, z[j], anchors[j])
-            if not on_code[j]:
+            if reanchor[j] and not on_code[j]:
                 self._reanchor(j, z[j], sigma[j])
+            self._origin_from_code[j] = on_code[j] or (self._origin_from_code[j] and not reanchor[j])
         for j in np.flatnonzero(use & (~reanchor | on_code)):
             self._weigh_range(j, z[j], sigma[j])
         if not np.isnan(observation.pdr_heading_rad):

@@ -56,6 +56,9 @@ random stream, so the same multipath as the IQ level and as
 Tower differences are the difference of the towers' first-path ranges, the
 clock cancelling, valid where both are, with an origin break where either has
 one (``dtmbnav.chain.paths_from_frames`` reads the IQ receiver's the same way).
+Each carries its code range difference: the two first paths' delays less the
+towers' transmit delay offsets (known, as the simulated network plan is), each
+with its own code error, the clock cancelling here too.
 The model is checked against the IQ receiver on the same walks by
 ``dtmbnav/obs_vs_iq.py``.
 """
@@ -385,7 +388,9 @@ def simulate_obs_paths(scenario: Scenario, truth: Track, config: ObsPathConfig =
     smoothing = None
     held = np.tile(np.array([-1, 0], dtype=np.int64), (n_towers, 1))
     broken = np.zeros((n_towers, len(t_s)), dtype=bool)
-    path_delay_m = np.full(len(t_s), np.nan)   # c x the delay of tower 0's first path as the fit finds it
+    # c x the delay of each tower's first path as the fit finds it, less the tower's transmit delay offset.
+    path_delay_m = np.full((n_towers, len(t_s)), np.nan)
+    transmit_delay_s = np.array([site.transmit_delay_s for site in scenario.sites])
     for lo in range(0, len(t_s), block_samples):
         hi = min(lo + block_samples, len(t_s))
         state = channel.state(t_s[lo:hi])
@@ -398,10 +403,9 @@ def simulate_obs_paths(scenario: Scenario, truth: Track, config: ObsPathConfig =
             identity[k, lo:hi], amplitude[k, lo:hi], broken[k, lo:hi], anchor = first_path_kernel(
                 state.coef[rows], state.delay_s[rows] * gb20600.SYMBOL_RATE_HZ, seen[rows], survival, weak,
                 config.min_separation_chips, config.weak_separation_chips, pulse, held[k])
-            if k == 0:   # the receiver gives tower 0's code range only (dtmbnav.chain.first_path_code_range_m)
-                found = anchor >= 0
-                path_delay_m[lo:hi][found] = (SPEED_OF_LIGHT_MPS
-                                              * state.delay_s[rows][anchor[found], np.flatnonzero(found)])
+            found = anchor >= 0
+            path_delay_m[k, lo:hi][found] = SPEED_OF_LIGHT_MPS * (
+                state.delay_s[rows][anchor[found], np.flatnonzero(found)] - transmit_delay_s[k])
 
     # Each tower's first-path range: its phase steps integrated where the first path stays the same path.
     wavelength_m = SPEED_OF_LIGHT_MPS / tower.carrier_hz
@@ -420,8 +424,10 @@ def simulate_obs_paths(scenario: Scenario, truth: Track, config: ObsPathConfig =
     clock_m = SPEED_OF_LIGHT_MPS * (oscillator.time_error_s(t_s) - oscillator.time_error_s(t_s[:1]))
     clock_m -= clock_m[cal] / (t_s[cal] - t_s[0]) * (t_s - t_s[0])
     snr_db = 10.0 * np.log10(tap_snr / header_gain)
-    code_m = path_delay_m + clock_m + code_error_m(t_s, snr_db[0], config, np.random.default_rng(
-        [scenario.seed, _STREAM_CODE_NOISE, config.noise_draw]))
+    # Each tower's code error (tower 0's stream as before there were towers' own: its draws unchanged).
+    code_error = np.stack([code_error_m(t_s, snr_db[k], config, np.random.default_rng(
+        [scenario.seed, _STREAM_CODE_NOISE, config.noise_draw, *([k] if k else [])])) for k in range(n_towers)])
+    code_m = path_delay_m[0] + clock_m + code_error[0]
 
     usable = np.ones(len(t_s), dtype=bool)
     first = PathRangeSeries.from_runs(t_s, geometric_m[0] + phase_noise_m[0] + clock_m, identity[0], reported[0],
@@ -432,6 +438,8 @@ def simulate_obs_paths(scenario: Scenario, truth: Track, config: ObsPathConfig =
         start = int(np.argmax(both)) if both.any() else 0
         difference_m = geometric_m[k] - geometric_m[0] + phase_noise_m[k] - phase_noise_m[0]
         pair = identity[0] * channel.num_paths + identity[k]
+        code_difference_m = path_delay_m[k] + code_error[k] - path_delay_m[0] - code_error[0]
         differences[k] = PathRangeSeries.from_runs(t_s, difference_m - difference_m[start], pair, both, usable,
-                                                   np.fmin(snr_db[0], snr_db[k]), broken[0] | broken[k])
+                                                   np.fmin(snr_db[0], snr_db[k]), broken[0] | broken[k],
+                                                   code_difference_m)
     return ObsPaths(first_path=first, differences=differences)

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from fusion_synth import clock_range_m, exact_paths, exact_ranges, park_like_walk, path_series
 
+from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
 from dtmbnav.core.records import PathRangeSeries, RangeSeries
 from fusion import HEADING_RANGES, SI_RANGE_USES
 from fusion.metrics import error_stats, heading_error_rad, place_pdr, position_errors_m
@@ -281,6 +282,45 @@ def test_default_epochs_have_no_path_columns():
 
 # --- the receiver file's path columns -> PathRanges (dtmbnav.chain) ---------------------------
 
+@pytest.mark.parametrize("name", ["pf", "ukf"])
+def test_a_code_range_difference_takes_out_the_fix_error_along_the_hyperbola(name):
+    """The GNSS fix is 2 m off the true start along the towers' hyperbola gradient (and 0.3 m across it): with
+    the difference's code range (the transmit delays known) the filter starts on the right hyperbola; with its
+    carrier alone it keeps the fix's error, which a range-difference change cannot see."""
+    import dataclasses
+
+    walk = park_like_walk(gain=1.05, seed=0, other_towers=SECOND_TOWER)
+    g = walk.geometry
+    towers = g.towers()
+    unit = [-towers[k, :2] / np.hypot(*towers[k, :2]) for k in range(2)]      # d range / d position at the start
+    gradient = (unit[1] - unit[0]) / np.hypot(*(unit[1] - unit[0]))
+    across = np.array([-gradient[1], gradient[0]])
+    fix = 2.0 * gradient + 0.3 * across
+    at_fix = dataclasses.replace(g, start_x_m=float(fix[0]), start_y_m=float(fix[1]))
+    config = FusionConfig(n_particles=2000, **FREE_TCXO)
+    t = epoch_times(walk.pdr.t_s, 0.0, config.standstills)
+    ranges = exact_ranges(walk)
+    drifting = RangeSeries(ranges.t_s, ranges.range_change_m + clock_range_m(ranges.t_s, 1.6e-9, 100.0, seed=0),
+                           ranges.snr_db, ranges.valid)
+    paths = exact_paths(walk, first_path=False)
+    difference = paths.differences[1]
+    x, y = (np.interp(difference.t_s, walk.truth.t_s, v) for v in (walk.truth.x_m, walk.truth.y_m))
+    rng = np.random.default_rng(5)
+    code = g.range_m(x, y, 1) - g.range_m(x, y, 0) + 0.1 + 0.3 * rng.standard_normal(len(x))   # biased, noisy
+    with_code = dataclasses.replace(paths, differences={1: dataclasses.replace(difference, code_range_m=code)})
+
+    def along_error_m(path_ranges):
+        epochs = build_epochs(walk.pdr, aggregate_ranges(drifting, t), walk.initial_heading_rad,
+                              aggregate_paths(path_ranges, t, g.n_towers))
+        track = FILTERS[name](epochs, at_fix, config)
+        truth = (np.interp(track.t_s, walk.truth.t_s, walk.truth.x_m), np.interp(track.t_s, walk.truth.t_s,
+                                                                                 walk.truth.y_m))
+        return np.median((track.x_m - truth[0]) * gradient[0] + (track.y_m - truth[1]) * gradient[1])
+
+    assert abs(along_error_m(with_code)) < 0.4
+    assert along_error_m(paths) > 1.5
+
+
 def test_receiver_path_columns_become_path_ranges():
     """First path 7 then 9 (a new origin), a cycle slip on path 9, a difference that starts late."""
     from dtmbnav.chain import paths_from_frames
@@ -318,6 +358,15 @@ def test_receiver_path_columns_become_path_ranges():
     assert difference.slip[3] and difference.slip[4] and difference.slip[6]      # start, first-path change, slip
     np.testing.assert_allclose(difference.snr_db[3:], 12.0)                      # the weaker path's
     assert list(paths.differences) == [1]                                        # no tower 2 in a 2-tower geometry
+    assert np.isnan(difference.code_range_m).all()                              # transmit delays not known
+    # The delays of the two first paths and the towers' transmit delays: the range difference, no constant.
+    frames["first_path_delay_s"] = np.full(n, 2.0e-6)
+    rows["delay_s"] = np.where(np.array(tower_id) == 1, 9.5e-6, 2.0e-6)
+    coded = paths_from_frames(frames, rows, n_towers=2, transmit_delays_s=(0.0, 0.5e-6)).differences[1]
+    np.testing.assert_allclose(coded.code_range_m[3:], 7.0e-6 * SPEED_OF_LIGHT_MPS)
+    assert np.isnan(coded.code_range_m[:3]).all()                                # tower 1 not yet found
+    with pytest.raises(ValueError, match="one per tower"):
+        paths_from_frames(frames, rows, n_towers=2, transmit_delays_s=(0.0,))
     frames.pop("first_path_range_change_m")
     assert paths_from_frames(frames, rows, n_towers=2) is None                    # tracker off: SI range only
 
