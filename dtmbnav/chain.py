@@ -242,9 +242,71 @@ def first_path_code_range_m(frames: dict[str, np.ndarray], attrs: dict[str, Any]
     return start + (code_m - start + ambiguity_m / 2.0) % ambiguity_m - ambiguity_m / 2.0
 
 
+def expected_tower_delays_s(towers: np.ndarray, start_xy_m: tuple[float, float],
+                            transmit_delays_s: Sequence[float] | None = None) -> np.ndarray:
+    """Arrival delay of each tower's direct path at the start, relative to tower 0's, s.
+
+    Parameters
+    ----------
+    towers : ndarray, shape (T, 3)
+        x, y (m) and height above the receiver's antenna (m) of each tower
+        (:meth:`fusion.model.Geometry.towers`).
+    start_xy_m : (float, float)
+        Where the walk starts (the GNSS fix), m.
+    transmit_delays_s : sequence of float, optional
+        Each tower's transmit delay offset, s (none: 0).
+    """
+    towers = np.asarray(towers, dtype=np.float64)
+    distance_m = np.sqrt((towers[:, 0] - start_xy_m[0]) ** 2 + (towers[:, 1] - start_xy_m[1]) ** 2 + towers[:, 2] ** 2)
+    delay_s = distance_m / SPEED_OF_LIGHT_MPS + (0.0 if transmit_delays_s is None else
+                                                np.asarray(transmit_delays_s, dtype=np.float64)[:len(towers)])
+    return delay_s - delay_s[0]
+
+
+def receiver_tower_order(first_path_delays_s: Sequence[np.ndarray], expected_delays_s: np.ndarray) -> np.ndarray:
+    """Which receiver tower is geometry tower k (entry k), matched on their first paths' delays.
+
+    The receiver numbers the towers of a single-frequency network in the
+    order it finds them (``/receiver/paths`` ``tower_id``; the strongest
+    first, as a rule), the geometry in the order of the tower table. Tower 0
+    is taken as the same in both (it carries the SI carriers' range); the
+    others are matched by the median delay of their first paths after
+    receiver tower 0's, against the delays the tower table predicts at the
+    start (:func:`expected_tower_delays_s`): towers tens of chips apart, a
+    fix metres off. A receiver tower never seen keeps its number.
+
+    Parameters
+    ----------
+    first_path_delays_s : sequence of ndarray
+        Per receiver tower, the per-frame delay of its first path, s (NaN: none).
+    expected_delays_s : ndarray
+        Per geometry tower, its expected arrival delay after tower 0, s.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    n = len(expected_delays_s)
+    order = np.arange(n)
+    with np.errstate(invalid="ignore"):
+        measured = np.array([np.nanmedian(first_path_delays_s[r] - first_path_delays_s[0])
+                             if np.isfinite(first_path_delays_s[r] - first_path_delays_s[0]).any() else np.nan
+                             for r in range(1, n)])
+    seen = np.flatnonzero(np.isfinite(measured)) + 1
+    if not len(seen):
+        return order
+    cost = np.abs(measured[seen - 1][:, None] - np.asarray(expected_delays_s, dtype=np.float64)[None, 1:])
+    receiver, geometry = linear_sum_assignment(cost)
+    order[:] = -1
+    order[0] = 0
+    order[geometry + 1] = seen[receiver]
+    # Geometry towers left without a seen receiver tower take the unseen ones, in order.
+    order[order < 0] = [r for r in range(1, n) if r not in set(order.tolist())]
+    return order
+
+
 def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray] | None, n_towers: int,
                       time_offset_s: float = 0.0, attrs: dict[str, Any] | None = None,
-                      transmit_delays_s: Sequence[float] | None = None) -> PathRanges | None:
+                      transmit_delays_s: Sequence[float] | None = None,
+                      expected_delays_s: np.ndarray | None = None) -> PathRanges | None:
     """The path tracker's output of a receiver file -> the :class:`PathRanges` fusion consumes (docs/paths.md).
 
     Tower 0's first-path range is the ``first_path_range_change_m`` column;
@@ -259,8 +321,11 @@ def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray]
     receiver's ``attrs`` are given. With the towers' transmit delays
     (``transmit_delays_s``, one per tower, s; the network plan's), a
     difference carries its code range difference
-    (:func:`range_difference_code_m`). Returns None for a file without the
-    first-path columns (path tracker off).
+    (:func:`range_difference_code_m`). With the towers' expected delays
+    (``expected_delays_s``, :func:`expected_tower_delays_s`) the receiver's
+    further towers are put in the geometry's order
+    (:func:`receiver_tower_order`; without, the receiver's order is taken).
+    Returns None for a file without the first-path columns (path tracker off).
     """
     if "first_path_range_change_m" not in frames:
         return None
@@ -269,6 +334,8 @@ def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray]
     t = frames["t_s"] + time_offset_s
     usable = (frames["flags"].astype(np.int64) & int(UNUSABLE_FLAGS)) == 0
     towers = [_tower_first_paths(frames, rows, k) for k in range(n_towers)]
+    order = (np.arange(n_towers) if expected_delays_s is None or rows is None else
+             receiver_tower_order([tower[3] for tower in towers], expected_delays_s))
 
     ids0, snr0, slip0, delay0 = towers[0]
     rng0 = frames["first_path_range_change_m"]
@@ -276,10 +343,11 @@ def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray]
     first = {0: PathRangeSeries.from_runs(t, rng0, ids0, (ids0 >= 0) & np.isfinite(rng0), usable, snr0, slip0,
                                           code0)}
     differences = {}
-    for k, name in RANGE_DIFFERENCE_COLUMNS.items():
-        if k >= n_towers or name not in frames:
+    for k in range(1, n_towers):
+        name = RANGE_DIFFERENCE_COLUMNS.get(int(order[k]))   # the receiver's column of geometry tower k
+        if name is None or name not in frames:
             continue
-        ids_k, snr_k, slip_k, delay_k = towers[k]
+        ids_k, snr_k, slip_k, delay_k = towers[order[k]]
         diff = frames[name]
         # A pair key: the difference restarts when either tower's first path changes.
         key = ids0 * (1 << 32) + ids_k if rows is not None else np.zeros(len(t), np.int64)
@@ -392,6 +460,7 @@ def write_fusion(h5: h5py.File, result: FusionResult) -> None:
     for name, track in result.tracks.items():
         write_columns(h5, schema.fusion_group(name), track, {
             schema.INITIAL_HEADING_ATTR: heading.heading_rad, "initial_heading_confidence": heading.confidence,
+            **dict(zip(schema.FUSION_START_ATTRS, result.start_xy_m)),
             "initial_heading_minima_rad": heading.minima_rad, "initial_heading_costs_m": heading.costs_m})
 
 
@@ -428,8 +497,9 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
         other_towers = read_other_towers(sensors_path)
         transmit_delays_s = read_transmit_delays(sensors_path)
     ranges = ranges_from_frames(frames, capture_start_s)
-    paths = paths_from_frames(frames, read_receiver_paths(receiver_path), 1 + len(other_towers), capture_start_s,
-                              rx_attrs, transmit_delays_s)
+    towers = np.array([(*tower_xy_m, height_m), *other_towers])
+    paths = paths_from_frames(frames, read_receiver_paths(receiver_path), len(towers), capture_start_s, rx_attrs,
+                              transmit_delays_s, expected_tower_delays_s(towers, start_xy_m, transmit_delays_s))
     pdr = run_pdr(imu, pdr_config)
     if len(pdr.steps) == 0:
         raise NoResult(f"{sensors_path}: /{schema.IMU}: the PDR found no steps; nothing to fuse")

@@ -26,7 +26,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from dtmbnav.chain import paths_from_frames, ranges_from_frames
+from dtmbnav.chain import expected_tower_delays_s, paths_from_frames, ranges_from_frames
 from dtmbnav.core.iqformat import decode, get_format
 from dtmbnav.core.records import FrameBatch, PathBatch, PathFlag, RangeSeries, Track
 from dtmbnav.evaluate import Observations
@@ -121,9 +121,16 @@ def iq_observations(scenario: Scenario, track: Track, seconds: float | None = No
                            "simulated capture")
     columns = FrameBatch.concatenate(frames).columns()
     path_rows = PathBatch.concatenate(rows).columns() if receiver.config.track_paths else None
+    # The tower table as a user has it: positions (heights above the antenna) and the network's transmit delays;
+    # the towers are put in its order from where the walk starts (a fix metres off would do as well).
+    antenna_m = scenario.channel.antenna_height_m
+    towers = np.array([(site.x_m, site.y_m, site.height_m - antenna_m) for site in scenario.sites])
+    transmit_delays = [site.transmit_delay_s for site in scenario.sites]
+    start = (float(track.x_m[0]), float(track.y_m[0]))
     return Observations(ranges_from_frames(columns),
                         paths_from_frames(columns, path_rows, len(scenario.sites), attrs=receiver.attributes(),
-                                          transmit_delays_s=[site.transmit_delay_s for site in scenario.sites])
+                                          transmit_delays_s=transmit_delays,
+                                          expected_delays_s=expected_tower_delays_s(towers, start, transmit_delays))
                         if path_rows is not None else None)
 
 

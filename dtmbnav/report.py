@@ -54,8 +54,12 @@ def _track(columns: dict[str, np.ndarray]) -> Track:
     return Track(**{k: columns[k] for k in schema.TRACK_COLUMNS})
 
 
-def load_results(results_path: str | os.PathLike) -> tuple[dict[str, Track], PdrSteps, float]:
-    """Fused tracks by filter, the PDR steps and the initial heading used."""
+def load_results(results_path: str | os.PathLike) -> tuple[dict[str, Track], PdrSteps, float, tuple[float, float]]:
+    """Fused tracks by filter, the PDR steps, the initial heading and the start P0 used.
+
+    A file written before the start was recorded gives the first filter's first
+    position for it (a filter that moved during the first standstill moves it too).
+    """
     with h5py.File(results_path, "r") as f:
         if schema.FUSION not in f:
             raise ValueError(f"{results_path}: no /{schema.FUSION} group (run 'dtmbnav fuse' or 'dtmbnav run' first)")
@@ -63,8 +67,11 @@ def load_results(results_path: str | os.PathLike) -> tuple[dict[str, Track], Pdr
     tracks = {name: _track(read_columns(results_path, schema.fusion_group(name))) for name in names}
     pdr_cols = read_columns(results_path, schema.PDR)
     pdr = PdrSteps(**{k: pdr_cols[k] for k in (*schema.TRACK_COLUMNS, "step_length_m")})
-    heading = float(read_attrs(results_path, schema.fusion_group(names[0]))[schema.INITIAL_HEADING_ATTR])
-    return tracks, pdr, heading
+    attrs = read_attrs(results_path, schema.fusion_group(names[0]))
+    first = tracks[names[0]]
+    start = tuple(float(attrs.get(name, default)) for name, default in zip(schema.FUSION_START_ATTRS,
+                                                                           (first.x_m[0], first.y_m[0])))
+    return tracks, pdr, float(attrs[schema.INITIAL_HEADING_ATTR]), (start[0], start[1])
 
 
 def summary_rows(truth: Track, estimates: dict[str, Track], scenario_name: str) -> list[SummaryRow]:
@@ -161,13 +168,11 @@ def write_report(results_path: str | os.PathLike, out_dir: str | os.PathLike,
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    tracks, pdr, heading = load_results(results_path)
+    tracks, pdr, heading, start_fix_xy = load_results(results_path)
     frames = read_columns(results_path, schema.RECEIVER_FRAMES)
     truth = truth_frames = None
     tower = None
     offset = 0.0
-    first = next(iter(tracks.values()))
-    start_fix_xy = (float(first.x_m[0]), float(first.y_m[0]))  # every filter starts at the fix
     estimates = {PDR_AT_FIX: place_pdr(pdr, *start_fix_xy, heading), **tracks}
     if truth_path is not None:
         walk_truth = read_walk_truth(truth_path)

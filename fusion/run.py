@@ -167,11 +167,14 @@ class FusionResult:
         The eq. 15 solution whose ``heading_rad`` every filter started from.
     epochs : FilterEpochs
         The inputs the filters consumed.
+    start_xy_m : (float, float)
+        The start fix P0 every filter started from, ENU m.
     """
 
     tracks: dict[str, Track]
     heading: HeadingSolution
     epochs: FilterEpochs
+    start_xy_m: tuple[float, float]
 
 
 def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], tower_xy_m: tuple[float, float],
@@ -222,4 +225,4 @@ def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], to
     epochs = build_epochs(pdr, si_range_epochs(range_epochs, path_epochs, config.si_range), heading.heading_rad,
                           path_epochs)
     tracks = {name: FILTERS[name](epochs, geometry, config) for name in filters}
-    return FusionResult(tracks=tracks, heading=heading, epochs=epochs)
+    return FusionResult(tracks=tracks, heading=heading, epochs=epochs, start_xy_m=(start_xy_m[0], start_xy_m[1]))

@@ -321,6 +321,25 @@ def test_a_code_range_difference_takes_out_the_fix_error_along_the_hyperbola(nam
     assert along_error_m(paths) > 1.5
 
 
+def test_receiver_towers_are_put_in_the_tower_tables_order_by_their_delays():
+    """Three towers; the receiver found tower C (62 chips after A) before tower B (30 chips): matched back by delay,
+    and a tower the receiver never saw keeps its number."""
+    from dtmbnav.chain import expected_tower_delays_s, receiver_tower_order
+
+    towers = np.array([(2000.0, 2200.0, 148.5), (-1372.0, -3771.0, 118.5), (-3574.0, 3969.0, 98.5)])
+    expected = expected_tower_delays_s(towers, (1.0, -2.0), (0.0, 0.5e-6, 0.3e-6))
+    chip_s = 1.0 / 7.56e6
+    assert expected[1] / chip_s == pytest.approx(30.0, abs=0.5) and expected[2] / chip_s == pytest.approx(62.0, abs=0.5)
+    rng = np.random.default_rng(0)
+    delay_a = 5e-6 + 1e-8 * rng.standard_normal(100)
+    delay_c, delay_b = delay_a + expected[2] + 3e-8, delay_a + expected[1] - 3e-8    # the fix off by metres
+    delay_b[:50] = np.nan                                                            # found later
+    np.testing.assert_array_equal(receiver_tower_order([delay_a, delay_c, delay_b], expected), [0, 2, 1])
+    np.testing.assert_array_equal(receiver_tower_order([delay_a, delay_b, delay_c], expected), [0, 1, 2])
+    unseen = np.full(100, np.nan)
+    np.testing.assert_array_equal(receiver_tower_order([delay_a, unseen, delay_b], expected), [0, 2, 1])
+
+
 def test_receiver_path_columns_become_path_ranges():
     """First path 7 then 9 (a new origin), a cycle slip on path 9, a difference that starts late."""
     from dtmbnav.chain import paths_from_frames

@@ -59,6 +59,8 @@ CAPTURE_START_ATTR = "capture_start_s"
 WEINBERG_K_ATTR = "weinberg_k_m"
 #: On /fusion/<filter>: the initial heading used and how it was chosen.
 INITIAL_HEADING_ATTR = "initial_heading_rad"
+#: On /fusion/<filter>: the start fix P0 every filter started from (x, y), m.
+FUSION_START_ATTRS = ("start_x_m", "start_y_m")
 #: On /receiver/frames: why the input ended before its end (interrupted, a stream cut inside an IQ pair,
 #: a read error); absent when the whole input was received.
 ENDED_EARLY_ATTR = "ended_early"
