@@ -3,7 +3,11 @@
 The Kalman-type filters (UKF, WT-UKF, adaptive EKF, rank KF) have no
 range-offset state (the particle filter has, :mod:`fusion.particle_filter`);
 each range channel (:class:`fusion.model.ObservationLayout`) has a fixed
-origin instead, its value at P0 to start with. Their stand-in for the
+origin instead, its value at P0 to start with (under a free-running clock
+a single-tower channel's first observation re-anchors it instead, as the
+particle filter starts those channels at each particle's own range: its
+first value holds the clock's drift since the capture start, which the
+fix's range would read as position). Their stand-in for the
 offset's random walk: when a channel comes back after ``k`` epochs without
 it and the offset a random walk of ``noise.range_offset_m`` per epoch would
 have gathered, ``range_offset_m * sqrt(k)``, exceeds three times the
@@ -66,6 +70,9 @@ class RangeKalmanFilter(ABC):
         self._epochs_without = np.zeros(self.layout.n_channels, dtype=np.int64)
         #: Per channel, whether its current origin came from its code (:meth:`_code_anchors_pass`).
         self._origin_from_code = np.zeros(self.layout.n_channels, dtype=bool)
+        #: Channels whose first observation re-anchors them: under a free-running clock the single-tower ones,
+        #: whose first value holds the clock's drift since the capture start, not the fix's error.
+        self._unanchored = clock.free_running & (self.layout.clock_coefficients() > 0)
 
     @property
     def start_range_m(self) -> float:
@@ -108,7 +115,8 @@ class RangeKalmanFilter(ABC):
             self.replace_state(*fallback)
         gathered_m = self.noise.range_offset_m * np.sqrt(self._epochs_without)
         gap = gathered_m > REANCHOR_SIGMAS * np.where(use, sigma, np.inf)
-        reanchor = use & (new_origin | returning | gap)
+        reanchor = use & (new_origin | returning | gap | self._unanchored)
+        self._unanchored &= ~use
         predicted = observe(self.x, self.geometry, self.origins_m)[self.layout.rows()]
         # A channel takes its origin from the code where it has to re-anchor, and where it has one but its
         # origin has not come from the code yet (its first epochs, a code that failed the gate before).
