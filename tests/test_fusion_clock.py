@@ -65,6 +65,23 @@ def test_a_standstill_observes_the_clock_rate():
     assert errors["standstills"] < errors["steps only"], errors
 
 
+@pytest.mark.parametrize("name", ["pf", "ukf", "adaptive-kf", "rank-kf"])
+def test_clock_drift_before_the_first_epoch_does_not_move_the_start(name):
+    """A free-running clock drifted 1.7 m of range between the capture start and the first epoch (the range is a
+    change since the capture start): every filter still stands at the fix through the first standstill."""
+    walk = park_like_walk(seed=0)
+    ranges = exact_ranges(walk)
+    drifting = RangeSeries(ranges.t_s, ranges.range_change_m - np.minimum(ranges.t_s, 1.0) * 1.7, ranges.snr_db,
+                           ranges.valid)
+    config = FusionConfig(n_particles=1000, clock_model="free-running", clock_allan_deviation=TCXO["allan_deviation"],
+                          clock_allan_tau_s=TCXO["allan_tau_s"])
+    t = epoch_times(walk.pdr.t_s, 0.0, config.standstills)
+    epochs = build_epochs(walk.pdr, aggregate_ranges(drifting, t), walk.initial_heading_rad)
+    track = FILTERS[name](epochs, walk.geometry, config)
+    error_m = position_errors_m(track, walk.truth)
+    assert error_m[0] < 0.3, error_m[:3]                   # the first step: the walker set off from P0
+
+
 @pytest.mark.parametrize("name", ["pf", "ukf"])
 def test_the_clock_state_keeps_a_tcxo_range_from_dragging_the_track(name):
     """Walks with stops and a TCXO-drifting range: with the clock state the 95 % error stays below the PDR's
