@@ -37,6 +37,7 @@ from dtmbnav.core.sensors import (read_capture_start_s, read_gnss, read_imu, rea
                                   read_weinberg_k_m)
 from dtmbnav.errors import NoResult
 from dtmbnav.receive import receive_capture
+from fusion.model import Geometry
 from fusion.observations import PathRanges
 from fusion.pdr import PdrConfig, PdrResult, run_pdr
 from fusion.run import FusionConfig, FusionResult, fuse
@@ -179,8 +180,8 @@ def _tower_first_paths(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray
                        tower: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per frame: the id, SNR (dB), cycle-slip flag and delay (s) of a tower's first path in ``/receiver/paths``.
 
-    Frames where the tower has none (and every frame's delay where the rows have no ``delay_s``) get id -1,
-    NaN, False and NaN. Tower 0's
+    Frames where the tower has none get id -1, NaN, False and NaN (and so
+    does every frame's delay where the rows have no ``delay_s``). Tower 0's
     id, SNR and delay are the frame columns' (``first_path_id``,
     ``first_path_snr_db``, ``first_path_delay_s``); without the group no slip
     is known.
@@ -242,24 +243,19 @@ def first_path_code_range_m(frames: dict[str, np.ndarray], attrs: dict[str, Any]
     return start + (code_m - start + ambiguity_m / 2.0) % ambiguity_m - ambiguity_m / 2.0
 
 
-def expected_tower_delays_s(towers: np.ndarray, start_xy_m: tuple[float, float],
-                            transmit_delays_s: Sequence[float] | None = None) -> np.ndarray:
-    """Arrival delay of each tower's direct path at the start, relative to tower 0's, s.
+def expected_tower_delays_s(geometry: Geometry, transmit_delays_s: Sequence[float] | None = None) -> np.ndarray:
+    """Arrival delay of each tower's direct path at the start P0, relative to tower 0's, s.
 
     Parameters
     ----------
-    towers : ndarray, shape (T, 3)
-        x, y (m) and height above the receiver's antenna (m) of each tower
-        (:meth:`fusion.model.Geometry.towers`).
-    start_xy_m : (float, float)
-        Where the walk starts (the GNSS fix), m.
+    geometry : Geometry
+        P0 (the GNSS fix) and the towers.
     transmit_delays_s : sequence of float, optional
         Each tower's transmit delay offset, s (none: 0).
     """
-    towers = np.asarray(towers, dtype=np.float64)
-    distance_m = np.sqrt((towers[:, 0] - start_xy_m[0]) ** 2 + (towers[:, 1] - start_xy_m[1]) ** 2 + towers[:, 2] ** 2)
+    distance_m = np.array([geometry.start_range_m(k) for k in range(geometry.n_towers)])
     delay_s = distance_m / SPEED_OF_LIGHT_MPS + (0.0 if transmit_delays_s is None else
-                                                np.asarray(transmit_delays_s, dtype=np.float64)[:len(towers)])
+                                                np.asarray(transmit_delays_s, dtype=np.float64)[:geometry.n_towers])
     return delay_s - delay_s[0]
 
 
@@ -285,21 +281,18 @@ def receiver_tower_order(first_path_delays_s: Sequence[np.ndarray], expected_del
     from scipy.optimize import linear_sum_assignment
 
     n = len(expected_delays_s)
-    order = np.arange(n)
-    with np.errstate(invalid="ignore"):
-        measured = np.array([np.nanmedian(first_path_delays_s[r] - first_path_delays_s[0])
-                             if np.isfinite(first_path_delays_s[r] - first_path_delays_s[0]).any() else np.nan
-                             for r in range(1, n)])
+    after_tower_0 = [first_path_delays_s[r] - first_path_delays_s[0] for r in range(1, n)]
+    measured = np.array([np.nanmedian(d) if np.isfinite(d).any() else np.nan for d in after_tower_0])
     seen = np.flatnonzero(np.isfinite(measured)) + 1
     if not len(seen):
-        return order
+        return np.arange(n)
     cost = np.abs(measured[seen - 1][:, None] - np.asarray(expected_delays_s, dtype=np.float64)[None, 1:])
     receiver, geometry = linear_sum_assignment(cost)
-    order[:] = -1
+    order = np.full(n, -1)
     order[0] = 0
     order[geometry + 1] = seen[receiver]
     # Geometry towers left without a seen receiver tower take the unseen ones, in order.
-    order[order < 0] = [r for r in range(1, n) if r not in set(order.tolist())]
+    order[order < 0] = np.setdiff1d(np.arange(1, n), seen)
     return order
 
 
@@ -497,9 +490,9 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
         other_towers = read_other_towers(sensors_path)
         transmit_delays_s = read_transmit_delays(sensors_path)
     ranges = ranges_from_frames(frames, capture_start_s)
-    towers = np.array([(*tower_xy_m, height_m), *other_towers])
-    paths = paths_from_frames(frames, read_receiver_paths(receiver_path), len(towers), capture_start_s, rx_attrs,
-                              transmit_delays_s, expected_tower_delays_s(towers, start_xy_m, transmit_delays_s))
+    geometry = Geometry(start_xy_m[0], start_xy_m[1], tower_xy_m[0], tower_xy_m[1], height_m, other_towers)
+    paths = paths_from_frames(frames, read_receiver_paths(receiver_path), geometry.n_towers, capture_start_s,
+                              rx_attrs, transmit_delays_s, expected_tower_delays_s(geometry, transmit_delays_s))
     pdr = run_pdr(imu, pdr_config)
     if len(pdr.steps) == 0:
         raise NoResult(f"{sensors_path}: /{schema.IMU}: the PDR found no steps; nothing to fuse")

@@ -30,6 +30,7 @@ from dtmbnav.chain import expected_tower_delays_s, paths_from_frames, ranges_fro
 from dtmbnav.core.iqformat import decode, get_format
 from dtmbnav.core.records import FrameBatch, PathBatch, PathFlag, RangeSeries, Track
 from dtmbnav.evaluate import Observations
+from fusion.model import Geometry
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
 from sim.obs_range import ObsRangeConfig
 from sim.rf import CaptureGenerator
@@ -124,13 +125,13 @@ def iq_observations(scenario: Scenario, track: Track, seconds: float | None = No
     # The tower table as a user has it: positions (heights above the antenna) and the network's transmit delays;
     # the towers are put in its order from where the walk starts (a fix metres off would do as well).
     antenna_m = scenario.channel.antenna_height_m
-    towers = np.array([(site.x_m, site.y_m, site.height_m - antenna_m) for site in scenario.sites])
+    tower, *others = [(site.x_m, site.y_m, site.height_m - antenna_m) for site in scenario.sites]
+    geometry = Geometry(float(track.x_m[0]), float(track.y_m[0]), *tower, other_towers=tuple(others))
     transmit_delays = [site.transmit_delay_s for site in scenario.sites]
-    start = (float(track.x_m[0]), float(track.y_m[0]))
     return Observations(ranges_from_frames(columns),
                         paths_from_frames(columns, path_rows, len(scenario.sites), attrs=receiver.attributes(),
                                           transmit_delays_s=transmit_delays,
-                                          expected_delays_s=expected_tower_delays_s(towers, start, transmit_delays))
+                                          expected_delays_s=expected_tower_delays_s(geometry, transmit_delays))
                         if path_rows is not None else None)
 
 

@@ -36,7 +36,7 @@ from abc import ABC, abstractmethod
 import numpy as np
 
 from fusion.integrity import IntegrityConfig, IntegrityMonitor
-from fusion.model import (CODE_ANCHOR_GATE_SIGMAS, X, Y, ClockModel, EpochObservation, Geometry, KalmanObservation,
+from fusion.model import (CODE_ANCHOR_GATE_SIGMAS, ClockModel, EpochObservation, Geometry, KalmanObservation,
                           ModelNoise, ObservationLayout, StepControl, observation_jacobian, observe)
 
 #: Re-anchor when the offset gathered without range exceeds this many observation sigmas.
@@ -121,7 +121,9 @@ class RangeKalmanFilter(ABC):
         # A channel takes its origin from the code where it has to re-anchor, and where it has one but its
         # origin has not come from the code yet (its first epochs, a code that failed the gate before).
         anchors = observation.anchor_channels(self.layout.n_towers)
-        on_code = (reanchor | (use & ~self._origin_from_code)) & self._code_anchors_pass(anchors)
+        # (A difference has no clock term, so its geometric value is the prediction plus its origin.)
+        on_code = (reanchor | (use & ~self._origin_from_code)) & self._code_anchors_pass(anchors,
+                                                                                         predicted + self.origins_m)
         self.origins_m[reanchor] += predicted[reanchor] - z[reanchor]
         self.origins_m[on_code] = anchors[on_code] - z[on_code]
         self._origin_from_code = on_code | (self._origin_from_code & ~reanchor)
@@ -135,14 +137,14 @@ class RangeKalmanFilter(ABC):
             self.correct(kalman, observation.index)
         self.monitor.posterior(self.x, self.P)
 
-    def _code_anchors_pass(self, anchors: np.ndarray) -> np.ndarray:
+    def _code_anchors_pass(self, anchors: np.ndarray, geometric: np.ndarray) -> np.ndarray:
         """Per range channel, whether its code value (:meth:`fusion.model.EpochObservation.anchor_channels`) can be
         its origin: present, a finite ``ModelNoise.difference_code_sigma_m``, and within
-        :data:`fusion.model.CODE_ANCHOR_GATE_SIGMAS` of the state's value (a late first path fails)."""
+        :data:`fusion.model.CODE_ANCHOR_GATE_SIGMAS` of the state's value ``geometric`` (m; a late first path
+        fails)."""
         code_sigma = self.noise.difference_code_sigma_m
         if not np.isfinite(code_sigma) or not np.isfinite(anchors).any():
             return np.zeros(len(anchors), dtype=bool)
-        geometric = self.layout.geometric_m(self.geometry, self.x[X], self.x[Y])
         h = observation_jacobian(self.x, self.geometry)[self.layout.rows()]
         spread = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", h, self.P, h), 0.0))
         with np.errstate(invalid="ignore"):

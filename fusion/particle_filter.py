@@ -501,14 +501,19 @@ class ParticleFilter:
 
     def _reanchor(self, channel: int, z: float, sigma: float) -> None:
         """Make ``z`` a new origin of ``channel``: each particle's offset so that it agrees, known to ``sigma``."""
-        geometric = tower_distance_m(self.particles, self._towers, int(self._added[channel]))
-        if self._subtracted[channel] >= 0:
-            geometric -= tower_distance_m(self.particles, self._towers, int(self._subtracted[channel]))
+        geometric = self._geometric_m(channel)
         clock = self._h_linear[channel, self._bias] * self.linear[:, self._bias]
         self.linear[:, channel] = geometric + clock - z
         self.linear_cov[channel, :] = 0.0
         self.linear_cov[:, channel] = 0.0
         self.linear_cov[channel, channel] = sigma**2
+
+    def _geometric_m(self, channel: int) -> np.ndarray:
+        """Each particle's geometric value of ``channel`` (its range, or range difference), m."""
+        geometric = tower_distance_m(self.particles, self._towers, int(self._added[channel]))
+        if self._subtracted[channel] >= 0:
+            geometric -= tower_distance_m(self.particles, self._towers, int(self._subtracted[channel]))
+        return geometric
 
     def _anchor_on_code(self, channel: int, z: float, code_m: float) -> bool:
         """Make ``z`` a new origin of ``channel`` taken from its code value ``code_m`` (a tower difference's,
@@ -522,9 +527,7 @@ class ParticleFilter:
         code_sigma = self.noise.difference_code_sigma_m
         if not (np.isfinite(code_m) and np.isfinite(code_sigma)):
             return False
-        geometric = tower_distance_m(self.particles, self._towers, int(self._added[channel]))
-        if self._subtracted[channel] >= 0:
-            geometric -= tower_distance_m(self.particles, self._towers, int(self._subtracted[channel]))
+        geometric = self._geometric_m(channel)
         mean = float(self.weights @ geometric)
         spread = float(np.sqrt(max(self.weights @ (geometric - mean) ** 2, 0.0)))
         if abs(code_m - mean) > CODE_ANCHOR_GATE_SIGMAS * np.hypot(spread, code_sigma):
