@@ -26,8 +26,7 @@ from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig
 from fusion.kalman import RangeKalmanFilter
 from fusion.model import (HEADING, RANGE_ROW, ClockModel, Geometry, KalmanObservation, ModelNoise, StepControl, X, Y,
-                          initial_covariance, initial_state, observation_jacobian, observe, process_covariance,
-                          propagate, transition_jacobian, wrap_angle)
+                          wrap_angle)
 from fusion.observations import FilterEpochs
 
 #: [CN0-KF]'s grade thresholds on P / C and the R multipliers of the grades.
@@ -94,8 +93,7 @@ class AdaptiveEkf(RangeKalmanFilter):
                  gnss: GnssFixes | None = None, gnss_max_age_s: float = 0.5, clock: ClockModel = ClockModel(),
                  integrity: IntegrityConfig = IntegrityConfig()) -> None:
         super().__init__(geometry, noise, clock, integrity)
-        self._x = initial_state(geometry, *epochs.initial_heading_speed(), clock)
-        self._P = initial_covariance(noise, clock)
+        self._x, self._P = self.initial_state_covariance(*epochs.initial_heading_speed())
         self.range_factors = quality_grade_factors(epochs.snr_db)
         self.gnss_index = np.full(len(epochs), -1)
         if gnss is not None and len(gnss.t_s) > 0:
@@ -106,10 +104,10 @@ class AdaptiveEkf(RangeKalmanFilter):
         self.gnss = gnss
 
     def time_update(self, control: StepControl) -> None:
-        """EKF prediction through :func:`fusion.model.propagate`."""
-        f = transition_jacobian(self.x, control)
-        self._x = propagate(self.x, control)
-        self._P = f @ self.P @ f.T + process_covariance(self.noise, control, self.clock)
+        """EKF prediction through :meth:`model_propagate`."""
+        f = self.model_transition_jacobian(self.x, control)
+        self._x = self.model_propagate(self.x, control)
+        self._P = f @ self.P @ f.T + self.model_process_covariance(control)
 
     def replace_state(self, x: np.ndarray, P: np.ndarray) -> None:
         """Take ``x``, ``P`` as the state."""
@@ -130,9 +128,9 @@ class AdaptiveEkf(RangeKalmanFilter):
         variance = observation.sigma**2
         if observation.rows[0] == RANGE_ROW:
             variance[0] *= self.range_factors[epoch]
-        predicted = observe(self.x, self.geometry, self.origins_m)[observation.rows]
+        predicted = self.model_observe(self.x)[observation.rows]
         residual = observation.residual(observation.z, predicted)
-        h = observation_jacobian(self.x, self.geometry)[observation.rows]
+        h = self.model_observation_jacobian(self.x)[observation.rows]
         self._correct(residual, h, np.diag(variance))
         k = self.gnss_index[epoch]
         if k >= 0:

@@ -1,50 +1,75 @@
-"""What the Kalman-type fusion filters share: range channels, re-anchoring and integrity around their correction step.
+"""What the Kalman-type fusion filters share: range channels with origin states, re-anchoring and integrity.
 
-The Kalman-type filters (UKF, WT-UKF, adaptive EKF, rank KF) have no
-range-offset state (the particle filter has, :mod:`fusion.particle_filter`);
-each range channel (:class:`fusion.model.ObservationLayout`) has a fixed
-origin instead, its value at P0 to start with (under a free-running clock
-a single-tower channel's first observation re-anchors it instead, as the
-particle filter starts those channels at each particle's own range: its
-first value holds the clock's drift since the capture start, which the
-fix's range would read as position). Their stand-in for the
-offset's random walk: when a channel comes back after ``k`` epochs without
-it and the offset a random walk of ``noise.range_offset_m`` per epoch would
-have gathered, ``range_offset_m * sqrt(k)``, exceeds three times the
-returning observation's sigma, the filter re-anchors the channel: its origin
-is moved so that this observation agrees with the predicted state, and the
-channel says only how it changes from there. So does a channel whose data
-restart from a new origin (:mod:`fusion.observations`) and one the integrity
-monitor (:mod:`fusion.integrity`) takes back after dropping it (its epochs
-without the channel count as a gap too); an observation used to re-anchor is
-not weighed (it says nothing about the state). A tower difference that
-carries its code range difference (docs/paths.md) re-anchors on the code
-instead, its origin the code's value less the observation, and is then
-weighed with the code's sigma added: it places the state on the towers'
-hyperbola, which P0 knows only to the GNSS fix's error. Where the monitor drops a
-channel, the filter takes the monitor's open-loop state instead of its own
-(:meth:`RangeKalmanFilter.replace_state`). With a free-running clock
-(:class:`fusion.model.ClockModel`) the state carries the clock's integrated
-range and rate (:data:`fusion.model.CLOCK_STATE_SIZE` columns).
+The Kalman-type filters (UKF, WT-UKF, adaptive EKF, rank KF) carry, after
+the motion state (and the clock's, :class:`fusion.model.ClockModel`), one
+**origin state** per range channel (:class:`fusion.model.ObservationLayout`):
+the value the channel's integrated range counts from, so that channel ``j``
+observes ``g_j(x, y) + clock - o_j``. These are the particle filter's range
+offsets (:mod:`fusion.particle_filter`), with the same model, so that every
+filter is compared on the same equations:
+
+- At P0 a single-tower channel's origin is the walker's own start range:
+  ``o_j = g_j(P0)``, carried with its covariance with the initial position
+  (``J P0``; a clone of the start, as each particle starts at its own
+  range), so that the range says how the walker moved and the fix's error is
+  not read as a range error. A tower difference's origin is its value at
+  the fix, known to its gradient times the fix's spread and independent of
+  the position, so that it places the walker on a hyperbola.
+- In epochs without a channel's observation its origin takes a random-walk
+  step of ``ModelNoise.range_offset_m``; once its standard deviation has
+  grown past ``ModelNoise.range_reanchor_m`` the returning channel is
+  re-anchored.
+- **Re-anchoring** (a new origin in the data, a channel the integrity
+  monitor :mod:`fusion.integrity` takes back, a lost origin, and under a
+  free-running clock a single-tower channel's first observation, whose value
+  holds the clock's drift since the capture start): the origin becomes the
+  state's value less the observation, ``o_j = g_j(x) + clock - z_j``, with
+  its covariance with the state (``J P``, and ``J P J^T + sigma^2`` its
+  variance): stochastic cloning. The observation is not weighed (it says
+  nothing about the state), and later ones say how the state changed since.
+  Setting the origin to a number instead, as these filters did before, made
+  the next observations absolute ranges from the state of that epoch: the
+  state's uncertainty along the line of sight collapsed to the
+  observation's, around a position still the fix's (docs/method.md §8).
+- A tower difference that carries its code range difference (docs/paths.md)
+  re-anchors on the code instead: ``o_j = code - z_j``, of variance
+  ``ModelNoise.difference_code_sigma_m^2`` and independent of the state, and
+  the epoch's observation then weighs.
+
+Where the monitor drops a channel, the filter takes the monitor's open-loop
+motion (and clock) state instead of its own
+(:meth:`RangeKalmanFilter.replace_state`); the origins keep their values.
+The model functions of :mod:`fusion.model` work on the motion and clock
+columns; :meth:`RangeKalmanFilter.model_propagate`,
+:meth:`~RangeKalmanFilter.model_observe` and the Jacobians here extend them
+to the origin columns.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from abc import ABC, abstractmethod
 
 import numpy as np
 
 from fusion.integrity import IntegrityConfig, IntegrityMonitor
-from fusion.model import (CODE_ANCHOR_GATE_SIGMAS, ClockModel, EpochObservation, Geometry, KalmanObservation,
-                          ModelNoise, ObservationLayout, StepControl, observation_jacobian, observe)
+from fusion.model import (CLOCK_STATE_SIZE, CODE_ANCHOR_GATE_SIGMAS, STATE_SIZE, ClockModel, EpochObservation,
+                          Geometry, KalmanObservation, ModelNoise, ObservationLayout, StepControl, X, Y,
+                          initial_covariance, initial_state, observation_jacobian, observe, process_covariance,
+                          propagate, transition_jacobian)
 
-#: Re-anchor when the offset gathered without range exceeds this many observation sigmas.
-REANCHOR_SIGMAS = 3.0
+#: Independent standard deviation of a single-tower channel's origin at P0, m. A clone of the start is an exact
+#: function of the state, which would leave P singular (and the sigma-point filters' Cholesky factor undefined);
+#: 1 cm is far below any range's sigma.
+ORIGIN_FLOOR_M = 0.01
 
 
 class RangeKalmanFilter(ABC):
     """Base of the Kalman-type filters: ``update`` re-anchors and vets the ranges, then ``correct`` updates.
+
+    The state is ``[motion (5), clock (2, if the clock has states), origins (n_channels)]``
+    (module docstring). A filter builds its state with :meth:`initial_state_covariance`,
+    and its process and observation models from :meth:`model_propagate`,
+    :meth:`model_observe`, :meth:`model_process_covariance` and the Jacobians.
 
     Parameters
     ----------
@@ -64,10 +89,10 @@ class RangeKalmanFilter(ABC):
         self.noise = noise
         self.clock = clock
         self.layout = ObservationLayout(geometry.n_towers)
-        #: Origin of each range channel (|P_0 - P_b| for the SI-carrier range), m; moved by re-anchoring.
-        self.origins_m = self.layout.start_values_m(geometry)
+        #: Columns of the motion and clock states; the origin states follow.
+        self.core_size = CLOCK_STATE_SIZE if clock.has_state else STATE_SIZE
+        self._origins = slice(self.core_size, self.core_size + self.layout.n_channels)
         self.monitor = IntegrityMonitor(geometry, noise, clock, integrity)
-        self._epochs_without = np.zeros(self.layout.n_channels, dtype=np.int64)
         #: Per channel, whether its current origin came from its code (:meth:`_code_anchors_pass`).
         self._origin_from_code = np.zeros(self.layout.n_channels, dtype=bool)
         #: Channels whose first observation re-anchors them: under a free-running clock the single-tower ones,
@@ -75,9 +100,14 @@ class RangeKalmanFilter(ABC):
         self._unanchored = clock.free_running & (self.layout.clock_coefficients() > 0)
 
     @property
+    def origins_m(self) -> np.ndarray:
+        """Each range channel's origin (the state's origin columns, a copy), m."""
+        return np.array(self.x[self._origins])
+
+    @property
     def start_range_m(self) -> float:
         """Origin of the SI-carrier range, m."""
-        return float(self.origins_m[0])
+        return float(self.x[self.core_size])
 
     @property
     @abstractmethod
@@ -99,7 +129,56 @@ class RangeKalmanFilter(ABC):
 
     @abstractmethod
     def replace_state(self, x: np.ndarray, P: np.ndarray) -> None:
-        """Take ``x``, ``P`` as the state (the integrity monitor's fallback)."""
+        """Take ``x``, ``P`` as the state (re-anchoring, the integrity monitor's fallback)."""
+
+    def initial_state_covariance(self, heading_rad: float, speed_mps: float) -> tuple[np.ndarray, np.ndarray]:
+        """The state at P0 and its covariance, origins included (module docstring)."""
+        core = initial_state(self.geometry, heading_rad, speed_mps, self.clock)
+        core_cov = initial_covariance(self.noise, self.clock)
+        h = observation_jacobian(core, self.geometry)[self.layout.rows()]
+        difference = self.layout.clock_coefficients() == 0.0
+        h[difference] = 0.0   # a difference's origin is independent of the start position (module docstring)
+        n = self.core_size + self.layout.n_channels
+        x = np.concatenate([core, self.layout.start_values_m(self.geometry)])
+        P = np.zeros((n, n))
+        P[:self.core_size, :self.core_size] = core_cov
+        P[self._origins, :self.core_size] = h @ core_cov
+        P[:self.core_size, self._origins] = P[self._origins, :self.core_size].T
+        P[self._origins, self._origins] = h @ core_cov @ h.T
+        gradient = np.hypot(*observation_jacobian(core, self.geometry)[self.layout.rows()][:, [X, Y]].T)
+        channels = np.arange(self.core_size, n)
+        P[channels, channels] += np.where(difference, (gradient * self.noise.initial_position_m) ** 2,
+                                          ORIGIN_FLOOR_M**2)
+        return x, P
+
+    def model_propagate(self, states: np.ndarray, control: StepControl) -> np.ndarray:
+        """:func:`fusion.model.propagate` of rows of states; the origins stay."""
+        out = np.array(states, dtype=np.float64, copy=True)
+        out[..., :self.core_size] = propagate(states[..., :self.core_size], control)
+        return out
+
+    def model_observe(self, states: np.ndarray) -> np.ndarray:
+        """:func:`fusion.model.observe` of rows of states, each with its own origins."""
+        return observe(states[..., :self.core_size], self.geometry, states[..., self._origins])
+
+    def model_transition_jacobian(self, x: np.ndarray, control: StepControl) -> np.ndarray:
+        """d :meth:`model_propagate` / d x at ``x``."""
+        f = np.eye(len(x))
+        f[:self.core_size, :self.core_size] = transition_jacobian(x[:self.core_size], control)
+        return f
+
+    def model_observation_jacobian(self, x: np.ndarray) -> np.ndarray:
+        """d :meth:`model_observe` / d x at ``x``: each range channel -1 on its origin."""
+        h = np.zeros((self.layout.size, len(x)))
+        h[:, :self.core_size] = observation_jacobian(x[:self.core_size], self.geometry)
+        h[self.layout.rows(), np.arange(self._origins.start, self._origins.stop)] = -1.0
+        return h
+
+    def model_process_covariance(self, control: StepControl) -> np.ndarray:
+        """:func:`fusion.model.process_covariance`; the origins' random walk is added by :meth:`update`."""
+        q = np.zeros((len(self.x), len(self.x)))
+        q[:self.core_size, :self.core_size] = process_covariance(self.noise, control, self.clock)
+        return q
 
     def predict(self, control: StepControl) -> None:
         """:meth:`time_update`, and the integrity monitor's open-loop predictions with it."""
@@ -111,33 +190,49 @@ class RangeKalmanFilter(ABC):
         z, sigma, new_origin = observation.range_channels(self.layout.n_towers)
         code_m = observation.code_channels(self.layout.n_towers)
         use, returning, fallback = self.monitor.assess(z, new_origin, code_m)
-        if fallback is not None:
-            self.replace_state(*fallback)
-        gathered_m = self.noise.range_offset_m * np.sqrt(self._epochs_without)
-        gap = gathered_m > REANCHOR_SIGMAS * np.where(use, sigma, np.inf)
-        reanchor = use & (new_origin | returning | gap | self._unanchored)
+        x, P = np.array(self.x), np.array(self.P)
+        core = slice(0, self.core_size)
+        if fallback is not None:   # the monitor's motion and clock, without their covariance with the origins
+            x[core], P[core, core] = fallback
+            P[core, self._origins] = P[self._origins, core] = 0.0
+        origins = np.arange(self._origins.start, self._origins.stop)
+        P[origins[~use], origins[~use]] += self.noise.range_offset_m**2
+        lost = P[origins, origins] > self.noise.range_reanchor_m**2
+        reanchor = use & (new_origin | returning | lost | self._unanchored)
         self._unanchored &= ~use
-        predicted = observe(self.x, self.geometry, self.origins_m)[self.layout.rows()]
+        predicted = self.model_observe(x)[self.layout.rows()]
         # A channel takes its origin from the code where it has to re-anchor, and where it has one but its
         # origin has not come from the code yet (its first epochs, a code that failed the gate before).
         anchors = observation.anchor_channels(self.layout.n_towers)
-        # (A difference has no clock term, so its geometric value is the prediction plus its origin.)
-        on_code = (reanchor | (use & ~self._origin_from_code)) & self._code_anchors_pass(anchors,
-                                                                                         predicted + self.origins_m)
-        self.origins_m[reanchor] += predicted[reanchor] - z[reanchor]
-        self.origins_m[on_code] = anchors[on_code] - z[on_code]
+        on_code = (reanchor | (use & ~self._origin_from_code)) & self._code_anchors_pass(
+            anchors, predicted + x[self._origins], x, P)   # (a difference has no clock term)
+        for j in np.flatnonzero(reanchor & ~on_code):
+            self._clone_origin(x, P, j, predicted[j] + x[origins[j]] - z[j], sigma[j])
+        for j in np.flatnonzero(on_code):
+            o = origins[j]
+            x[o] = anchors[j] - z[j]
+            P[o, :] = P[:, o] = 0.0
+            P[o, o] = self.noise.difference_code_sigma_m**2
         self._origin_from_code = on_code | (self._origin_from_code & ~reanchor)
-        self._epochs_without = np.where(use, 0, self._epochs_without + 1)
-        if on_code.any():   # an origin from the code leaves the epoch's range an observation, less sure by its sigma
-            differences = slice(self.layout.n_towers + 1, None)
-            observation = dataclasses.replace(observation, range_difference_sigma_m=np.hypot(
-                sigma[differences], np.where(on_code, self.noise.difference_code_sigma_m, 0.0)[differences]))
+        self.replace_state(x, P)
         kalman = observation.kalman(self.noise, self.layout.n_towers, use & (~reanchor | on_code))
         if len(kalman.rows):
             self.correct(kalman, observation.index)
-        self.monitor.posterior(self.x, self.P)
+        self.monitor.posterior(self.x[core], self.P[core, core])
 
-    def _code_anchors_pass(self, anchors: np.ndarray, geometric: np.ndarray) -> np.ndarray:
+    def _clone_origin(self, x: np.ndarray, P: np.ndarray, channel: int, origin_m: float, sigma_m: float) -> None:
+        """Set ``channel``'s origin in ``x``, ``P`` (in place) to ``origin_m``, the state's value less the
+        observation, with its covariance with the state (module docstring): stochastic cloning."""
+        o = self._origins.start + channel
+        h = self.model_observation_jacobian(x)[self.layout.rows()[channel]]
+        h[o] = 0.0                         # the state's value of the channel, without its old origin
+        row = h @ P
+        P[o, :] = P[:, o] = row
+        P[o, o] = row @ h + sigma_m**2
+        x[o] = origin_m
+
+    def _code_anchors_pass(self, anchors: np.ndarray, geometric: np.ndarray, x: np.ndarray,
+                           P: np.ndarray) -> np.ndarray:
         """Per range channel, whether its code value (:meth:`fusion.model.EpochObservation.anchor_channels`) can be
         its origin: present, a finite ``ModelNoise.difference_code_sigma_m``, and within
         :data:`fusion.model.CODE_ANCHOR_GATE_SIGMAS` of the state's value ``geometric`` (m; a late first path
@@ -145,8 +240,9 @@ class RangeKalmanFilter(ABC):
         code_sigma = self.noise.difference_code_sigma_m
         if not np.isfinite(code_sigma) or not np.isfinite(anchors).any():
             return np.zeros(len(anchors), dtype=bool)
-        h = observation_jacobian(self.x, self.geometry)[self.layout.rows()]
-        spread = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", h, self.P, h), 0.0))
+        h = observation_jacobian(x[:self.core_size], self.geometry)[self.layout.rows()]
+        core = P[:self.core_size, :self.core_size]
+        spread = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", h, core, h), 0.0))
         with np.errstate(invalid="ignore"):
             return np.abs(anchors - geometric) <= CODE_ANCHOR_GATE_SIGMAS * np.hypot(spread, code_sigma)
 

@@ -26,8 +26,7 @@ from dtmbnav.core.records import Track
 from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig
 from fusion.kalman import RangeKalmanFilter
-from fusion.model import (ClockModel, Geometry, KalmanObservation, ModelNoise, StepControl, initial_covariance,
-                          initial_state, observe, process_covariance, propagate, state_mean, state_residual)
+from fusion.model import ClockModel, Geometry, KalmanObservation, ModelNoise, StepControl, state_mean, state_residual
 from fusion.observations import FilterEpochs
 
 
@@ -100,8 +99,8 @@ class RangePdrRankKf(RangeKalmanFilter):
                  initial_speed_mps: float, layers: int = 2, clock: ClockModel = ClockModel(),
                  integrity: IntegrityConfig = IntegrityConfig()) -> None:
         super().__init__(geometry, noise, clock, integrity)
-        self.rkf = RankKalmanFilter(initial_state(geometry, initial_heading_rad, initial_speed_mps, clock),
-                                    initial_covariance(noise, clock), self._mean, state_residual, layers)
+        self.rkf = RankKalmanFilter(*self.initial_state_covariance(initial_heading_rad, initial_speed_mps),
+                                    self._mean, state_residual, layers)
 
     @staticmethod
     def _mean(points: np.ndarray) -> np.ndarray:
@@ -118,8 +117,8 @@ class RangePdrRankKf(RangeKalmanFilter):
         return self.rkf.P
 
     def time_update(self, control: StepControl) -> None:
-        """Rank-sampled prediction through :func:`fusion.model.propagate`."""
-        self.rkf.predict(lambda pts: propagate(pts, control), process_covariance(self.noise, control, self.clock))
+        """Rank-sampled prediction through :meth:`model_propagate`."""
+        self.rkf.predict(lambda pts: self.model_propagate(pts, control), self.model_process_covariance(control))
 
     def replace_state(self, x: np.ndarray, P: np.ndarray) -> None:
         """Take ``x``, ``P`` as the state."""
@@ -129,7 +128,7 @@ class RangePdrRankKf(RangeKalmanFilter):
         """Rank-sampled update with the epoch's observations (``epoch`` unused)."""
         self.rkf.update(
             observation.z,
-            lambda pts: observe(pts, self.geometry, self.origins_m)[:, observation.rows],
+            lambda pts: self.model_observe(pts)[:, observation.rows],
             np.diag(observation.sigma**2),
             lambda zs: observation.mean(zs, np.full(len(zs), 1.0 / len(zs))),
             observation.residual)

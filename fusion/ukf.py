@@ -15,8 +15,7 @@ from dtmbnav.core.records import Track
 from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig
 from fusion.kalman import RangeKalmanFilter
-from fusion.model import (ClockModel, Geometry, KalmanObservation, ModelNoise, StepControl, initial_covariance,
-                          initial_state, observe, process_covariance, propagate, state_mean, state_residual)
+from fusion.model import ClockModel, Geometry, KalmanObservation, ModelNoise, StepControl, state_mean, state_residual
 from fusion.observations import FilterEpochs
 
 
@@ -41,20 +40,19 @@ class RangePdrUkf(RangeKalmanFilter):
                  clock: ClockModel = ClockModel(), integrity: IntegrityConfig = IntegrityConfig(),
                  alpha: float = 0.3, beta: float = 2.0, kappa: float = 0.0) -> None:
         super().__init__(geometry, noise, clock, integrity)
-        x0 = initial_state(geometry, initial_heading_rad, initial_speed_mps, clock)
+        x0, P0 = self.initial_state_covariance(initial_heading_rad, initial_speed_mps)
         points = MerweScaledSigmaPoints(len(x0), alpha=alpha, beta=beta, kappa=kappa, subtract=state_residual)
         self.ukf = UnscentedKalmanFilter(
             dim_x=len(x0), dim_z=self.layout.size, dt=1.0, hx=self._hx, fx=self._fx, points=points,
             x_mean_fn=state_mean, residual_x=state_residual)
         self.ukf.x = x0
-        self.ukf.P = initial_covariance(noise, clock)
+        self.ukf.P = P0
 
-    @staticmethod
-    def _fx(x: np.ndarray, dt: float, control: StepControl) -> np.ndarray:
-        return propagate(x, control)
+    def _fx(self, x: np.ndarray, dt: float, control: StepControl) -> np.ndarray:
+        return self.model_propagate(x, control)
 
     def _hx(self, x: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        return observe(x, self.geometry, self.origins_m)[rows]
+        return self.model_observe(x)[rows]
 
     @property
     def x(self) -> np.ndarray:
@@ -67,8 +65,8 @@ class RangePdrUkf(RangeKalmanFilter):
         return self.ukf.P
 
     def time_update(self, control: StepControl) -> None:
-        """Unscented prediction through :func:`fusion.model.propagate`."""
-        self.ukf.Q = process_covariance(self.noise, control, self.clock)
+        """Unscented prediction through :meth:`model_propagate`."""
+        self.ukf.Q = self.model_process_covariance(control)
         self.ukf.predict(dt=control.dt_s, control=control)
 
     def replace_state(self, x: np.ndarray, P: np.ndarray) -> None:

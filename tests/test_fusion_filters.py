@@ -6,13 +6,13 @@ from fusion_synth import exact_ranges, foot_imu_straight, park_like_walk, ranges
 from scipy.stats import norm
 
 from fusion import foot_ins, rank_kf
-from fusion.adaptive_kf import GnssFixes, quality_grade_factors, run_adaptive_kf, transition_jacobian
+from fusion.adaptive_kf import GnssFixes, quality_grade_factors, run_adaptive_kf
 from fusion.integrity import IntegrityConfig
 from fusion.metrics import error_stats, place_pdr, position_errors_m
-from fusion.model import ModelNoise, StepControl, propagate
+from fusion.model import X, ClockModel, EpochObservation, Geometry, ModelNoise, StepControl, propagate, transition_jacobian
 from fusion.observations import aggregate_ranges, build_epochs
 from fusion.run import FILTERS, FusionConfig, fuse
-from fusion.ukf import run_ukf
+from fusion.ukf import RangePdrUkf, run_ukf
 from fusion.wt_ukf import WaveletUkf, run_wt_ukf, wavelet_noise_estimate
 
 
@@ -24,10 +24,29 @@ def gain_walk():
     return walk, epochs, pdr95
 
 
+@pytest.mark.parametrize("clock_model", ["disciplined", "free-running"])
+@pytest.mark.parametrize("make", [RangePdrUkf, rank_kf.RangePdrRankKf])
+def test_a_re_anchored_range_says_nothing_of_where_the_walker_is(make, clock_model):
+    """A range re-anchored on the state (a new origin; under a free-running clock, the first observation too) and
+    then observed standing still measures no change: the position along the line of sight stays as uncertain as
+    P0 made it (the origin is a clone of the state, not a number), and the covariance stays positive definite.
+    An origin fixed to a number turned the second observation into an absolute range (docs/method.md §8)."""
+    geometry = Geometry(0.0, 0.0, 2000.0, 0.0, 150.0)            # the tower due east: the line of sight is x
+    f = make(geometry, ModelNoise(), 0.0, 1.3, clock=ClockModel(clock_model))
+    start_var = f.P[X, X]
+    for n in range(5):
+        f.predict(StepControl(dt_s=0.0, interval_s=0.5))
+        f.update(EpochObservation(n, 7.0, 0.1, np.nan, np.nan, range_new_origin=n == 0))
+    assert f.P[X, X] > 0.9 * start_var, (f.P[X, X], start_var)
+    assert abs(f.x[X]) < 0.01 and f.start_range_m != pytest.approx(np.hypot(2000.0, 150.0), abs=1.0)
+    assert np.linalg.eigvalsh(f.P).min() > 0.0
+
+
 @pytest.mark.parametrize("runner", [run_ukf, rank_kf.run_rank_kf])
-def test_kalman_filters_re_anchor_the_range_after_a_long_gap(runner):
-    """The range returns from a 20 s gap 8 m off: re-anchoring keeps it out of the position. The integrity monitor
-    is off, as it would catch the held jump too (and fall back on the PDR)."""
+def test_kalman_filters_let_the_origin_wander_over_a_long_gap(runner):
+    """The range returns from a 20 s gap 8 m off: the origin state's random walk over the gap (its variance grown
+    by ``range_offset_m**2`` an epoch) takes the jump, not the position. The integrity monitor is off, as it would
+    catch the held jump too (and fall back on the PDR)."""
     walk = park_like_walk(gain=1.15, seed=4)
     shifted = ranges_with_blockage(walk, 40.0, 60.0, 8.0)
     epochs = build_epochs(walk.pdr, aggregate_ranges(shifted, walk.pdr.t_s), walk.initial_heading_rad)
