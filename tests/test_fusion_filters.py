@@ -9,7 +9,7 @@ from fusion import foot_ins, rank_kf
 from fusion.adaptive_kf import GnssFixes, quality_grade_factors, run_adaptive_kf
 from fusion.integrity import IntegrityConfig
 from fusion.metrics import error_stats, place_pdr, position_errors_m
-from fusion.model import (X, ClockModel, EpochObservation, Geometry, ModelNoise, StepControl, propagate,
+from fusion.model import (ClockModel, EpochObservation, Geometry, ModelNoise, StepControl, X, propagate,
                           transition_jacobian)
 from fusion.observations import aggregate_ranges, build_epochs
 from fusion.run import FILTERS, FusionConfig, fuse
