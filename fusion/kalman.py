@@ -92,6 +92,7 @@ class RangeKalmanFilter(ABC):
         #: Columns of the motion and clock states; the origin states follow.
         self.core_size = CLOCK_STATE_SIZE if clock.has_state else STATE_SIZE
         self._origins = slice(self.core_size, self.core_size + self.layout.n_channels)
+        self._origin_columns = np.arange(self._origins.start, self._origins.stop)
         self.monitor = IntegrityMonitor(geometry, noise, clock, integrity)
         #: Per channel, whether its current origin came from its code (:meth:`_code_anchors_pass`).
         self._origin_from_code = np.zeros(self.layout.n_channels, dtype=bool)
@@ -135,9 +136,9 @@ class RangeKalmanFilter(ABC):
         """The state at P0 and its covariance, origins included (module docstring)."""
         core = initial_state(self.geometry, heading_rad, speed_mps, self.clock)
         core_cov = initial_covariance(self.noise, self.clock)
-        h = observation_jacobian(core, self.geometry)[self.layout.rows()]
+        jacobian = observation_jacobian(core, self.geometry)[self.layout.rows()]
         difference = self.layout.clock_coefficients() == 0.0
-        h[difference] = 0.0   # a difference's origin is independent of the start position (module docstring)
+        h = np.where(difference[:, None], 0.0, jacobian)   # a difference's origin is independent of the start
         n = self.core_size + self.layout.n_channels
         x = np.concatenate([core, self.layout.start_values_m(self.geometry)])
         P = np.zeros((n, n))
@@ -145,9 +146,8 @@ class RangeKalmanFilter(ABC):
         P[self._origins, :self.core_size] = h @ core_cov
         P[:self.core_size, self._origins] = P[self._origins, :self.core_size].T
         P[self._origins, self._origins] = h @ core_cov @ h.T
-        gradient = np.hypot(*observation_jacobian(core, self.geometry)[self.layout.rows()][:, [X, Y]].T)
-        channels = np.arange(self.core_size, n)
-        P[channels, channels] += np.where(difference, (gradient * self.noise.initial_position_m) ** 2,
+        gradient = np.hypot(jacobian[:, X], jacobian[:, Y])
+        P[self._origin_columns, self._origin_columns] += np.where(difference, (gradient * self.noise.initial_position_m) ** 2,
                                           ORIGIN_FLOOR_M**2)
         return x, P
 
@@ -171,7 +171,7 @@ class RangeKalmanFilter(ABC):
         """d :meth:`model_observe` / d x at ``x``: each range channel -1 on its origin."""
         h = np.zeros((self.layout.size, len(x)))
         h[:, :self.core_size] = observation_jacobian(x[:self.core_size], self.geometry)
-        h[self.layout.rows(), np.arange(self._origins.start, self._origins.stop)] = -1.0
+        h[self.layout.rows(), self._origin_columns] = -1.0
         return h
 
     def model_process_covariance(self, control: StepControl) -> np.ndarray:
@@ -195,7 +195,7 @@ class RangeKalmanFilter(ABC):
         if fallback is not None:   # the monitor's motion and clock, without their covariance with the origins
             x[core], P[core, core] = fallback
             P[core, self._origins] = P[self._origins, core] = 0.0
-        origins = np.arange(self._origins.start, self._origins.stop)
+        origins = self._origin_columns
         P[origins[~use], origins[~use]] += self.noise.range_offset_m**2
         lost = P[origins, origins] > self.noise.range_reanchor_m**2
         reanchor = use & (new_origin | returning | lost | self._unanchored)
