@@ -55,7 +55,7 @@ from dtmbnav.core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ
 from receiver.ofdm import si_carrier_numbers
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True)
 def si_theta_kernel(y_prev: np.ndarray, y: np.ndarray, k: np.ndarray, delta_prev: float,
                     delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Theta (eq. 6) of each frame of a batch with the one before it, and the scatter of its phase.
@@ -132,7 +132,7 @@ def expected_phase_variance(si_snr_db: np.ndarray, n_carriers: int = gb20600.SI_
     return (1.0 + 0.5 / gamma) / (n_carriers * gamma)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True)
 def pn_theta_kernel(taps_prev: np.ndarray, taps: np.ndarray, shift: np.ndarray) -> np.ndarray:
     """``sum_l conj(h_m[l]) h_{m-1}[l + s_m]`` for each frame of a batch.
 

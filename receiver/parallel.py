@@ -5,9 +5,8 @@ each frame's header-window derotation, channel estimate (:mod:`receiver.channel_
 and the path tracker's wider span of it when asked for), body recovery
 (:mod:`receiver.body`) and SI carriers (:mod:`receiver.ofdm`) depend on that frame's
 samples only; the timing loop, the estimators and the path tracker
-(:mod:`receiver.paths`), which link consecutive frames, run afterwards, in frame order
-(with more than one thread, the estimators and the path tracker of a batch run on a
-thread of their own beside the next batch's per-frame work: :class:`receiver.pipeline.Receiver`).
+(:mod:`receiver.paths`), which link consecutive frames, run afterwards, in order, on
+the main thread.
 
 A batch is cut into blocks of :data:`FRAME_BLOCK` frames. The blocks are the same
 whatever the number of threads, each is computed by one thread with its own buffers

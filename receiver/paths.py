@@ -253,7 +253,7 @@ def _pulse_tables_cached(period: int, up: int, down: int) -> tuple[np.ndarray, n
 
 # ---- the least-squares fit (numba kernel and its numpy twin) ---------------------------------
 
-@njit(cache=True, fastmath=True, nogil=True)
+@njit(cache=True, fastmath=True)
 def _table_at(table: np.ndarray, x: float, period: int, oversampling: int) -> float:
     """Periodic table lookup with linear interpolation, ``x`` in chips."""
     pos = (x % period) * oversampling
@@ -262,7 +262,7 @@ def _table_at(table: np.ndarray, x: float, period: int, oversampling: int) -> fl
     return table[i0] * (1.0 - w) + table[i0 + 1] * w
 
 
-@njit(cache=True, fastmath=True, nogil=True)
+@njit(cache=True, fastmath=True)
 def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np.ndarray, rate: np.ndarray,
                      max_step: np.ndarray, table: np.ndarray, dtable: np.ndarray, oversampling: int,
                      block_frames: int, gain: float, rate_gain: float, amplitudes: np.ndarray, lags: np.ndarray,
@@ -466,7 +466,7 @@ def fit_paths_reference(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay:
 
 # ---- cycle slips ---------------------------------------------------------------------------
 
-@njit(cache=True, nogil=True)
+@njit(cache=True)
 def slip_kernel(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarray, smooth_hz: float,
                 run_cycles: float, run_s: float, alpha: float, sigmas: float, min_cycles: float,
                 bridged: np.ndarray, slips: np.ndarray) -> tuple[float, float, float]:

@@ -20,16 +20,6 @@ refuses any other range), so no result depends on memory that was never
 written. ``ReceiverConfig.inspect`` receives each stage's intermediate output
 per batch, for debugging and plots.
 
-**Threads.** With ``jobs > 1`` the per-frame work of a batch is shared by
-``jobs`` threads, and the estimators and the path tracker, which link each
-batch to the one before, run on a thread of their own while the next batch's
-per-frame work does (one batch in flight; the rows of a batch come out of a
-later :meth:`Receiver.process` call, or :meth:`Receiver.finish`). Everything
-that places the next batch (timing loop, loss of lock) stays on the calling
-thread, and a new lock waits for the batch in flight, so the rows are those
-of one thread, bit for bit. (With an inspect hook, and until the I/Q
-orientation is decided, the batches are finished one at a time.)
-
 **Narrowband captures.** A capture below 7.56 Msps (an RTL-SDR at 2.048-3.2
 Msps) holds only the band-limited centre of the channel; it is resampled to
 7.56 Msps like any other and received the same way: the 36 SI carriers lie
@@ -57,7 +47,6 @@ import os
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, is_dataclass, replace
 from typing import Any
 
@@ -74,7 +63,7 @@ from receiver.cfo import SiWordDetector, cfo_from_theta, expected_phase_variance
 from receiver.channel_estimate import TAP_THRESHOLD, TAPS_AFTER, TAPS_BEFORE, ChannelEstimates
 from receiver.derotate import rotation_table
 from receiver.ofdm import si_carrier_numbers, si_snr_db
-from receiver.parallel import BatchFrames, BatchWindows, FrameWorkers
+from receiver.parallel import BatchWindows, FrameWorkers
 from receiver.paths import PathConfig, PathTracker
 from receiver.ranging import FIRST_PATH_COLUMNS, PathRanging, RangeIntegrator
 from receiver.reader import read_ahead
@@ -154,9 +143,7 @@ class ReceiverConfig:
         Timing-loop gains.
     jobs : int
         Threads for the per-frame work of each batch (:mod:`receiver.parallel`);
-        with more than one, each batch's estimators and path tracker also run
-        on a thread of their own beside the next batch's per-frame work. The
-        output is the same for any number.
+        the output is the same for any number.
     track_paths : bool
         Run the path tracker (``receiver.paths``: ``/receiver/paths`` and the
         first-path columns); PN420 and PN945 only.
@@ -307,39 +294,6 @@ class _Lock:
         return self._headers[rows]
 
 
-@dataclass
-class _BatchFront:
-    """A batch after its per-frame work and timing loop (:meth:`Receiver._next_front`).
-
-    Attributes
-    ----------
-    lock : _Lock
-        The lock the batch was received under.
-    starts, frame_index : ndarray, int64, (B,)
-        Window starts (stream samples at 7.56 Msps) and frame counters.
-    phases : ndarray, int64, (B + 1,)
-        Header phases of the frames and of the header after the last one.
-    frames : BatchFrames
-        The per-frame work's results.
-    smoothed, periods : ndarray, float64, (B,)
-        Timing loop's smoothed window starts and frame periods, samples.
-    lost_at : int or None
-        First frame of the loss of lock, if the lock was lost in this batch.
-    tracker : PathTracker or None
-        The path tracker to run on the batch (None: no path tracking for it).
-    """
-
-    lock: _Lock
-    starts: np.ndarray
-    frame_index: np.ndarray
-    phases: np.ndarray
-    frames: BatchFrames
-    smoothed: np.ndarray
-    periods: np.ndarray
-    lost_at: int | None
-    tracker: PathTracker | None
-
-
 class Receiver:
     """Streaming receiver: feed chunks with :meth:`process`, end with :meth:`finish`.
 
@@ -381,11 +335,6 @@ class Receiver:
         self._lock: _Lock | None = None
         self._workers = FrameWorkers(self.config.jobs, self.config.taps_before, self.config.taps_after,
                                      self.config.tap_threshold, NARROWBAND_NOISE_GUARD if self.narrowband else 0)
-        # With more than one thread, each batch's sequential stages run on their own thread beside the next
-        # batch's per-frame work (not with an inspect hook, which sees the stages in data-path order).
-        self._sequencer = (ThreadPoolExecutor(1, thread_name_prefix="sequential")
-                           if self.config.jobs > 1 and self.config.inspect is None else None)
-        self._in_flight: Future[FrameBatch] | None = None
         self._k_si = si_carrier_numbers().astype(np.float64)
         self._si_detector: SiWordDetector | None = None
         self._frame_counter: int | None = None   # frame_index of the next frame, across locks
@@ -422,7 +371,6 @@ class Receiver:
     def finish(self) -> list[FrameBatch]:
         """End of stream: process the frames still complete, release the rest."""
         out = self._run(final=True)
-        out.extend(self._collect())
         if self._orientation_pending and self._held:   # the stream ended before the orientation was decided
             out.extend(self._decide_orientation())
             out.extend(self._run(final=True))
@@ -431,9 +379,6 @@ class Receiver:
             out.extend(self.first_path_ranging.flush())
             self._release_paths(np.inf)
         self._workers.close()
-        if self._sequencer is not None:
-            self._sequencer.shutdown()
-            self._sequencer = None
         return out
 
     def pop_paths(self) -> PathBatch:
@@ -520,23 +465,15 @@ class Receiver:
         out: list[FrameBatch] = []
         while True:
             if self._lock is None:
-                out.extend(self._collect())   # a new lock changes what the sequential stages read
                 t0 = time.perf_counter()
                 acquired = self._try_acquire()
                 self.stage_seconds["acquisition"] += time.perf_counter() - t0
                 if not acquired:
                     break
                 continue
-            front = self._next_front(final)
-            if front is None:
+            batch = self._next_batch(final)
+            if batch is None:
                 break
-            if self._sequencer is not None and not self._orientation_pending:
-                # Pipelined: this batch's estimators and path tracker run while the next batch's per-frame
-                # work does; one batch in flight at a time, so memory stays flat and the order is kept.
-                out.extend(self._collect())
-                self._in_flight = self._sequencer.submit(self._sequential, front)
-                continue
-            batch = self._sequential(front)
             if self._orientation_pending:
                 self._held.append(batch)
                 assert self._si_detector is not None
@@ -546,13 +483,6 @@ class Receiver:
             out.extend(self._emit(batch))
         self._trim()
         return out
-
-    def _collect(self) -> list[FrameBatch]:
-        """The rows of the batch in flight on the sequencer thread, once it is done (none if none is)."""
-        if self._in_flight is None:
-            return []
-        batch, self._in_flight = self._in_flight.result(), None
-        return self._emit(batch)
 
     def _emit(self, batch: FrameBatch) -> list[FrameBatch]:
         self.frames_out += len(batch)
@@ -641,12 +571,7 @@ class Receiver:
 
     # ---- one batch --------------------------------------------------------------------
 
-    def _next_front(self, final: bool) -> _BatchFront | None:
-        """The next batch's per-frame work and timing loop (None until all its samples have arrived).
-
-        Everything here decides where the following batches lie (window placement, loss of lock);
-        what links a batch to the one before it in any other way is left to :meth:`_sequential`.
-        """
+    def _next_batch(self, final: bool) -> FrameBatch | None:
         lock = self._lock
         assert lock is not None
         cfg = self.config
@@ -668,7 +593,7 @@ class Receiver:
                                                            lock.cfo_cycles_per_sample, lock.rot),
                                    keep_bodies=cfg.inspects("body"),
                                    span=None if tracker is None else (tracker.taps_before, tracker.taps_after))
-        ch = frames.channel
+        ch, si = frames.channel, frames.si
         for name, dt in frames.seconds.items():
             self.stage_seconds[name] += dt
         t1 = time.perf_counter()
@@ -676,14 +601,33 @@ class Receiver:
         strong = ch.peak_metric >= cfg.track_threshold
         smoothed, periods = lock.tracker.update(measured, strong)
         lost_at = lock.monitor.check(ch.peak_metric)
-        self.stage_seconds["sync"] += time.perf_counter() - t1
+        t2 = time.perf_counter()
+        self.stage_seconds["sync"] += t2 - t1
         for stage, arrays in (("channel", {"taps": ch.taps, "snr_db": ch.snr_db, "peak_metric": ch.peak_metric}),
                               ("tracking", {"measured": measured, "smoothed": smoothed}),
                               ("body", {"bodies": frames.bodies})):
             if cfg.inspects(stage):
                 cfg.inspect(stage, {"window_start": starts, "frame_index": frame_index, **arrays})
+        t3 = time.perf_counter()
+        rows, scattered = self._estimate(lock, starts, smoothed, periods, si, ch, frame_index, phases[:-1])
+        t4 = time.perf_counter()
+        self.stage_seconds["estimators"] += t4 - t3
+        if tracker is not None:  # sequential (its loops link the frames): on this thread, in frame order
+            assert frames.span is not None
+            if cfg.inspects("paths"):
+                cfg.inspect("paths", {"window_start": starts, "frame_index": frame_index, "taps": frames.span.raw_taps,
+                                      "noise_tap": frames.span.noise_tap, "lag0": np.int64(tracker.lag0)})
+            found = tracker.update(frames.span.raw_taps, frames.span.noise_tap, starts, frame_index,
+                                   periods / lock.tracker.nominal_period - 1.0, rows.t_s, lock.acq.coarse_cfo_hz)
+            rows = replace(rows, **found.first_path)
+            keep = len(rows) if lost_at is None else lost_at
+            self.path_ranging.push(found.rows.select(found.rows.frame_index < frame_index[0] + keep))
+            self.stage_seconds["paths"] += time.perf_counter() - t4
+        if cfg.inspects("ofdm"):
+            cfg.inspect("ofdm", {"window_start": starts, "frame_index": frame_index, "si_carriers": si})
         lock.next_frame_index += count
         if lost_at is not None:
+            rows, scattered = rows.select(slice(0, lost_at)), scattered[:lost_at]
             # Search again from the first weak frame, but always past this lock's acquisition window
             # (a signal that acquires but cannot be tracked must not be re-acquired forever).
             self._search_from = max(int(starts[lost_at]), lock.acquired_from + self._acq_window // 2)
@@ -691,37 +635,6 @@ class Receiver:
         elif count < size:  # end of stream: the partial batch was the last one; nothing more to search
             self._lock = None
             self._search_from = END_OF_STREAM
-        return _BatchFront(lock, starts, frame_index, phases, frames, smoothed, periods, lost_at, tracker)
-
-    def _sequential(self, front: _BatchFront) -> FrameBatch:
-        """The rows of a batch: the estimators and the path tracker, which link consecutive frames.
-
-        Batches must come here in order; with ``jobs > 1`` this runs on its own thread, beside the next
-        batch's :meth:`_next_front` (:meth:`_run`).
-        """
-        cfg = self.config
-        lock, starts, frame_index, frames, tracker = (front.lock, front.starts, front.frame_index, front.frames,
-                                                      front.tracker)
-        t3 = time.perf_counter()
-        rows, scattered = self._estimate(lock, starts, front.smoothed, front.periods, frames.si, frames.channel,
-                                         frame_index, front.phases[:-1])
-        t4 = time.perf_counter()
-        self.stage_seconds["estimators"] += t4 - t3
-        if tracker is not None:  # sequential (its loops link the frames), in frame order
-            assert frames.span is not None
-            if cfg.inspects("paths"):
-                cfg.inspect("paths", {"window_start": starts, "frame_index": frame_index, "taps": frames.span.raw_taps,
-                                      "noise_tap": frames.span.noise_tap, "lag0": np.int64(tracker.lag0)})
-            found = tracker.update(frames.span.raw_taps, frames.span.noise_tap, starts, frame_index,
-                                   front.periods / lock.tracker.nominal_period - 1.0, rows.t_s, lock.acq.coarse_cfo_hz)
-            rows = replace(rows, **found.first_path)
-            keep = len(rows) if front.lost_at is None else front.lost_at
-            self.path_ranging.push(found.rows.select(found.rows.frame_index < frame_index[0] + keep))
-            self.stage_seconds["paths"] += time.perf_counter() - t4
-        if cfg.inspects("ofdm"):
-            cfg.inspect("ofdm", {"window_start": starts, "frame_index": frame_index, "si_carriers": frames.si})
-        if front.lost_at is not None:
-            rows, scattered = rows.select(slice(0, front.lost_at)), scattered[:front.lost_at]
         self.scatter_flagged += int(np.count_nonzero(scattered))
         return rows
 
