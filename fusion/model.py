@@ -229,12 +229,12 @@ class ModelNoise:
         channel (:class:`ObservationLayout`): across a gap, a fade or a
         multipath stretch the integrated range may have jumped or drifted,
         and what it says afterwards is a range change from an unknown new
-        origin. The Kalman-type filters have no offset state; they re-anchor
-        once this walk would have gathered more than a few sigmas
+        origin. The Kalman-type filters add it, per epoch without the
+        channel, to the variance of the channel's origin state
         (:mod:`fusion.kalman`).
     range_reanchor_m : float
-        The particle filter re-anchors a returning range channel (a new
-        origin, as the Kalman-type filters do) once its offset's standard
+        Every filter re-anchors a returning range channel (a new origin) once
+        its offset's (the Kalman-type filters': its origin state's) standard
         deviation has grown past this, m. A long blocked stretch leaves an
         integrated range error that is a drift (a reflection's Doppler summed
         over minutes), not the random walk above: the first returning range
