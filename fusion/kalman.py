@@ -55,7 +55,7 @@ from fusion.integrity import IntegrityConfig, IntegrityMonitor
 from fusion.model import (CLOCK_STATE_SIZE, CODE_ANCHOR_GATE_SIGMAS, STATE_SIZE, ClockModel, EpochObservation,
                           Geometry, KalmanObservation, ModelNoise, ObservationLayout, StepControl, X, Y,
                           initial_covariance, initial_state, observation_jacobian, observe, process_covariance,
-                          propagate, transition_jacobian)
+                          propagate, transition_jacobian, walk_range_origins)
 
 #: Independent standard deviation of a single-tower channel's origin at P0, m. A clone of the start is an exact
 #: function of the state, which would leave P singular (and the sigma-point filters' Cholesky factor undefined);
@@ -147,8 +147,8 @@ class RangeKalmanFilter(ABC):
         P[:self.core_size, self._origins] = P[self._origins, :self.core_size].T
         P[self._origins, self._origins] = h @ core_cov @ h.T
         gradient = np.hypot(jacobian[:, X], jacobian[:, Y])
-        P[self._origin_columns, self._origin_columns] += np.where(difference, (gradient * self.noise.initial_position_m) ** 2,
-                                          ORIGIN_FLOOR_M**2)
+        P[self._origin_columns, self._origin_columns] += np.where(
+            difference, (gradient * self.noise.initial_position_m) ** 2, ORIGIN_FLOOR_M**2)
         return x, P
 
     def model_propagate(self, states: np.ndarray, control: StepControl) -> np.ndarray:
@@ -196,8 +196,7 @@ class RangeKalmanFilter(ABC):
             x[core], P[core, core] = fallback
             P[core, self._origins] = P[self._origins, core] = 0.0
         origins = self._origin_columns
-        P[origins[~use], origins[~use]] += self.noise.range_offset_m**2
-        lost = P[origins, origins] > self.noise.range_reanchor_m**2
+        lost = walk_range_origins(P, origins, use, self.noise)
         reanchor = use & (new_origin | returning | lost | self._unanchored)
         self._unanchored &= ~use
         predicted = self.model_observe(x)[self.layout.rows()]

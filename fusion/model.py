@@ -542,6 +542,36 @@ def process_covariance(noise: ModelNoise, control: StepControl | None = None,
     return _with_clock(motion, clock.process_covariance(0.0 if control is None else control.elapsed_s), clock)
 
 
+def walk_range_origins(cov: np.ndarray, columns: np.ndarray, observed: np.ndarray, noise: ModelNoise) -> np.ndarray:
+    """One epoch of the range channels' origin random walk, in place; which origins are lost.
+
+    Every filter keeps its range channels' origins (the particle filter's
+    offsets, the Kalman-type filters' origin states) in a covariance ``cov``.
+    Each channel not ``observed`` this epoch adds ``range_offset_m**2`` to its
+    origin's variance (``ModelNoise``); a channel whose origin's standard
+    deviation is then past ``range_reanchor_m`` is lost: it re-anchors when
+    it is next used.
+
+    Parameters
+    ----------
+    cov : ndarray, (n, n)
+        Covariance holding the origins, m^2 on their diagonal (changed in place).
+    columns : ndarray of int, (channels,)
+        Row/column of each channel's origin in ``cov``.
+    observed : ndarray of bool, (channels,)
+        Whether each channel is used this epoch.
+    noise : ModelNoise
+
+    Returns
+    -------
+    ndarray of bool, (channels,)
+        Lost origins.
+    """
+    unobserved = columns[~observed]
+    cov[unobserved, unobserved] += noise.range_offset_m**2
+    return cov[columns, columns] > noise.range_reanchor_m**2
+
+
 def initial_covariance(noise: ModelNoise, clock: ClockModel = ClockModel()) -> np.ndarray:
     """P0: diagonal covariance of the initial state."""
     return _with_clock(np.diag(noise.initial_sigmas() ** 2), clock.initial_covariance(), clock)

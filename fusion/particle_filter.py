@@ -88,7 +88,7 @@ from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig, IntegrityMonitor
 from fusion.model import (CODE_ANCHOR_GATE_SIGMAS, HEADING, HEADING_RATE, SPEED, STATE_SIZE, ClockModel,
                           EpochObservation, Geometry, ModelNoise, ObservationLayout, StepControl, X, Y, initial_state,
-                          observation_jacobian, propagate, state_mean, state_residual)
+                          observation_jacobian, propagate, state_mean, state_residual, walk_range_origins)
 from fusion.observations import FilterEpochs
 
 # --- numba kernels -------------------------------------------------------------------------
@@ -455,9 +455,7 @@ class ParticleFilter:
         use, returning, fallback = self.monitor.assess(z, new_origin, code_m)
         if fallback is not None:
             self.fall_back(fallback[0])
-        channels = np.arange(self.layout.n_channels)
-        self.linear_cov[channels[~use], channels[~use]] += self.noise.range_offset_m**2
-        lost = self.linear_cov[channels, channels] > self.noise.range_reanchor_m**2
+        lost = walk_range_origins(self.linear_cov, np.arange(self.layout.n_channels), use, self.noise)
         reanchor = use & (new_origin | returning | lost)
         # A channel takes its origin from the code where it has to re-anchor, and where it has one but its
         # origin has not come from the code yet (its first epochs, a code that failed the gate before).
