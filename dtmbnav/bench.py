@@ -50,7 +50,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
+from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ
 from receiver.capture import CaptureSource, open_capture
 
 

@@ -12,7 +12,7 @@ records where it starts in the sensors file (``/truth/frames`` attribute
 unless ``time_offset_s`` says otherwise.
 
 Every input is read and checked before any work, and every output is
-written atomically (``dtmbnav.core.h5io``), so bad input fails fast with a
+written atomically (``dtmbnav_core.h5io``), so bad input fails fast with a
 ``ValueError`` naming the file and leaves nothing behind.
 """
 
@@ -21,7 +21,6 @@ from __future__ import annotations
 import dataclasses
 import os
 import tomllib
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,25 +28,20 @@ from typing import Any
 import h5py
 import numpy as np
 
-from dtmbnav.core import gb20600, schema
-from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.h5io import atomic_folder, atomic_h5, open_h5, read_attrs, read_columns, write_columns
-from dtmbnav.core.records import FrameFlag, ImuLog, PathFlag, PathRangeSeries, RangeSeries
-from dtmbnav.core.sensors import (read_capture_start_s, read_gnss, read_imu, read_tower, read_walk_truth,
+from dtmbnav_core import schema
+from dtmbnav_core.h5io import atomic_folder, atomic_h5, open_h5, read_attrs, read_columns, write_columns
+from dtmbnav_core.records import ImuLog
+from dtmbnav_core.sensors import (read_capture_start_s, read_gnss, read_imu, read_tower, read_walk_truth,
                                   read_weinberg_k_m)
 from dtmbnav.errors import NoResult
 from dtmbnav.receive import receive_capture
 from fusion.model import Geometry
-from fusion.observations import PathRanges
 from fusion.pdr import PdrConfig, PdrResult, run_pdr
 from fusion.run import FusionConfig, FusionResult, fuse
 from receiver.capture import open_capture
+from receiver.observables import observations_from_receiver
 from receiver.pipeline import ReceiverConfig
 from receiver.writer import write_csv
-
-#: Frame flags that make a frame's range unusable for fusion.
-UNUSABLE_FLAGS = FrameFlag.GAP | FrameFlag.LOW_QUALITY
-
 
 #: The ``/receiver/frames`` columns that ``fuse`` needs.
 FUSE_FRAME_COLUMNS = ("t_s", "range_change_m", "snr_db", "flags")
@@ -144,227 +138,12 @@ def check_same_walk(receiver_path: str | os.PathLike, rx_attrs: dict[str, Any], 
                          "(on the sensors' clock); files of different walks?")
 
 
-def ranges_from_frames(columns: dict[str, np.ndarray], time_offset_s: float = 0.0) -> RangeSeries:
-    """Receiver frame columns -> the :class:`RangeSeries` fusion consumes.
-
-    Frames flagged as a gap or low quality, and frames without a range
-    (NaN), are marked invalid; ``time_offset_s`` moves the receiver's times
-    onto the IMU's time base. The SNR handed on is the SI-carrier SNR (the
-    slice of the band the range is measured on, whose fading the fusion
-    watches for multipath); files from receivers that did not write it give
-    the header SNR instead. The lock segment goes with them (the fusion takes
-    a new segment as a new range origin); files from receivers that did not
-    write it are one segment.
-    """
-    rng = columns["range_change_m"]
-    valid = np.isfinite(rng) & ((columns["flags"].astype(np.int64) & int(UNUSABLE_FLAGS)) == 0)
-    segment = columns.get("segment_id", np.zeros(len(rng), dtype=np.int32)).astype(np.int32)
-    return RangeSeries(t_s=columns["t_s"] + time_offset_s, range_change_m=np.where(np.isfinite(rng), rng, 0.0),
-                       snr_db=columns.get("si_snr_db", columns["snr_db"]).astype(np.float64), valid=valid,
-                       segment_id=segment)
-
-
-#: ``/receiver/frames`` columns of the path tracker's tower differences (tower k minus tower 0, k = 1, 2).
-RANGE_DIFFERENCE_COLUMNS = {1: "range_difference_change_1_m", 2: "range_difference_change_2_m"}
-
-
 def read_receiver_paths(path: str | os.PathLike) -> dict[str, np.ndarray] | None:
     """The ``/receiver/paths`` columns of a receiver file (None when it has none: tracker off, older file)."""
     with open_h5(path) as f:
         if schema.RECEIVER_PATHS not in f:
             return None
     return read_columns(path, schema.RECEIVER_PATHS)
-
-
-def _tower_first_paths(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray] | None,
-                       tower: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per frame: the id, SNR (dB), cycle-slip flag and delay (s) of a tower's first path in ``/receiver/paths``.
-
-    Frames where the tower has none get id -1, NaN, False and NaN (and so
-    does every frame's delay where the rows have no ``delay_s``). Tower 0's
-    id, SNR and delay are the frame columns' (``first_path_id``,
-    ``first_path_snr_db``, ``first_path_delay_s``); without the group no slip
-    is known.
-    """
-    n = len(frames["t_s"])
-    ids, snr, slip, delay = np.full(n, -1, np.int64), np.full(n, np.nan), np.zeros(n, bool), np.full(n, np.nan)
-    if tower == 0:
-        ids, snr = frames["first_path_id"].astype(np.int64), frames["first_path_snr_db"].astype(np.float64)
-        delay = np.asarray(frames.get("first_path_delay_s", delay), dtype=np.float64)
-    if rows is None:
-        return ids, snr, slip, delay
-    flags = rows["flags"].astype(np.int64)
-    sel = np.flatnonzero(((flags & int(PathFlag.FIRST_PATH)) != 0) & (rows["tower_id"] == tower))
-    # Join on frame_index (increasing in both groups); rows of frames not in /receiver/frames are left out.
-    at = np.minimum(np.searchsorted(frames["frame_index"], rows["frame_index"][sel]), n - 1)
-    found = frames["frame_index"][at] == rows["frame_index"][sel]
-    sel, at = sel[found], at[found]
-    ids[at] = rows["path_id"][sel]
-    snr[at] = rows["snr_db"][sel]
-    slip[at] = (flags[sel] & int(PathFlag.CYCLE_SLIP)) != 0
-    if "delay_s" in rows:
-        delay[at] = rows["delay_s"][sel]
-    return ids, snr, slip, delay
-
-
-def first_path_code_range_m(frames: dict[str, np.ndarray], attrs: dict[str, Any]) -> np.ndarray | None:
-    """Per frame, the code range of tower 0's first path, m (docs/paths.md, "The first path's code range").
-
-    ``c (t_s + first_path_delay_s - frame_index T_frame)``: the path's
-    arrival time on the receiver's clock less the frame's transmit time (up
-    to a constant), plus ``lambda f_s t_s``, which takes out the clock's drift
-    as the first-path carrier range's f_s does (a receiver clock that runs
-    fast by ``eps`` counts ``eps t`` more time and sees the carrier
-    ``f_s = -eps f_c`` low). The receiver's frame counter keeps counting
-    across gaps; should it slip by whole frames there, the value is taken
-    modulo ``c T_frame`` (166 km in PN420) next to the first frame's.
-    None without the attributes it needs (``pn_mode``, ``carrier_hz``,
-    ``first_path_clock_offset_hz``: a file from a receiver without the path
-    tracker, or that found no signal); NaN where no first path is tracked.
-    """
-    try:
-        period_s = gb20600.PnMode.parse(str(attrs["pn_mode"])).value.frame_duration_s
-        wavelength_m = SPEED_OF_LIGHT_MPS / float(attrs["carrier_hz"])
-        f_s_hz = float(attrs["first_path_clock_offset_hz"])
-    except (KeyError, ValueError):
-        return None
-    if not np.isfinite(f_s_hz):
-        return None
-    t_s = np.asarray(frames["t_s"], dtype=np.float64)
-    # The transmit time in the frame's own period (the t_s and frame counter's common part cancels).
-    frames_since = frames["frame_index"] - frames["frame_index"][0]
-    arrival_s = (t_s - t_s[0]) + frames["first_path_delay_s"] - frames_since * period_s
-    ambiguity_m = SPEED_OF_LIGHT_MPS * period_s
-    code_m = SPEED_OF_LIGHT_MPS * arrival_s + wavelength_m * f_s_hz * (t_s - t_s[0])
-    known = np.isfinite(code_m)
-    if not known.any():
-        return code_m
-    start = code_m[np.argmax(known)]
-    return start + (code_m - start + ambiguity_m / 2.0) % ambiguity_m - ambiguity_m / 2.0
-
-
-def expected_tower_delays_s(geometry: Geometry, transmit_delays_s: Sequence[float] | None = None) -> np.ndarray:
-    """Arrival delay of each tower's direct path at the start P0, relative to tower 0's, s.
-
-    Parameters
-    ----------
-    geometry : Geometry
-        P0 (the GNSS fix) and the towers.
-    transmit_delays_s : sequence of float, optional
-        Each tower's transmit delay offset, s (none: 0).
-    """
-    distance_m = np.array([geometry.start_range_m(k) for k in range(geometry.n_towers)])
-    delay_s = distance_m / SPEED_OF_LIGHT_MPS + (0.0 if transmit_delays_s is None else
-                                                np.asarray(transmit_delays_s, dtype=np.float64)[:geometry.n_towers])
-    return delay_s - delay_s[0]
-
-
-def receiver_tower_order(first_path_delays_s: Sequence[np.ndarray], expected_delays_s: np.ndarray) -> np.ndarray:
-    """Which receiver tower is geometry tower k (entry k), matched on their first paths' delays.
-
-    The receiver numbers the towers of a single-frequency network in the
-    order it finds them (``/receiver/paths`` ``tower_id``; the strongest
-    first, as a rule), the geometry in the order of the tower table. Tower 0
-    is taken as the same in both (it carries the SI carriers' range); the
-    others are matched by the median delay of their first paths after
-    receiver tower 0's, against the delays the tower table predicts at the
-    start (:func:`expected_tower_delays_s`): towers tens of chips apart, a
-    fix metres off. A receiver tower never seen keeps its number.
-
-    Parameters
-    ----------
-    first_path_delays_s : sequence of ndarray
-        Per receiver tower, the per-frame delay of its first path, s (NaN: none).
-    expected_delays_s : ndarray
-        Per geometry tower, its expected arrival delay after tower 0, s.
-    """
-    from scipy.optimize import linear_sum_assignment
-
-    n = len(expected_delays_s)
-    after_tower_0 = [first_path_delays_s[r] - first_path_delays_s[0] for r in range(1, n)]
-    measured = np.array([np.nanmedian(d) if np.isfinite(d).any() else np.nan for d in after_tower_0])
-    seen = np.flatnonzero(np.isfinite(measured)) + 1
-    if not len(seen):
-        return np.arange(n)
-    cost = np.abs(measured[seen - 1][:, None] - np.asarray(expected_delays_s, dtype=np.float64)[None, 1:])
-    receiver, geometry = linear_sum_assignment(cost)
-    order = np.full(n, -1)
-    order[0] = 0
-    order[geometry + 1] = seen[receiver]
-    # Geometry towers left without a seen receiver tower take the unseen ones, in order.
-    order[order < 0] = np.setdiff1d(np.arange(1, n), seen)
-    return order
-
-
-def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray] | None, n_towers: int,
-                      time_offset_s: float = 0.0, attrs: dict[str, Any] | None = None,
-                      transmit_delays_s: Sequence[float] | None = None,
-                      expected_delays_s: np.ndarray | None = None) -> PathRanges | None:
-    """The path tracker's output of a receiver file -> the :class:`PathRanges` fusion consumes (docs/paths.md).
-
-    Tower 0's first-path range is the ``first_path_range_change_m`` column;
-    the difference of tower k's and tower 0's ranges (k < ``n_towers``) the
-    ``range_difference_change_k_m`` column. The receiver numbers towers in the
-    order it finds them, which is taken as the geometry's order. An origin
-    break (``slip``) is a cycle slip of a first path (``/receiver/paths``
-    ``CYCLE_SLIP``) or a change of first path: the path age restarts there,
-    and for a difference also where it starts again after a gap. Frames
-    flagged as a gap or low quality are invalid. Tower 0's first path
-    carries its code range (:func:`first_path_code_range_m`) when the
-    receiver's ``attrs`` are given. With the towers' transmit delays
-    (``transmit_delays_s``, one per tower, s; the network plan's), a
-    difference carries its code range difference
-    (:func:`range_difference_code_m`). With the towers' expected delays
-    (``expected_delays_s``, :func:`expected_tower_delays_s`) the receiver's
-    further towers are put in the geometry's order
-    (:func:`receiver_tower_order`; without, the receiver's order is taken).
-    Returns None for a file without the first-path columns (path tracker off).
-    """
-    if "first_path_range_change_m" not in frames:
-        return None
-    if transmit_delays_s is not None and len(transmit_delays_s) < n_towers:
-        raise ValueError(f"transmit_delays_s: one per tower ({n_towers}), got {len(transmit_delays_s)}")
-    t = frames["t_s"] + time_offset_s
-    usable = (frames["flags"].astype(np.int64) & int(UNUSABLE_FLAGS)) == 0
-    towers = [_tower_first_paths(frames, rows, k) for k in range(n_towers)]
-    order = (np.arange(n_towers) if expected_delays_s is None or rows is None else
-             receiver_tower_order([tower[3] for tower in towers], expected_delays_s))
-
-    ids0, snr0, slip0, delay0 = towers[0]
-    rng0 = frames["first_path_range_change_m"]
-    code0 = None if attrs is None else first_path_code_range_m(frames, attrs)
-    first = {0: PathRangeSeries.from_runs(t, rng0, ids0, (ids0 >= 0) & np.isfinite(rng0), usable, snr0, slip0,
-                                          code0)}
-    differences = {}
-    for k in range(1, n_towers):
-        name = RANGE_DIFFERENCE_COLUMNS.get(int(order[k]))   # the receiver's column of geometry tower k
-        if name is None or name not in frames:
-            continue
-        ids_k, snr_k, slip_k, delay_k = towers[order[k]]
-        diff = frames[name]
-        # A pair key: the difference restarts when either tower's first path changes.
-        key = ids0 * (1 << 32) + ids_k if rows is not None else np.zeros(len(t), np.int64)
-        code = (None if transmit_delays_s is None or rows is None else
-                range_difference_code_m(delay0, delay_k, transmit_delays_s[0], transmit_delays_s[k]))
-        differences[k] = PathRangeSeries.from_runs(t, diff, key, np.isfinite(diff), usable, np.fmin(snr0, snr_k),
-                                                  slip0 | slip_k, code)
-    return PathRanges(first_path=first, differences=differences)
-
-
-def range_difference_code_m(delay_0_s: np.ndarray, delay_k_s: np.ndarray, transmit_delay_0_s: float,
-                            transmit_delay_k_s: float) -> np.ndarray:
-    """Per frame, the range of tower k's first path minus tower 0's, from their delays, m (docs/paths.md).
-
-    ``c ((delay_k - tx_k) - (delay_0 - tx_0))``: both delays are read in
-    the same frame on the same receiver clock, so its offset and drift
-    cancel; once the towers' transmit delay offsets (``tx``, the network
-    plan's, s) are taken out, what is left is the difference of the
-    distances, with no constant: where the walker stands on the hyperbola of
-    the two towers. NaN where either tower has no first path, or either
-    transmit delay is unknown (NaN).
-    """
-    return SPEED_OF_LIGHT_MPS * ((np.asarray(delay_k_s, dtype=np.float64) - transmit_delay_k_s)
-                                 - (np.asarray(delay_0_s, dtype=np.float64) - transmit_delay_0_s))
 
 
 def _recorded_towers(sensors_path: str | os.PathLike) -> list[dict[str, Any]]:
@@ -489,15 +268,15 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
         tower_xy_m = (tower_xy[0], tower_xy[1])
         other_towers = read_other_towers(sensors_path)
         transmit_delays_s = read_transmit_delays(sensors_path)
-    ranges = ranges_from_frames(frames, capture_start_s)
     geometry = Geometry(start_xy_m[0], start_xy_m[1], tower_xy_m[0], tower_xy_m[1], height_m, other_towers)
-    paths = paths_from_frames(frames, read_receiver_paths(receiver_path), geometry.n_towers, capture_start_s,
-                              rx_attrs, transmit_delays_s, expected_tower_delays_s(geometry, transmit_delays_s))
+    observed = observations_from_receiver(
+        frames, read_receiver_paths(receiver_path), rx_attrs, geometry.n_towers, capture_start_s, transmit_delays_s,
+        [geometry.start_range_m(k) for k in range(geometry.n_towers)])
     pdr = run_pdr(imu, pdr_config)
     if len(pdr.steps) == 0:
         raise NoResult(f"{sensors_path}: /{schema.IMU}: the PDR found no steps; nothing to fuse")
-    result = fuse(pdr.steps, ranges, start_xy_m, tower_xy_m, filters, tower_height_m=height_m,
-                  other_towers=other_towers, paths=paths, config=config)
+    result = fuse(pdr.steps, observed.ranges, start_xy_m, tower_xy_m, filters, tower_height_m=height_m,
+                  other_towers=other_towers, paths=observed.paths, config=config)
     with atomic_h5(out_path) as h5:
         write_columns(h5, schema.RECEIVER_FRAMES, frames, rx_attrs)
         write_pdr(h5, pdr, pdr_config)
@@ -545,7 +324,7 @@ def write_report_folder(results_path: str | os.PathLike, out_dir: str | os.PathL
     """``dtmbnav report``: the report of a results file (or of a receiver file alone) into ``out_dir``.
 
     Written into a temporary folder and moved into ``out_dir`` only when
-    complete (:func:`dtmbnav.core.h5io.atomic_folder`): a bad input leaves no
+    complete (:func:`dtmbnav_core.h5io.atomic_folder`): a bad input leaves no
     half-written report.
     """
     from dtmbnav.report import write_receiver_report, write_report

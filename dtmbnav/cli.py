@@ -39,7 +39,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from dtmbnav.core.settings import parse_setting, with_settings
+from dtmbnav_core.settings import parse_setting, with_settings
 from dtmbnav.errors import NoResult, UsageError
 from dtmbnav.seeds import LEVELS, REPORTING_SEEDS, TUNING_SEEDS
 from fusion import (CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DEFAULT_PARTICLES,
@@ -54,7 +54,7 @@ EXIT_NO_RESULT = 1
 EXIT_USAGE = 2
 EXIT_BAD_INPUT = 3
 EXIT_INTERNAL = 4
-#: Ctrl-C without the handlers of ``dtmbnav.core.interrupt`` (outside the main thread): 128 + SIGINT.
+#: Ctrl-C without the handlers of ``dtmbnav_core.interrupt`` (outside the main thread): 128 + SIGINT.
 EXIT_INTERRUPTED = 130
 
 IQ_FORMATS = ["cu8", "ci8", "ci16", "cf32"]
@@ -472,7 +472,7 @@ def cmd_doppler_map(args: argparse.Namespace) -> int:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from dtmbnav import evaluate
-    from dtmbnav.core.h5io import atomic_path
+    from dtmbnav_core.h5io import atomic_path
 
     scenarios = evaluate.expand_scenarios(args.scenarios)
     for name in scenarios:
@@ -515,7 +515,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     from dtmbnav.bench import run_benchmarks
-    from dtmbnav.core.h5io import atomic_path
+    from dtmbnav_core.h5io import atomic_path
 
     if args.json in (None, "-"):
         return run_benchmarks(json_path=args.json, quick=args.quick)
@@ -777,7 +777,7 @@ def _fail(args: argparse.Namespace, label: str, exc: BaseException) -> None:
 
 def run_command(args: argparse.Namespace) -> int:
     """Run a parsed command line's handler and map what it raises to an exit code (module docstring)."""
-    from dtmbnav.core.interrupt import Interrupted
+    from dtmbnav_core.interrupt import Interrupted
 
     try:
         check_paths(args)
@@ -805,7 +805,7 @@ def run_command(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``dtmbnav`` console script."""
-    from dtmbnav.core.interrupt import interrupts_raise
+    from dtmbnav_core.interrupt import interrupts_raise
     from dtmbnav.numba_cache import configure_numba_cache
 
     parser = build_parser()

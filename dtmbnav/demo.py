@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from dtmbnav.chain import fuse_files
-from dtmbnav.core import schema
+from dtmbnav_core import schema
 from dtmbnav.evaluate import receiver_clock_model
 from dtmbnav.iq_range import generated_chunks, simulated_receiver_config
 from dtmbnav.report import write_report

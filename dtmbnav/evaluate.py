@@ -47,7 +47,7 @@ from typing import Callable
 
 import numpy as np
 
-from dtmbnav.core.records import ImuLog, PdrSteps, RangeSeries, Track
+from dtmbnav_core.records import ImuLog, Observations, PathRanges, PdrSteps, RangeSeries, Track
 from dtmbnav.distributed import IN_PROCESS, ClusterConfig, Task, run_tasks
 from dtmbnav.paper import paper_figures
 from dtmbnav.seeds import LEVELS, REPORTING_SEEDS, TUNING_SEEDS, monte_carlo_seed, seed_range_name
@@ -57,7 +57,6 @@ from fusion.foot_ins import ZuptInsRankKf
 from fusion.metrics import (PDR_AT_FIX, PDR_BASELINE, error_stats, heading_error_rad, interpolate_track, pdr_baselines,
                             position_errors_m)
 from fusion.model import CLOCK_MODEL_PRESETS
-from fusion.observations import PathRanges
 from fusion.pdr import PdrConfig, run_pdr
 from fusion.run import FusionConfig, fuse
 from sim.gnss import simulate_start_fix
@@ -101,23 +100,6 @@ class ChainOutput:
     walk_start_t_s: float
     ranges: RangeSeries
     foot_imu: ImuLog | None = None
-    paths: PathRanges | None = None
-
-
-@dataclass
-class Observations:
-    """What a range source gives the fusion for one walk.
-
-    Attributes
-    ----------
-    ranges : RangeSeries
-        The SI-carrier range.
-    paths : PathRanges or None
-        First-path ranges and tower differences (``docs/paths.md``); None
-        where the source has no path tracker (the exact level).
-    """
-
-    ranges: RangeSeries
     paths: PathRanges | None = None
 
 

@@ -4,8 +4,8 @@ The transmitter, channel and front end of :class:`sim.rf.CaptureGenerator`
 produce the capture chunk by chunk; each chunk is quantised to the scenario's
 sample format and decoded back, as a file would be, and fed to
 :class:`receiver.pipeline.Receiver`; the receiver's frames become the
-:class:`~dtmbnav.core.records.RangeSeries` the fusion consumes through
-:func:`dtmbnav.chain.ranges_from_frames`, batch by batch, so nothing
+:class:`~dtmbnav_core.records.RangeSeries` the fusion consumes through
+:func:`receiver.observables.ranges_from_frames`, batch by batch, so nothing
 sample-sized is kept (memory stays flat over a whole walk).
 
 The receiver measures f_s while the walker stands at the start
@@ -26,11 +26,10 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from dtmbnav.chain import expected_tower_delays_s, paths_from_frames, ranges_from_frames
-from dtmbnav.core.iqformat import decode, get_format
-from dtmbnav.core.records import FrameBatch, PathBatch, PathFlag, RangeSeries, Track
-from dtmbnav.evaluate import Observations
+from dtmbnav_core.iqformat import decode, get_format
+from dtmbnav_core.records import FrameBatch, Observations, PathBatch, PathFlag, RangeSeries, Track
 from fusion.model import Geometry
+from receiver.observables import observations_from_receiver, ranges_from_frames
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
 from sim.obs_range import ObsRangeConfig
 from sim.rf import CaptureGenerator
@@ -95,7 +94,7 @@ def iq_observations(scenario: Scenario, track: Track, seconds: float | None = No
     """The receiver's SI-carrier range and path tracker output for the scenario's capture.
 
     The path rows kept are those of each tower's first path (what
-    :func:`dtmbnav.chain.paths_from_frames` reads), batch by batch: a whole
+    :func:`receiver.observables.paths_from_frames` reads), batch by batch: a whole
     walk's rows of every tracked path are not held.
 
     Raises
@@ -121,18 +120,18 @@ def iq_observations(scenario: Scenario, track: Track, seconds: float | None = No
         raise RuntimeError(f"{scenario.name} (seed {scenario.seed}): the receiver found no DTMB signal in the "
                            "simulated capture")
     columns = FrameBatch.concatenate(frames).columns()
-    path_rows = PathBatch.concatenate(rows).columns() if receiver.config.track_paths else None
+    if not receiver.config.track_paths:
+        return Observations(ranges_from_frames(columns))
+    path_rows = PathBatch.concatenate(rows).columns()
     # The tower table as a user has it: positions (heights above the antenna) and the network's transmit delays;
     # the towers are put in its order from where the walk starts (a fix metres off would do as well).
     antenna_m = scenario.channel.antenna_height_m
     tower, *others = [(site.x_m, site.y_m, site.height_m - antenna_m) for site in scenario.sites]
     geometry = Geometry(float(track.x_m[0]), float(track.y_m[0]), *tower, other_towers=tuple(others))
     transmit_delays = [site.transmit_delay_s for site in scenario.sites]
-    return Observations(ranges_from_frames(columns),
-                        paths_from_frames(columns, path_rows, len(scenario.sites), attrs=receiver.attributes(),
-                                          transmit_delays_s=transmit_delays,
-                                          expected_delays_s=expected_tower_delays_s(geometry, transmit_delays))
-                        if path_rows is not None else None)
+    return observations_from_receiver(columns, path_rows, receiver.attributes(), len(scenario.sites),
+                                      transmit_delays_s=transmit_delays,
+                                      start_ranges_m=[geometry.start_range_m(k) for k in range(geometry.n_towers)])
 
 
 def iq_range_source(scenario: Scenario, truth: Track) -> Observations:

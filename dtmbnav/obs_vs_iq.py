@@ -22,7 +22,7 @@ Both are taken of the SI-carrier range and of tower 0's first-path range
 (``first_integrated``, ``first_change``), and a third of the first path's
 code range (``first_code``): ``|u(t) - median(u)|`` with ``u = code_range_m -
 d``, the median over the walk's samples: the code range is an absolute range
-up to a constant (``dtmbnav.chain.first_path_code_range_m``), and what the
+up to a constant (``receiver.observables.first_path_code_range_m``), and what the
 integrity monitor's late-path test (``fusion/integrity.py``) sees is how far
 it strays from its constant.
 
@@ -46,7 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav.core.records import PathRangeSeries, RangeSeries, Track
+from dtmbnav_core.records import PathRangeSeries, RangeSeries, Track
 from dtmbnav.distributed import IN_PROCESS, ClusterConfig, Task, run_tasks
 from dtmbnav.iq_range import iq_observations
 from dtmbnav.seeds import REPORTING_SEEDS, monte_carlo_seed

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-from dtmbnav.core.schema import ENDED_EARLY_ATTR
+from dtmbnav_core.schema import ENDED_EARLY_ATTR
 from receiver.capture import CaptureSource
 from receiver.pipeline import ReceiverConfig, receive_file
 

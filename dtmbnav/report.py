@@ -21,10 +21,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (backend chosen first: reports run headless)
 import numpy as np  # noqa: E402
 
-from dtmbnav.core import schema  # noqa: E402
-from dtmbnav.core.h5io import read_attrs, read_columns  # noqa: E402
-from dtmbnav.core.records import PdrSteps, Track  # noqa: E402
-from dtmbnav.core.sensors import read_tower, read_walk_truth  # noqa: E402
+from dtmbnav_core import schema  # noqa: E402
+from dtmbnav_core.h5io import read_attrs, read_columns  # noqa: E402
+from dtmbnav_core.records import PdrSteps, Track  # noqa: E402
+from dtmbnav_core.sensors import read_tower, read_walk_truth  # noqa: E402
 from dtmbnav.paper import paper_figures  # noqa: E402
 from fusion.metrics import (  # noqa: E402
     PDR_AT_FIX,

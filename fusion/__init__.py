@@ -1,6 +1,6 @@
 """Fusion of PDR and DTMB range: initial heading, particle filter and Kalman-family filters.
 
-Consumes typed records (:mod:`dtmbnav.core.records`) and knows nothing of IQ.
+Consumes typed records (:mod:`dtmbnav_core.records`) and knows nothing of IQ.
 This module holds only the names and defaults that callers need without
 importing the numba kernels (the command line's parser uses them).
 """

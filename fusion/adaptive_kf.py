@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav.core.records import Track
+from dtmbnav_core.records import Track
 from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig
 from fusion.kalman import RangeKalmanFilter

@@ -12,7 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
-from dtmbnav.core.records import Track
+from dtmbnav_core.records import Track
 from fusion.model import HEADING, SPEED, STATE_SIZE, EpochObservation, StepControl, X, Y
 from fusion.observations import FilterEpochs
 

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from dtmbnav.core.constants import GRAVITY_MPS2
-from dtmbnav.core.records import Track
+from dtmbnav_core.constants import GRAVITY_MPS2
+from dtmbnav_core.records import Track
 from fusion.rank_kf import RankKalmanFilter, rank_quantiles
 
 #: Error-state layout (docs/method.md §7 order).
@@ -166,7 +166,7 @@ def strapdown_reference(C: np.ndarray, v: np.ndarray, p: np.ndarray, bg: np.ndar
 def level_attitude(acc_mps2: np.ndarray, heading_rad: float) -> np.ndarray:
     """Body-to-ENU rotation from a still accelerometer mean and the heading of the body y axis.
 
-    The foot-mounted unit's frame (:class:`dtmbnav.core.records.ImuLog`) is x right,
+    The foot-mounted unit's frame (:class:`dtmbnav_core.records.ImuLog`) is x right,
     y forward along the foot, z up; roll and pitch level the mean specific
     force, and the yaw turns body y to ``heading_rad`` (clockwise from north).
     """

@@ -77,7 +77,7 @@ reflection for the first path where the reflection's range changes as the
 truth's does (walking along the wall): its carrier range is consistent, but
 the path is not the direct one, and at the next corner its carrier bends
 with the wall (street-out, docs/paths.md). The code range of the first path
-(:class:`dtmbnav.core.records.PathRangeSeries`) can tell: it is absolute up
+(:class:`dtmbnav_core.records.PathRangeSeries`) can tell: it is absolute up
 to a constant, and a reflection only ever arrives *late*. Its constant
 ``b`` is calibrated on the first ``code_calibration_epochs`` epochs that
 have one, as the median of ``code - g(x)`` with ``x`` the open-loop

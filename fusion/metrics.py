@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav.core.records import PdrSteps, Track
+from dtmbnav_core.records import PdrSteps, Track
 from fusion.heading_init import rotate_pdr
 from fusion.model import wrap_angle
 

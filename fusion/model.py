@@ -53,7 +53,7 @@ from functools import cached_property
 
 import numpy as np
 
-from dtmbnav.core.constants import CLOCK_PRESETS, SPEED_OF_LIGHT_MPS
+from dtmbnav_core.constants import CLOCK_PRESETS, SPEED_OF_LIGHT_MPS
 from fusion import CLOCK_MODELS
 
 #: A tower difference's code value further than this many sigmas (the filter's own spread of the channel and
@@ -299,7 +299,7 @@ def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray | float:
     return (np.asarray(angle_rad) + np.pi) % (2.0 * np.pi) - np.pi
 
 
-#: The oscillator preset (:data:`dtmbnav.core.constants.CLOCK_PRESETS`) each clock model stands for.
+#: The oscillator preset (:data:`dtmbnav_core.constants.CLOCK_PRESETS`) each clock model stands for.
 CLOCK_MODEL_PRESETS = {"disciplined": "gnss-disciplined", "free-running": "free-running"}
 #: Standard deviation of the clock rate at the first epoch per clock model, m/s. A disciplined clock: what the
 #: f_s calibration of the standstill leaves (0.02 Hz at 666 MHz is 0.009 m/s; docs/method.md §2). A free-running
@@ -329,7 +329,7 @@ class ClockModel:
     kind : {"disciplined", "free-running"}
     allan_deviation : float or None
         Allan deviation at ``allan_tau_s``; None takes the preset of the
-        clock's kind (:data:`dtmbnav.core.constants.CLOCK_PRESETS`, the clocks
+        clock's kind (:data:`dtmbnav_core.constants.CLOCK_PRESETS`, the clocks
         the simulator draws).
     allan_tau_s : float
         Averaging time of ``allan_deviation``, s.

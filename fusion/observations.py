@@ -79,11 +79,11 @@ repeated at every stop. The filters report no track row for them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from dtmbnav.core.records import ColumnRecord, PathRangeSeries, PdrSteps, RangeSeries
+from dtmbnav_core.records import ColumnRecord, PathRanges, PathRangeSeries, PdrSteps, RangeSeries
 from fusion import SI_RANGE_USES
 from fusion.model import EpochObservation, StepControl, wrap_angle
 from fusion.pdr.steps import StepDetectorConfig
@@ -178,22 +178,6 @@ class StandstillConfig:
     epoch_s: float = 0.5
 
 
-@dataclass(frozen=True)
-class PathRanges:
-    """The receiver's path observations of one recording (docs/paths.md).
-
-    Attributes
-    ----------
-    first_path : dict of int -> PathRangeSeries
-        First-path range of tower k (:class:`fusion.model.Geometry` order).
-    differences : dict of int -> PathRangeSeries
-        First-path range of tower k minus that of tower 0 (k >= 1).
-    """
-
-    first_path: dict[int, PathRangeSeries] = field(default_factory=dict)
-    differences: dict[int, PathRangeSeries] = field(default_factory=dict)
-
-
 @dataclass
 class PathEpochs(ColumnRecord):
     """Path observations at the filter epochs (columns as :class:`FilterEpochs`'s of the same names)."""
@@ -279,7 +263,7 @@ class FilterEpochs(ColumnRecord):
         The same for the difference of tower k and tower 0 (column k - 1).
     first_path_code_m : ndarray, shape (N, T) or None
         Code range of tower k's first path, m, up to a constant (NaN: none;
-        :class:`dtmbnav.core.records.PathRangeSeries`), which the integrity
+        :class:`dtmbnav_core.records.PathRangeSeries`), which the integrity
         monitor checks the first path against (:mod:`fusion.integrity`).
     range_difference_code_m : ndarray, shape (N, T - 1) or None
         Code range difference of tower k and tower 0 (column k - 1), m, with

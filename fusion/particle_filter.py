@@ -82,7 +82,7 @@ from typing import Callable
 import numpy as np
 from numba import njit
 
-from dtmbnav.core.records import Track
+from dtmbnav_core.records import Track
 from fusion import DEFAULT_PARTICLES
 from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig, IntegrityMonitor

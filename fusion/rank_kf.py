@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 from scipy.stats import norm
 
-from dtmbnav.core.records import Track
+from dtmbnav_core.records import Track
 from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig
 from fusion.kalman import RangeKalmanFilter

@@ -24,16 +24,15 @@ from typing import Callable
 
 import numpy as np
 
-from dtmbnav.core.records import PdrSteps, RangeSeries, Track
+from dtmbnav_core.records import PdrSteps, RangeSeries, Track
 from fusion import (CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DEFAULT_PARTICLES, DEFAULT_SI_RANGE_USE,
                     FILTER_NAMES, HEADING_RANGES, SI_RANGE_USES)
 from fusion.adaptive_kf import run_adaptive_kf
 from fusion.heading_init import HeadingSolution, solve_initial_heading
 from fusion.integrity import IntegrityConfig
 from fusion.model import ClockModel, Geometry, ModelNoise
-from fusion.observations import (AggregationConfig, FilterEpochs, PathAggregationConfig, PathEpochs, PathRanges,
-                                 RangeEpochs, StandstillConfig, aggregate_paths, aggregate_ranges, build_epochs,
-                                 epoch_times, si_range_epochs)
+from fusion.observations import AggregationConfig, FilterEpochs, PathAggregationConfig, PathEpochs, RangeEpochs, StandstillConfig, aggregate_paths, aggregate_ranges, build_epochs, epoch_times, si_range_epochs
+from dtmbnav_core.records import PathRanges
 from fusion.particle_filter import run_particle_filter
 from fusion.rank_kf import run_rank_kf
 from fusion.ukf import run_ukf

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
-from dtmbnav.core.records import Track
+from dtmbnav_core.records import Track
 from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig
 from fusion.kalman import RangeKalmanFilter

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 import pywt
 
-from dtmbnav.core.records import Track
+from dtmbnav_core.records import Track
 from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig
 from fusion.model import ClockModel, Geometry, KalmanObservation, ModelNoise

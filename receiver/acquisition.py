@@ -50,8 +50,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav.core import gb20600
-from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
+from dtmbnav_core import gb20600
+from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ, PnMode
 from receiver import DEFAULT_CFO_SEARCH_HZ
 
 #: Largest timing correction, samples, tested around the grid metric's peak.

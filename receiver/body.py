@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from dtmbnav.core.gb20600 import BODY_LENGTH
+from dtmbnav_core.gb20600 import BODY_LENGTH
 from receiver.derotate import derotate_segments_reference
 
 

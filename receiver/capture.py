@@ -20,7 +20,7 @@ give the sample format or rate.
 
 A stream is read as its data arrives, so everything read before an
 interruption has been handed on, and a stop request
-(:class:`dtmbnav.core.interrupt.DeferredStop`) ends a wait for data; a
+(:class:`dtmbnav_core.interrupt.DeferredStop`) ends a wait for data; a
 stream that ends inside an IQ pair (a ``head -c`` that cut a sample) yields
 every whole sample and then raises :class:`TruncatedStream`, which a caller
 may treat as the end of the stream.
@@ -41,8 +41,8 @@ from typing import IO, Any
 import numpy as np
 from numba import njit
 
-from dtmbnav.core.interrupt import stop_requested
-from dtmbnav.core.iqformat import IqFormat, decode, from_sigmf_datatype, get_format
+from dtmbnav_core.interrupt import stop_requested
+from dtmbnav_core.iqformat import IqFormat, decode, from_sigmf_datatype, get_format
 
 #: Key of the project's metadata: ``dtmbnav:<key>`` in a SigMF global object, a ``dtmbnav`` object in a
 #: raw capture's sidecar (``sim.capture_writer`` writes them).
@@ -102,7 +102,7 @@ class CaptureSource:
 
     @property
     def format(self) -> IqFormat:
-        """The :class:`dtmbnav.core.iqformat.IqFormat` of the samples."""
+        """The :class:`dtmbnav_core.iqformat.IqFormat` of the samples."""
         return get_format(self.sample_format)
 
     @property
@@ -202,7 +202,7 @@ class _BlockPool:
 
 def _decode_block(raw: np.ndarray, fmt: IqFormat, blocks: _BlockPool, where: str) -> np.ndarray:
     """One block of raw bytes (whole IQ pairs) as complex64: :func:`rails_to_samples` into a pooled block for
-    the integer formats, :func:`dtmbnav.core.iqformat.decode` (which also rejects NaN and inf) for cf32."""
+    the integer formats, :func:`dtmbnav_core.iqformat.decode` (which also rejects NaN and inf) for cf32."""
     if not fmt.is_integer:
         return decode(raw, fmt, where=where, out=blocks.take(len(raw) // fmt.bytes_per_sample))
     out = blocks.take(len(raw) // fmt.bytes_per_sample)
@@ -214,7 +214,7 @@ def _decode_block(raw: np.ndarray, fmt: IqFormat, blocks: _BlockPool, where: str
 def rails_to_samples(rails: np.ndarray, offset: float, inv_scale: float, out: np.ndarray) -> None:
     """``out[i] = (rails[i] - offset) * inv_scale`` in float32: integer IQ rails to the interleaved floats of complex64.
 
-    The arithmetic of :func:`dtmbnav.core.iqformat.decode` (its reference
+    The arithmetic of :func:`dtmbnav_core.iqformat.decode` (its reference
     twin; full scales are powers of two, so the reciprocal is exact) in one
     vectorised pass, without numpy's buffered mixed-type loop.
     """
@@ -243,7 +243,7 @@ def _read_available(stream: IO[bytes], size: int) -> bytes | None:
     """Read up to ``size`` bytes of what a stream has, waiting only while nothing has arrived.
 
     Returns None, having read nothing, when a stop is requested while it waits
-    (:func:`dtmbnav.core.interrupt.stop_requested`): an idle pipe must not hold
+    (:func:`dtmbnav_core.interrupt.stop_requested`): an idle pipe must not hold
     up Ctrl-C, and a signal must not interrupt a read whose data would be lost.
     """
     read1 = getattr(stream, "read1", stream.read)

@@ -50,8 +50,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from dtmbnav.core import gb20600
-from dtmbnav.core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ
+from dtmbnav_core import gb20600
+from dtmbnav_core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ
 from receiver.ofdm import si_carrier_numbers
 
 

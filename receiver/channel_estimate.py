@@ -24,8 +24,8 @@ from functools import cached_property
 import numpy as np
 from numba import njit
 
-from dtmbnav.core import gb20600
-from dtmbnav.core.gb20600 import PnMode
+from dtmbnav_core import gb20600
+from dtmbnav_core.gb20600 import PnMode
 
 #: Default delay span of the estimate before and after the frame's window start, samples.
 #: Symmetric because the frame timing follows the taps' power centroid: in a

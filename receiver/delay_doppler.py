@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
+from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
+from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ
 
 
 @njit(cache=True, fastmath=True, nogil=True)

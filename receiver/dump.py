@@ -28,7 +28,7 @@ from collections.abc import Iterable, Mapping
 import h5py
 import numpy as np
 
-from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
+from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ
 from receiver.delay_doppler import DelayDopplerMap, delay_doppler_map
 from receiver.pipeline import INSPECT_STAGES
 #: Stages dumped unless others are asked for (the bodies are large: module docstring).

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from dtmbnav.core import gb20600
+from dtmbnav_core import gb20600
 
 #: Radix of the 36-point DFT's two stages (36 = 6 x 6).
 RADIX = 6

@@ -27,7 +27,7 @@ from itertools import pairwise
 
 import numpy as np
 
-from dtmbnav.core.gb20600 import PnMode
+from dtmbnav_core.gb20600 import PnMode
 from receiver.body import body_phases, recover_bodies
 from receiver.channel_estimate import ChannelEstimates, ChannelEstimator
 from receiver.derotate import derotate_segments

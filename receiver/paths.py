@@ -74,10 +74,10 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from dtmbnav.core import gb20600
-from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
-from dtmbnav.core.records import PathBatch, PathFlag
+from dtmbnav_core import gb20600
+from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ, PnMode
+from dtmbnav_core.records import PathBatch, PathFlag
 from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH
 from receiver.cfo import cfo_from_theta
 from receiver.delay_doppler import DopplerConfig, FirstPathDoppler
@@ -719,7 +719,7 @@ class PathUpdate:
         One row per frame and confirmed path (``doppler_hz`` and
         ``range_change_m`` still NaN: :class:`receiver.ranging.PathRanging` fills them).
     first_path : dict of str to ndarray
-        The per-frame first-path columns of ``/receiver/frames`` (:data:`dtmbnav.core.records.FIRST_PATH_FILL`),
+        The per-frame first-path columns of ``/receiver/frames`` (:data:`dtmbnav_core.records.FIRST_PATH_FILL`),
         ``first_path_range_change_m`` left to the range integrator.
     """
 

@@ -53,9 +53,9 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from dtmbnav.core import gb20600
-from dtmbnav.core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
-from dtmbnav.core.records import FrameBatch, FrameFlag, PathBatch
+from dtmbnav_core import gb20600
+from dtmbnav_core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
+from dtmbnav_core.records import FrameBatch, FrameFlag, PathBatch
 from receiver import DEFAULT_CFO_SEARCH_HZ, DEFAULT_STATIC_WINDOW_S
 from receiver.acquisition import CFO_OUTSIDE_SEARCH, Acquisition, search_window, window_length
 from receiver.capture import CaptureSource
@@ -747,7 +747,7 @@ def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, con
     attributes : dict
         The ``/receiver/frames`` attributes.
     """
-    from dtmbnav.core import schema
+    from dtmbnav_core import schema
 
     carrier = carrier_hz if carrier_hz is not None else capture.center_hz
     if carrier is None:
@@ -777,10 +777,10 @@ def receive_into_sink(rx: Receiver, chunks: Iterable[np.ndarray], sink: FrameSin
     of the input, the files are completed) when there is at least one, and
     the ``ended_early`` attribute says why:
 
-    - SIGINT or SIGTERM (:class:`dtmbnav.core.interrupt.DeferredStop`: a chunk
+    - SIGINT or SIGTERM (:class:`dtmbnav_core.interrupt.DeferredStop`: a chunk
       being processed is finished first, a stream reader waiting for data
       gives up; a second signal aborts): after the files are closed,
-      :class:`~dtmbnav.core.interrupt.Interrupted` is raised with what was
+      :class:`~dtmbnav_core.interrupt.Interrupted` is raised with what was
       kept;
     - a stream that ends inside an IQ pair
       (:class:`~receiver.capture.TruncatedStream`): the end of the input, the
@@ -814,8 +814,8 @@ def receive_into_sink(rx: Receiver, chunks: Iterable[np.ndarray], sink: FrameSin
         The attributes written (the receiver's, ``source``, ``attrs`` and
         ``ended_early`` when the input ended early).
     """
-    from dtmbnav.core import schema
-    from dtmbnav.core.interrupt import DeferredStop, Interrupted
+    from dtmbnav_core import schema
+    from dtmbnav_core.interrupt import DeferredStop, Interrupted
     from receiver.capture import TruncatedStream
 
     ended_early: str | None = None

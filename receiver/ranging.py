@@ -50,8 +50,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.records import FrameBatch, FrameFlag, PathBatch, PathFlag
+from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav_core.records import FrameBatch, FrameFlag, PathBatch, PathFlag
 from receiver import DEFAULT_STATIC_WINDOW_S
 
 

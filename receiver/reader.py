@@ -6,7 +6,7 @@ receiver's kernels; on one core they cost what they cost without the thread.
 The queue between the two is bounded, so at most ``depth`` converted blocks
 wait in memory whatever the capture's length.
 
-A stop request (SIGINT, SIGTERM: :class:`dtmbnav.core.interrupt.DeferredStop`)
+A stop request (SIGINT, SIGTERM: :class:`dtmbnav_core.interrupt.DeferredStop`)
 ends the reading. For a stream it does not end the hand-off: the blocks
 already read are still yielded (a pipe's bytes cannot be read again), then
 the iterator ends; a file's reader is cut short at once (its blocks can be
@@ -21,7 +21,7 @@ from collections.abc import Iterable, Iterator
 
 import numpy as np
 
-from dtmbnav.core.interrupt import stop_requested
+from dtmbnav_core.interrupt import stop_requested
 
 #: Blocks read ahead of the one the receiver is working on.
 READ_AHEAD_BLOCKS = 2
@@ -40,7 +40,7 @@ class ReadAhead(Iterator[np.ndarray]):
     Attributes
     ----------
     ends_on_stop : bool
-        True tells :meth:`dtmbnav.core.interrupt.DeferredStop.until_stopped`
+        True tells :meth:`dtmbnav_core.interrupt.DeferredStop.until_stopped`
         to drain it rather than cut it short.
     """
 

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav.core import gb20600
-from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
+from dtmbnav_core import gb20600
+from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ
 from receiver.acquisition import Acquisition
 from receiver.body import recover_bodies_reference
 from receiver.cfo import cfo_from_theta, pn_theta_reference, si_theta_reference

@@ -17,7 +17,7 @@ from fractions import Fraction
 import numpy as np
 from numba import njit
 
-from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
+from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ
 
 #: Largest up/down factor accepted before the ratio is approximated.
 MAX_RATIO_TERM = 4096

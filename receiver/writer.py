@@ -1,10 +1,10 @@
 """Writing receiver results: HDF5 ``/receiver/frames`` and ``/receiver/paths`` (via receiver.h5io) and CSV.
 
-The HDF5 group holds one dataset per :class:`~dtmbnav.core.records.FrameBatch`
+The HDF5 group holds one dataset per :class:`~dtmbnav_core.records.FrameBatch`
 column and the receiver's parameters as attributes (``pn_mode``,
 ``si_index``, ``sample_rate_hz``, ``clock_offset_hz`` = the f_s used,
 ``carrier_hz``, the resampling ratio, versions); ``/receiver/paths`` holds
-one dataset per :class:`~dtmbnav.core.records.PathBatch` column (the path
+one dataset per :class:`~dtmbnav_core.records.PathBatch` column (the path
 tracker's rows, written as they come, like the frames). Both files are
 written atomically (a hidden temporary name renamed when complete), so a
 failed run never leaves a file that looks complete; a run that keeps what it
@@ -25,9 +25,9 @@ from typing import IO, Any
 import h5py
 import numpy as np
 
-from dtmbnav.core import schema
-from dtmbnav.core.h5io import atomic_h5, atomic_path, package_version
-from dtmbnav.core.records import FRAME_COLUMN_DTYPES, PATH_COLUMN_DTYPES, FrameBatch, FrameFlag, PathBatch
+from dtmbnav_core import schema
+from dtmbnav_core.h5io import atomic_h5, atomic_path, package_version
+from dtmbnav_core.records import FRAME_COLUMN_DTYPES, PATH_COLUMN_DTYPES, FrameBatch, FrameFlag, PathBatch
 
 #: Unit of each column (written as ``units`` attribute, "column:unit" pairs).
 COLUMN_UNITS = {
@@ -84,7 +84,7 @@ class FrameSink:
     """Writes frame batches as they come: HDF5 ``/receiver/frames`` (and ``/receiver/paths``) and/or CSV, memory flat.
 
     The HDF5 columns are resizable datasets that grow batch by batch inside an
-    :func:`~dtmbnav.core.h5io.atomic_h5` file and the CSV rows go to a hidden
+    :func:`~dtmbnav_core.h5io.atomic_h5` file and the CSV rows go to a hidden
     temporary file, so both appear only at :meth:`close`, which also sets the
     attributes; :meth:`abort` removes them. HDF5 rows are appended in blocks
     of :data:`WRITE_ROWS` (and the rest at :meth:`close`). Counts of frames

@@ -69,7 +69,7 @@ import numpy as np
 import pyfftw
 from numba import njit
 
-from dtmbnav.core import gb20600
+from dtmbnav_core import gb20600
 from sim.fft import fftw_plan
 from sim.transmitter import PulseTable, pulse_spectrum
 

@@ -12,7 +12,7 @@ simulator never hands the PDR the true K.
 
 from __future__ import annotations
 
-from dtmbnav.core.records import ImuLog
+from dtmbnav_core.records import ImuLog
 from sim.imu import simulate_imu
 from sim.scenario import Scenario
 from sim.walk import simulate_walk

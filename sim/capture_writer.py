@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from sigmf import SigMFFile
 
-from dtmbnav.core.iqformat import get_format
+from dtmbnav_core.iqformat import get_format
 
 CONTAINERS = ("sigmf", "raw")
 #: Namespace of the project's keys in SigMF metadata.

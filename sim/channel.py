@@ -62,8 +62,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.records import Track
+from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav_core.records import Track
 from sim.scenario import Building, ChannelConfig, Scenario, TowerSite, Wall
 
 #: Sinusoids summed in each diffuse tap (sum-of-sinusoids Rayleigh fading).

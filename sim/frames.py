@@ -22,8 +22,8 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from dtmbnav.core import gb20600
-from dtmbnav.core.gb20600 import PnMode
+from dtmbnav_core import gb20600
+from dtmbnav_core.gb20600 import PnMode
 from sim.fft import fftw_plan
 
 #: Frames made together (one random generator, one batched FFT).

@@ -32,9 +32,9 @@ Order (sim.rf applies it to the noise-free multipath signal):
 4. **AGC**: one fixed gain for the whole capture, putting the expected per-rail
    RMS of (direct-path signal after the anti-alias filter + noise)
    ``receiver.agc_backoff_db`` below the quantiser's full scale (+-1 after
-   ``dtmbnav.core.iqformat.decode``).
+   ``dtmbnav_core.iqformat.decode``).
 5. **Quantisation** with clipping to ``cu8``/``ci8``/``ci16``/``cf32``
-   (``dtmbnav.core.iqformat.encode``).
+   (``dtmbnav_core.iqformat.encode``).
 """
 
 from __future__ import annotations
@@ -42,8 +42,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import kaiserord
 
-from dtmbnav.core import gb20600
-from dtmbnav.core.iqformat import encode, get_format
+from dtmbnav_core import gb20600
+from dtmbnav_core.iqformat import encode, get_format
 from sim.frames import FrameConfig
 from sim.scenario import FrontEndConfig
 from sim.transmitter import PULSE_SPAN, PulseTable, pulse_table

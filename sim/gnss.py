@@ -12,7 +12,7 @@ scales with the signal amplitude lost: ``start_fix_sigma_m * 10^((open - cn0)/20
 
 The start fix P0 is drawn separately (:func:`simulate_start_fix`): the true
 position where the walk starts plus N(0, start_fix_sigma_m) per axis, stamped
-at the moment the walker sets off. It is a :class:`dtmbnav.core.records.StartFix`.
+at the moment the walker sets off. It is a :class:`dtmbnav_core.records.StartFix`.
 
 Random streams: the log uses ``[seed, GNSS_STREAM]``, the start fix
 ``[seed, START_FIX_STREAM]``, so neither shifts the other or the walk.
@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import lfilter
 
-from dtmbnav.core.records import GnssLog, StartFix
+from dtmbnav_core.records import GnssLog, StartFix
 from sim.scenario import Building, Scenario
 from sim.walk import Walk
 

@@ -44,8 +44,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from dtmbnav.core.constants import GRAVITY_MPS2
-from dtmbnav.core.records import ImuLog
+from dtmbnav_core.constants import GRAVITY_MPS2
+from dtmbnav_core.records import ImuLog
 from sim.scenario import Building, Scenario
 from sim.walk import Walk
 

@@ -55,7 +55,7 @@ random stream, so the same multipath as the IQ level and as
 
 Tower differences are the difference of the towers' first-path ranges, the
 clock cancelling, valid where both are, with an origin break where either has
-one (``dtmbnav.chain.paths_from_frames`` reads the IQ receiver's the same way).
+one (``receiver.observables.paths_from_frames`` reads the IQ receiver's the same way).
 Each carries its code range difference: the two first paths' delays less the
 towers' transmit delay offsets (known, as the simulated network plan is), each
 with its own code error, the clock cancelling here too.
@@ -71,10 +71,10 @@ import numpy as np
 from numba import njit
 from scipy.signal import lfilter
 
-from dtmbnav.core import gb20600
-from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.gb20600 import PnMode
-from dtmbnav.core.records import PathRangeSeries, Track
+from dtmbnav_core import gb20600
+from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav_core.gb20600 import PnMode
+from dtmbnav_core.records import PathRangeSeries, Track
 from sim.channel import Channel
 from sim.obs_range import ObsRangeConfig, noise_variance, observation_times_s
 from sim.oscillator import scenario_oscillator

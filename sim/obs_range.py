@@ -1,7 +1,7 @@
 """Observation-level DTMB range: what the receiver's integrated range would be, without IQ.
 
 For Monte Carlo studies of the fusion filters (docs/scenarios.md allows it), this
-module produces a :class:`dtmbnav.core.records.RangeSeries` straight from the truth
+module produces a :class:`dtmbnav_core.records.RangeSeries` straight from the truth
 track, with the errors the IQ receiver actually makes (docs/method.md §1-2). It
 uses the *same* channel (:class:`sim.channel.Channel`) and receiver clock
 (:func:`sim.oscillator.scenario_oscillator`) as the IQ simulation, drawn from
@@ -81,10 +81,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from dtmbnav.core import gb20600
-from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.gb20600 import PnMode
-from dtmbnav.core.records import RangeSeries, Track
+from dtmbnav_core import gb20600
+from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav_core.gb20600 import PnMode
+from dtmbnav_core.records import RangeSeries, Track
 from sim.channel import Channel
 from sim.frames import FrameConfig
 from sim.frontend import mean_signal_power

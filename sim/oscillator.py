@@ -22,7 +22,7 @@ so a measured CFO is ``doppler_hz + clock_offset_hz`` (+ the tuner's constant
 ``bulk_cfo_hz``). A fast clock (y > 0) lowers the apparent carrier and takes
 samples early.
 
-Presets (:data:`dtmbnav.core.constants.CLOCK_PRESETS`; the fractional offset is drawn uniformly
+Presets (:data:`dtmbnav_core.constants.CLOCK_PRESETS`; the fractional offset is drawn uniformly
 within +-offset unless the scenario gives it): ``gnss-disciplined`` +-30 ppb
 with adev 1e-12 at 1 s, the wander that keeps the integrated range error a
 fraction of a wavelength over a minute (docs/scenarios.md); ``free-running`` TCXO
@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav.core.constants import CLOCK_PRESETS
+from dtmbnav_core.constants import CLOCK_PRESETS
 from sim.scenario import Scenario
 
 

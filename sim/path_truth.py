@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.records import ColumnRecord
+from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav_core.records import ColumnRecord
 from sim.channel import PATH_KINDS
 from sim.rf import CaptureGenerator
 

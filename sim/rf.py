@@ -74,10 +74,10 @@ from functools import lru_cache
 
 import numpy as np
 
-from dtmbnav.core import gb20600
-from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.gb20600 import PnMode
-from dtmbnav.core.records import ColumnRecord, Track
+from dtmbnav_core import gb20600
+from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav_core.gb20600 import PnMode
+from dtmbnav_core.records import ColumnRecord, Track
 from sim.block_synthesis import BlockSynthesizer, choose_layout
 from sim.channel import Channel
 from sim.frames import FrameConfig, FrameSource

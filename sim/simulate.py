@@ -30,8 +30,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from dtmbnav.core import schema
-from dtmbnav.core.h5io import atomic_h5, write_columns
+from dtmbnav_core import schema
+from dtmbnav_core.h5io import atomic_h5, write_columns
 from sim.capture_writer import CaptureWriter
 from sim.gnss import simulate_gnss
 from sim.imu import simulate_imu

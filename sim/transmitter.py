@@ -43,7 +43,7 @@ import numpy as np
 from numba import njit, prange
 from scipy.signal import fftconvolve
 
-from dtmbnav.core import gb20600
+from dtmbnav_core import gb20600
 
 
 def srrc_pulse(x: np.ndarray, rolloff: float = gb20600.SRRC_ROLLOFF) -> np.ndarray:

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav.core.records import Track
+from dtmbnav_core.records import Track
 from sim.scenario import Scenario, WalkConfig
 
 #: Random stream of the walk (the IMU and GNSS use other stream ids).

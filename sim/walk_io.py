@@ -1,6 +1,6 @@
 """Write a simulated walk's groups of a truth file: /truth/trajectory, /truth/steps, /imu, /gnss.
 
-The layout and the typed writers are :mod:`dtmbnav.core.sensors`; this module
+The layout and the typed writers are :mod:`dtmbnav_core.sensors`; this module
 only gathers what the simulator knows about the walk (tower, presets, sensor
 frames, the start fix) into their attributes.
 """
@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import h5py
 
-from dtmbnav.core import schema
-from dtmbnav.core.records import GnssLog, ImuLog
-from dtmbnav.core.sensors import write_gnss, write_imu, write_truth_trajectory
+from dtmbnav_core import schema
+from dtmbnav_core.records import GnssLog, ImuLog
+from dtmbnav_core.sensors import write_gnss, write_imu, write_truth_trajectory
 from sim.calibration import CALIBRATION_WALK_M
 from sim.gnss import simulate_start_fix
 from sim.imu import PRESETS
@@ -34,7 +34,7 @@ def write_walk_groups(h5file: h5py.File, scenario: Scenario, walk: Walk, imu: Im
     Parameters
     ----------
     h5file : h5py.File
-        Open for writing (e.g. by :func:`dtmbnav.core.h5io.atomic_h5`); groups of
+        Open for writing (e.g. by :func:`dtmbnav_core.h5io.atomic_h5`); groups of
         the same names are replaced.
     scenario : Scenario
         Stored as TOML text; its seed, tower and presets become attributes.

@@ -66,9 +66,9 @@ def tiny_walk_truth(tmp_path_factory) -> Path:
 def tiny_results(tiny_walk_truth, tmp_path_factory) -> Path:
     """``results.h5`` (``/receiver/frames``, ``/pdr``, ``/fusion/pf``, ``/fusion/ukf``) of the tiny walk."""
     from dtmbnav.cli import EXIT_OK, main
-    from dtmbnav.core import schema
-    from dtmbnav.core.h5io import atomic_h5, read_attrs, read_columns, write_columns
-    from dtmbnav.core.records import FRAME_COLUMN_DTYPES
+    from dtmbnav_core import schema
+    from dtmbnav_core.h5io import atomic_h5, read_attrs, read_columns, write_columns
+    from dtmbnav_core.records import FRAME_COLUMN_DTYPES
 
     truth = read_columns(tiny_walk_truth, schema.TRUTH_FRAMES)
     truth_attrs = read_attrs(tiny_walk_truth, schema.TRUTH_FRAMES)
@@ -104,7 +104,7 @@ def make_capture():
     Writes ``samples`` (default: ``n`` zeros) at 7.56 Msps, 666 MHz, as ``folder/cap`` through
     ``sim.capture_writer.CaptureWriter`` (SigMF, or raw + JSON sidecar).
     """
-    from dtmbnav.core import iqformat
+    from dtmbnav_core import iqformat
     from sim.capture_writer import CaptureWriter
 
     def make(folder: Path, container: str = "sigmf", fmt: str = "ci8", n: int = 10,

@@ -11,12 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.records import PathRangeSeries, PdrSteps, RangeSeries, Track
+from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav_core.records import PathRangeSeries, PdrSteps, RangeSeries, Track
 from fusion.model import Geometry
-from fusion.observations import PathRanges
-
-
+from dtmbnav_core.records import PathRanges
 @dataclass
 class SyntheticWalk:
     truth: Track
@@ -104,7 +102,7 @@ def foot_imu_straight(n_strides=12, stride_m=1.4, stride_s=1.1, stance_s=0.45, h
     at heel strike), as a real foot does, so a stance detector sees rotation and a specific
     force that is not gravity alone.
 
-    Returns t_s, acc_mps2 (specific force in the foot frame of dtmbnav.core.records.ImuLog: x right,
+    Returns t_s, acc_mps2 (specific force in the foot frame of dtmbnav_core.records.ImuLog: x right,
     y forward, z up), gyro_radps and the true foot position (N x 2) in ENU.
     """
     rng = np.random.default_rng(seed)

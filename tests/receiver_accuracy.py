@@ -34,10 +34,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from dtmbnav.core import schema  # noqa: E402
-from dtmbnav.core.h5io import read_columns  # noqa: E402
-from dtmbnav.core.iqformat import decode  # noqa: E402
-from dtmbnav.core.records import FrameBatch, FrameFlag  # noqa: E402
+from dtmbnav_core import schema  # noqa: E402
+from dtmbnav_core.h5io import read_columns  # noqa: E402
+from dtmbnav_core.iqformat import decode  # noqa: E402
+from dtmbnav_core.records import FrameBatch, FrameFlag  # noqa: E402
 from receiver.delay_doppler import CHECK_FRAMES, DopplerConfig  # noqa: E402
 from receiver.capture import open_capture  # noqa: E402
 from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH  # noqa: E402

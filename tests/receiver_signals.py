@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import oaconvolve
 
-from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
+from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ, PnMode
 from sim.frames import FrameConfig, FrameSource
 from sim.transmitter import srrc_pulse
 

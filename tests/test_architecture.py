@@ -1,8 +1,9 @@
-"""The package layering: receiver, sim and fusion stand on dtmbnav.core and never on each other.
+"""The package layering: every import arrow points down, and no module imports itself back.
 
-``dtmbnav.core`` (the standard's tables, IQ formats, constants, records, the
-file schema and its readers) is imported by the three stage packages; only
-the rest of ``dtmbnav`` wires them. The real-data path (receive, fuse,
+``dtmbnav_core`` (the standard's tables, IQ formats, constants, records, the
+file schema and its readers) is the bottom layer and imports nothing of the
+project; ``receiver``, ``sim`` and ``fusion`` stand on it and never on each
+other; only ``dtmbnav`` wires them. The real-data path (receive, fuse,
 report) must work without the simulator, so it must not import it.
 """
 
@@ -18,60 +19,131 @@ import h5py
 import numpy as np
 import pytest
 
-from dtmbnav.core import schema
-from dtmbnav.core.h5io import atomic_h5, write_columns
-from dtmbnav.core.records import FrameBatch
-from dtmbnav.core.sensors import (read_capture_start_s, read_gnss, read_imu, read_tower, read_walk_truth,
+from dtmbnav_core import schema
+from dtmbnav_core.h5io import atomic_h5, write_columns
+from dtmbnav_core.records import FrameBatch
+from dtmbnav_core.sensors import (read_capture_start_s, read_gnss, read_imu, read_tower, read_walk_truth,
                                   read_weinberg_k_m)
 
 ROOT = Path(__file__).resolve().parents[1]
+FOUNDATION = "dtmbnav_core"
 STAGES = ("receiver", "sim", "fusion")
+APPLICATION = "dtmbnav"
+PACKAGES = (FOUNDATION, *STAGES, APPLICATION)
 CAPTURES = ROOT / "captures"
 
 
-def imported_packages(path: Path) -> set[str]:
-    """Top-level packages a module imports (module level and inside functions); 'dtmbnav.core' kept apart."""
+def module_name(path: Path, root: Path = ROOT) -> str:
+    """Dotted module name of a source file under ``root`` (a package's ``__init__`` is the package)."""
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imported_modules(path: Path, known: set[str], root: Path = ROOT) -> set[str]:
+    """Modules of ``known`` that a source file imports, at module level or inside functions.
+
+    ``from a import b`` names module ``a.b`` where that is a module, else ``a``;
+    relative imports are resolved against the file's own package.
+    """
+    package = module_name(path, root).split(".")
+    if path.name != "__init__.py":
+        package = package[:-1]
     found = set()
     for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
         if isinstance(node, ast.Import):
-            names = [alias.name for alias in node.names]
-        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            names = [node.module]
+            candidates = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = ".".join(package[:len(package) - node.level + 1] + ([node.module] if node.module else [])) \
+                if node.level else node.module
+            candidates = [f"{base}.{alias.name}" if f"{base}.{alias.name}" in known else base for alias in node.names]
         else:
             continue
-        for name in names:
-            if name == "dtmbnav":  # the distribution's version (dtmbnav/__init__ imports nothing)
-                found.add("dtmbnav.__init__")
-            elif name == "dtmbnav.core" or name.startswith("dtmbnav.core."):
-                found.add("dtmbnav.core")
-            else:
-                found.add(name.split(".")[0])
+        for name in candidates:
+            # The longest known prefix: ``import a.b.c`` runs module a.b.c.
+            while name and name not in known:
+                name = name.rpartition(".")[0]
+            if name:
+                found.add(name)
     return found
 
 
-def modules_of(package: str) -> list[Path]:
-    return sorted((ROOT / package).rglob("*.py"))
+def project_modules(root: Path = ROOT) -> dict[str, Path]:
+    return {module_name(p, root): p for package in PACKAGES for p in sorted((root / package).rglob("*.py"))}
+
+
+def import_graph(root: Path = ROOT) -> dict[str, set[str]]:
+    """Each project module and the project modules it imports."""
+    modules = project_modules(root)
+    known = set(modules)
+    return {name: imported_modules(path, known, root) - {name} for name, path in modules.items()}
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import cycle of the graph (its modules in order, the first repeated at the end), or None."""
+    state: dict[str, int] = {}  # 1 on the current path, 2 done
+    stack: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        stack.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                return stack[stack.index(nxt):] + [nxt]
+            if nxt not in state and (cycle := visit(nxt)):
+                return cycle
+        stack.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (cycle := visit(node)):
+            return cycle
+    return None
+
+
+def top_packages(names: set[str]) -> set[str]:
+    return {name.split(".")[0] for name in names}
+
+
+@pytest.fixture(scope="module")
+def graph() -> dict[str, set[str]]:
+    return import_graph()
+
+
+def test_the_foundation_imports_nothing_of_the_project(graph):
+    for name, imports in graph.items():
+        if name.split(".")[0] == FOUNDATION:
+            wrong = top_packages(imports) - {FOUNDATION}
+            assert not wrong, f"{name} imports {sorted(wrong)}"
 
 
 @pytest.mark.parametrize("package", STAGES)
-def test_stage_packages_import_only_core_and_themselves(package):
-    for path in modules_of(package):
-        others = imported_packages(path) & {*STAGES, "dtmbnav"} - {package}
-        assert not others, f"{path.relative_to(ROOT)} imports {sorted(others)}"
+def test_stage_packages_import_only_the_foundation_and_themselves(graph, package):
+    for name, imports in graph.items():
+        if name.split(".")[0] == package:
+            wrong = top_packages(imports) - {FOUNDATION, package}
+            assert not wrong, f"{name} imports {sorted(wrong)}"
 
 
-def test_core_imports_no_stage_package_and_no_application_module():
-    for path in modules_of("dtmbnav/core"):
-        wrong = imported_packages(path) & {*STAGES, "dtmbnav"}
-        assert not wrong, f"{path.relative_to(ROOT)} imports {sorted(wrong)}"
+def test_no_import_cycles(graph):
+    assert find_cycle(graph) is None, " -> ".join(find_cycle(graph))
 
 
-def test_the_import_walk_sees_function_level_imports(tmp_path):
-    """The checker itself: an import hidden inside a function is found."""
-    module = tmp_path / "m.py"
-    module.write_text("def f():\n    from sim.walk import simulate_walk\n    import fusion.run\n"
-                      "from dtmbnav.core.records import Track\n")
-    assert imported_packages(module) == {"sim", "fusion", "dtmbnav.core"}
+def test_the_import_walk_sees_function_level_relative_and_submodule_imports(tmp_path):
+    """The checker itself: imports hidden inside functions, relative imports and ``from pkg import module``."""
+    for package in ("receiver", "sim", "dtmbnav_core", "pkg"):
+        (tmp_path / package).mkdir()
+        (tmp_path / package / "__init__.py").write_text("")
+    (tmp_path / "sim" / "walk.py").write_text("")
+    (tmp_path / "dtmbnav_core" / "records.py").write_text("")
+    (tmp_path / "pkg" / "a.py").write_text("def f():\n    from sim.walk import simulate_walk\n    import receiver\n"
+                                           "from dtmbnav_core import records\nfrom . import b\n")
+    (tmp_path / "pkg" / "b.py").write_text("from pkg.a import f\n")
+    modules = {module_name(p, tmp_path): p for p in tmp_path.rglob("*.py")}
+    imports = imported_modules(tmp_path / "pkg" / "a.py", set(modules), tmp_path)
+    assert imports == {"sim.walk", "receiver", "dtmbnav_core.records", "pkg.b"}
+    graph = {name: imported_modules(path, set(modules), tmp_path) - {name} for name, path in modules.items()}
+    assert find_cycle(graph) in (["pkg.a", "pkg.b", "pkg.a"], ["pkg.b", "pkg.a", "pkg.b"])
 
 
 REAL_DATA_PATH = """
@@ -128,7 +200,7 @@ def test_real_data_path_never_imports_the_simulator(tmp_path):
 
 
 def test_a_file_written_before_the_foundation_reads_unchanged():
-    """The bundled truth file predates dtmbnav.core (no schema-version attribute): the readers take it as is."""
+    """The bundled truth file predates dtmbnav_core (no schema-version attribute): the readers take it as is."""
     truth = CAPTURES / "truth.h5"
     with h5py.File(truth, "r") as f:
         assert schema.SCHEMA_VERSION_ATTR not in f.attrs

@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dtmbnav.core import iqformat
-from dtmbnav.core.records import Track
+from dtmbnav_core import iqformat
+from dtmbnav_core.records import Track
 from receiver.capture import MissingCaptureOptions, TruncatedStream, capture_files, open_capture
 from sim.capture_writer import CaptureWriter
 from sim.rf import CaptureGenerator

@@ -6,8 +6,8 @@ Run ``python tests/test_channel_walls.py`` to print the street-out range-error f
 import numpy as np
 import pytest
 
-from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.records import Track
+from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav_core.records import Track
 from fusion.metrics import interpolate_track
 from sim.channel import WALL_EDGE_TAPER_M, Channel, blocking_loss_db
 from sim.obs_range import simulate_obs_range

@@ -21,7 +21,7 @@ import pytest
 from conftest import TINY_WALK
 
 from dtmbnav.cli import EXIT_BAD_INPUT, EXIT_NO_RESULT, EXIT_OK, main
-from dtmbnav.core import schema
+from dtmbnav_core import schema
 
 TINY = str(TINY_WALK)
 

@@ -29,7 +29,7 @@ from conftest import TINY_FORMAT, TINY_RATE_HZ, TINY_WALK
 
 from dtmbnav import package_version
 from dtmbnav.cli import EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_NO_RESULT, EXIT_OK, EXIT_USAGE, main
-from dtmbnav.core import schema
+from dtmbnav_core import schema
 
 RAW_OPTIONS = ["--format", TINY_FORMAT, "--rate", str(TINY_RATE_HZ), "--center", "666e6"]
 

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from fusion_synth import clock_range_m, exact_ranges, park_like_walk
 
-from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.records import RangeSeries
+from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav_core.records import RangeSeries
 from fusion import particle_filter as pf
 from fusion.integrity import IntegrityConfig
 from fusion.metrics import error_stats, place_pdr, position_errors_m

@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 from fusion_synth import exact_ranges, park_like_walk, path_series, ranges_with_blockage, true_ranges
 
-from dtmbnav.core.records import RangeSeries
+from dtmbnav_core.records import RangeSeries
 from fusion import particle_filter as pf
 from fusion.integrity import IntegrityConfig, IntegrityMonitor
 from fusion.metrics import error_stats, place_pdr, position_errors_m
 from fusion.model import Geometry, ModelNoise, StepControl, propagate
-from fusion.observations import PathRanges, aggregate_paths, aggregate_ranges, build_epochs
+from fusion.observations import aggregate_paths, aggregate_ranges, build_epochs
+from dtmbnav_core.records import PathRanges
 from fusion.run import FILTERS, FusionConfig
 from fusion.ukf import RangePdrUkf
 

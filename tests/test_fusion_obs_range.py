@@ -6,7 +6,7 @@ from fusion_synth import loop_truth, polyline_truth
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dtmbnav.core.gb20600 import PnMode
+from dtmbnav_core.gb20600 import PnMode
 from fusion.metrics import interpolate_track
 from fusion.model import Geometry
 from sim.channel import segment_crosses_polygon

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dtmbnav.core.records import PdrSteps, RangeSeries, Track
+from dtmbnav_core.records import PdrSteps, RangeSeries, Track
 from fusion.metrics import (error_cdf, error_stats, heading_error_rad, interpolate_track, place_pdr, position_errors_m,
                             true_initial_heading_rad)
 from fusion.observations import AggregationConfig, aggregate_ranges, build_epochs, rician_k_db, step_durations_s

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from dtmbnav.core import gb20600
-from dtmbnav.core.gb20600 import PnMode
+from dtmbnav_core import gb20600
+from dtmbnav_core.gb20600 import PnMode
 
 PN420_HEX = (
     "B0A5E9FEA1CF0D9A3DC7407C4A22D5C8C938109BCCEFCB2B6906358AA60BAFB7614BD3FD439E1B347B8E80F89445AB91927021379"

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dtmbnav.core.constants import GRAVITY_MPS2
+from dtmbnav_core.constants import GRAVITY_MPS2
 from sim.imu import EARTH_FIELD_UT, PRESETS, simulate_imu, simulate_imu_with_errors
 from sim.scenario import Scenario, load_scenario
 from sim.walk import simulate_walk

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from fusion_synth import polyline_truth
 
-from dtmbnav.core.records import PathRangeSeries, RangeSeries
+from dtmbnav_core.records import PathRangeSeries, RangeSeries
 from dtmbnav.obs_vs_iq import AGREEMENT, CASES, code_errors, compare, range_errors
 from dtmbnav.seeds import REPORTING_SEEDS
 from sim.scenario import load_scenario

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dtmbnav.core.records import ImuLog
+from dtmbnav_core.records import ImuLog
 from fusion.pdr import PdrConfig, calibrate_weinberg_k_from_walk, run_pdr
 from fusion.pdr.attitude import AttitudeConfig
 from fusion.pdr.dead_reckoning import dead_reckon, resample_steps

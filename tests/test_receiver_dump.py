@@ -6,7 +6,7 @@ import pytest
 from test_cli import _assert_same_frames, _frames
 
 from dtmbnav.cli import EXIT_BAD_INPUT, EXIT_OK, EXIT_USAGE, main
-from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
+from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ, PnMode
 
 
 def _dump(path) -> tuple[dict, dict]:

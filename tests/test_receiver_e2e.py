@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from receiver_accuracy import accuracy, match_truth, path_accuracy, run_capture
 
-from dtmbnav.core.records import FrameFlag
+from dtmbnav_core.records import FrameFlag
 from receiver.capture import open_capture
 from receiver.pipeline import ReceiverConfig, receive_file
 from sim.scenario import load_scenario

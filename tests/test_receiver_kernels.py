@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from receiver_signals import make_signal
 
-from dtmbnav.core import gb20600
-from dtmbnav.core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
-from dtmbnav.core.records import FrameBatch
+from dtmbnav_core import gb20600
+from dtmbnav_core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
+from dtmbnav_core.records import FrameBatch
 from receiver.body import body_phases, recover_bodies, recover_bodies_reference
 from receiver.cfo import cfo_from_theta, pn_theta_kernel, pn_theta_reference, si_theta_kernel, si_theta_reference
 from receiver.channel_estimate import (ChannelEstimator, hadamard_slots, m_sequence_correlation_kernel,

@@ -18,10 +18,10 @@ from hypothesis import strategies as st
 from receiver_signals import make_signal
 
 from dtmbnav.cli import EXIT_OK, main
-from dtmbnav.core import gb20600, iqformat, schema
-from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
-from dtmbnav.core.interrupt import DeferredStop
-from dtmbnav.core.records import FRAME_COLUMN_DTYPES, PATH_COLUMN_DTYPES, FrameBatch, PathBatch
+from dtmbnav_core import gb20600, iqformat, schema
+from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ, PnMode
+from dtmbnav_core.interrupt import DeferredStop
+from dtmbnav_core.records import FRAME_COLUMN_DTYPES, PATH_COLUMN_DTYPES, FrameBatch, PathBatch
 from receiver import writer
 from receiver.acquisition import differential_grid_metric, window_length
 from receiver.capture import open_capture, rails_to_samples

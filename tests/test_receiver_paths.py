@@ -9,11 +9,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from receiver_signals import SignalPath, frame_start_samples, make_paths_signal
 
-from dtmbnav.core import gb20600
-from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
-from dtmbnav.core.h5io import read_columns
-from dtmbnav.core.records import FrameBatch, PathBatch, PathFlag
+from dtmbnav_core import gb20600
+from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ, PnMode
+from dtmbnav_core.h5io import read_columns
+from dtmbnav_core.records import FrameBatch, PathBatch, PathFlag
 from receiver import CLOCK_PATHS
 from receiver.capture import open_capture
 from receiver.channel_estimate import ChannelEstimator

@@ -15,8 +15,8 @@ import pyfftw
 import pytest
 from receiver_signals import make_signal
 
-from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
-from dtmbnav.core.records import FrameBatch, FrameFlag
+from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ
+from dtmbnav_core.records import FrameBatch, FrameFlag
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
 from sim.rf import CaptureGenerator
 from sim.scenario import load_scenario

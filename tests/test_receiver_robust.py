@@ -12,8 +12,8 @@ import pytest
 from receiver_accuracy import accuracy, match_truth, run_capture
 from receiver_signals import make_signal
 
-from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ
-from dtmbnav.core.records import FrameBatch, FrameFlag
+from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ
+from dtmbnav_core.records import FrameBatch, FrameFlag
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
 from sim.scenario import load_scenario
 
@@ -182,7 +182,7 @@ def test_segment_change_is_a_new_origin_for_the_fusion():
     """A re-acquisition 10 ms long, between two step epochs: the next epoch has no range, the range
     returns only after the settling time, as a new origin (the filters re-anchor there); a file without
     segment_id is one segment."""
-    from dtmbnav.chain import ranges_from_frames
+    from receiver.observables import ranges_from_frames
     from fusion.observations import AggregationConfig, aggregate_ranges
 
     t = np.arange(0.0, 12.0, 1.0 / 1800.0)

@@ -9,10 +9,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from receiver_signals import frame_start_samples, make_signal
 
-from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.gb20600 import SYMBOL_RATE_HZ, PnMode
-from dtmbnav.core.h5io import read_columns
-from dtmbnav.core.records import FrameBatch, FrameFlag
+from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ, PnMode
+from dtmbnav_core.h5io import read_columns
+from dtmbnav_core.records import FrameBatch, FrameFlag
 from receiver.acquisition import acquire, window_length
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
 from receiver.ranging import RangeIntegrator
@@ -104,7 +104,7 @@ def test_si_word_is_identified():
 @pytest.mark.parametrize("echo", [None, (10.0, -0.9), (3.0, 0.7j)])
 def test_si_snr_follows_the_channel_on_the_si_carriers(echo):
     """A flat channel: SI SNR = body SNR. An echo: the SI slice sees |H(f_k)|^2, not the band's sum of path powers."""
-    from dtmbnav.core.gb20600 import bin_frequency_hz, si_bins
+    from dtmbnav_core.gb20600 import bin_frequency_hz, si_bins
 
     x = make_signal(int(0.05 * SYMBOL_RATE_HZ), cfo_hz=2000.0, snr_db=20, start_symbol=START, echo=echo)
     rows, _ = receive(x, ReceiverConfig(clock_offset_hz=2000.0))

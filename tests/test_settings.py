@@ -4,7 +4,7 @@ import dataclasses
 
 import pytest
 
-from dtmbnav.core.settings import parse_setting, setting_names, with_settings
+from dtmbnav_core.settings import parse_setting, setting_names, with_settings
 from fusion.integrity import IntegrityConfig
 from fusion.run import FusionConfig
 

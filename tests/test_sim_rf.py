@@ -10,10 +10,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dtmbnav.core import gb20600
-from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.gb20600 import PnMode
-from dtmbnav.core.records import Track
+from dtmbnav_core import gb20600
+from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav_core.gb20600 import PnMode
+from dtmbnav_core.records import Track
 from sim.block_synthesis import (BAND_EDGE, RATE_TOLERANCE_SYMBOLS, choose_layout, combine_kernel, combine_reference,
                                  path_spectrum_kernel, path_spectrum_reference, window_plan_kernel,
                                  window_plan_reference)
@@ -474,8 +474,8 @@ def test_simulate_writes_capture_and_truth(tmp_path):
     pytest.importorskip("sim.walk_io")
     import h5py
 
-    from dtmbnav.core.h5io import read_columns
-    from dtmbnav.core.iqformat import decode
+    from dtmbnav_core.h5io import read_columns
+    from dtmbnav_core.iqformat import decode
     from receiver.capture import open_capture
     from sim.scenario import load_scenario
     from sim.simulate import simulate

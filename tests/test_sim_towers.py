@@ -6,8 +6,8 @@ import tomllib
 import numpy as np
 import pytest
 
-from dtmbnav.core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav.core.records import Track
+from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav_core.records import Track
 from sim.channel import DIFFUSE, DIRECT, GROUND, PATH_KINDS, WALL, Channel
 from sim.path_truth import PATH_TRUTH_RATE_HZ, path_truth
 from sim.rf import CaptureGenerator

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dtmbnav.core.h5io import atomic_h5
-from dtmbnav.core.sensors import read_gnss, read_imu, read_walk_truth
+from dtmbnav_core.h5io import atomic_h5
+from dtmbnav_core.sensors import read_gnss, read_imu, read_walk_truth
 from sim.gnss import simulate_gnss, simulate_start_fix
 from sim.imu import simulate_imu
 from sim.scenario import Scenario, WalkConfig, load_scenario

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dtmbnav.core.records import PdrSteps, Track
+from dtmbnav_core.records import PdrSteps, Track
 
 
 def mean_heading_over_windows(t_s: np.ndarray, heading_rad: np.ndarray, start_t_s: np.ndarray,

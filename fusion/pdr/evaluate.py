@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav.core.records import Track
+from dtmbnav_core.records import Track
 from fusion.metrics import ErrorStats, error_stats, place_pdr, position_errors_m, true_initial_heading_rad
 from fusion.pdr.pipeline import PdrResult
 

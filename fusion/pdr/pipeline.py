@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dtmbnav.core.records import ImuLog, PdrSteps, Track
+from dtmbnav_core.records import ImuLog, PdrSteps, Track
 from fusion.pdr.attitude import AttitudeConfig, relative_heading
 from fusion.pdr.dead_reckoning import dead_reckon, mean_heading_over_windows, resample_steps
 from fusion.pdr.step_length import calibrate_weinberg_k, frequency_length, weinberg_length

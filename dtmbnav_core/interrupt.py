@@ -2,7 +2,7 @@
 
 Ctrl-C (SIGINT) and ``kill`` or a service manager stopping the job (SIGTERM)
 both end a run as an :class:`Interrupted` exception, so every ``finally`` and
-every atomic writer (:func:`dtmbnav.core.h5io.atomic_path`) cleans up: no
+every atomic writer (:func:`dtmbnav_core.h5io.atomic_path`) cleans up: no
 hidden partial file is left behind. Python's default SIGTERM action would
 kill the process on the spot instead.
 

@@ -1,11 +1,11 @@
 """Typed readers and writers of the sensor and truth groups (``docs/schema.md``).
 
 ``/imu``, ``/gnss``, ``/truth/trajectory`` and ``/truth/steps`` as the
-records of :mod:`dtmbnav.core.records`. The simulator writes these groups, the
+records of :mod:`dtmbnav_core.records`. The simulator writes these groups, the
 real-data path (``dtmbnav pdr``, ``fuse``, ``report``) reads them: both go
 through this module, so reading a sensors file never imports the simulator.
 
-The start fix P0 is stored as attributes (:data:`~dtmbnav.core.schema.START_FIX_ATTRS`)
+The start fix P0 is stored as attributes (:data:`~dtmbnav_core.schema.START_FIX_ATTRS`)
 on both ``/truth/trajectory`` and ``/gnss``: the fusion side reads it from
 ``/gnss``, an evaluation from the truth.
 """
@@ -19,9 +19,9 @@ from typing import Any
 import h5py
 import numpy as np
 
-from dtmbnav.core import schema
-from dtmbnav.core.h5io import read_attrs, read_columns, write_columns
-from dtmbnav.core.records import GnssLog, ImuLog, StartFix, Track, WalkTruth
+from dtmbnav_core import schema
+from dtmbnav_core.h5io import read_attrs, read_columns, write_columns
+from dtmbnav_core.records import GnssLog, ImuLog, StartFix, Track, WalkTruth
 
 
 def start_fix_attrs(fix: StartFix) -> dict[str, float]:
@@ -52,7 +52,7 @@ def write_truth_trajectory(h5file: h5py.File, track: Track, step_t_s: np.ndarray
     Parameters
     ----------
     h5file : h5py.File
-        Open for writing (e.g. by :func:`dtmbnav.core.h5io.atomic_h5`).
+        Open for writing (e.g. by :func:`dtmbnav_core.h5io.atomic_h5`).
     track : Track
         Truth trajectory.
     step_t_s, step_length_m : ndarray

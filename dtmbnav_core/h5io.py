@@ -1,6 +1,6 @@
 """HDF5 helpers shared by every stage that writes or reads the project's files.
 
-One schema for every file (``docs/schema.md``, names in :mod:`dtmbnav.core.schema`): a group per stage holding
+One schema for every file (``docs/schema.md``, names in :mod:`dtmbnav_core.schema`): a group per stage holding
 equal-length 1-D datasets (N x 3 for vector sensors), one per column, with
 parameters, units and versions as attributes. Files are written to a temporary
 name and renamed into place only when complete, so an interrupted run never
@@ -21,8 +21,8 @@ from typing import Any
 import h5py
 import numpy as np
 
-from dtmbnav import package_version
-from dtmbnav.core.schema import COMPLETE_ATTR, PACKAGE_VERSION_ATTR, SCHEMA_VERSION, SCHEMA_VERSION_ATTR
+from dtmbnav_core.version import package_version
+from dtmbnav_core.schema import COMPLETE_ATTR, PACKAGE_VERSION_ATTR, SCHEMA_VERSION, SCHEMA_VERSION_ATTR
 
 
 def partial_path(path: str | os.PathLike) -> Path:

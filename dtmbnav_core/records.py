@@ -8,7 +8,7 @@ schema (``docs/schema.md``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from enum import IntFlag
 from typing import Self
 
@@ -128,7 +128,7 @@ class PathRangeSeries(ColumnRecord):
     change of the difference of two towers' first-path ranges, which cancels
     the receiver clock (docs/paths.md, "Single-frequency networks"). Which
     tower or pair a series belongs to is said by whoever hands it on
-    (``fusion.observations.PathRanges``).
+    (:class:`PathRanges`).
 
     Attributes
     ----------
@@ -156,7 +156,7 @@ class PathRangeSeries(ColumnRecord):
         code range"). For a difference of two towers whose transmit delay
         offsets are known, the difference of their first paths' code ranges
         with those offsets taken out: the range difference itself, with no
-        constant (``dtmbnav.chain.range_difference_code_m``). NaN where
+        constant (``receiver.observables.range_difference_code_m``). NaN where
         unknown (a difference of towers whose offsets are not known; a file
         without it); None gives NaN throughout.
     """
@@ -192,6 +192,39 @@ class PathRangeSeries(ColumnRecord):
         return cls(t_s=t_s, range_change_m=np.where(tracked, range_change_m, 0.0), snr_db=snr_db,
                    valid=tracked & usable, slip=(slip | begins) & tracked,
                    path_age_s=np.where(tracked, t_s - t_s[run_start], 0.0), code_range_m=code)
+
+
+@dataclass(frozen=True)
+class PathRanges:
+    """The receiver's path observations of one recording (docs/paths.md).
+
+    Attributes
+    ----------
+    first_path : dict of int -> PathRangeSeries
+        First-path range of tower k (the tower table's order).
+    differences : dict of int -> PathRangeSeries
+        First-path range of tower k minus that of tower 0 (k >= 1).
+    """
+
+    first_path: dict[int, PathRangeSeries] = field(default_factory=dict)
+    differences: dict[int, PathRangeSeries] = field(default_factory=dict)
+
+
+@dataclass
+class Observations:
+    """What a range source gives the fusion for one recording.
+
+    Attributes
+    ----------
+    ranges : RangeSeries
+        The SI-carrier range.
+    paths : PathRanges or None
+        First-path ranges and tower differences (``docs/paths.md``); None
+        where the source has no path tracker.
+    """
+
+    ranges: RangeSeries
+    paths: PathRanges | None = None
 
 
 @dataclass
