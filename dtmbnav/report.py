@@ -1,4 +1,4 @@
-"""Report folder: trajectory map, range vs truth, error CDF and a summary table.
+"""Report folder: trajectory map, every range channel vs truth, error CDF and a summary table.
 
 Reads a results file (``/receiver/frames``, ``/pdr``, ``/fusion/<filter>``)
 and, when available, the truth (``/truth``) of the same walk. Figures are PNG
@@ -123,25 +123,84 @@ def plot_trajectories(path: Path, truth: Track | None, estimates: dict[str, Trac
     plt.close(fig)
 
 
-def plot_range(path: Path, frames: dict[str, np.ndarray], time_offset_s: float, truth_frames: dict | None):
-    fig, (ax, ax_err) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-    t = frames["t_s"] + time_offset_s
-    ax.plot(t, frames["range_change_m"], lw=1, label="receiver (eq. 11)")
-    if truth_frames is not None:
-        t_true = truth_frames["t_s"] + time_offset_s
-        true_change = truth_frames["range_m"] - truth_frames["range_m"][0]
-        ax.plot(t_true, true_change, "k--", lw=1, label="truth")
-        ok = np.isfinite(frames["range_change_m"])
-        err = frames["range_change_m"][ok] - np.interp(t[ok], t_true, true_change)
-        ax_err.plot(t[ok], err, lw=0.8)
-    ax.set_ylabel("range change (m)")
-    ax.legend()
-    ax.grid(alpha=0.3)
-    ax_err.set_ylabel("error (m)")
-    ax_err.set_xlabel("time (s)")
-    ax_err.grid(alpha=0.3)
+#: The range channels of ``/receiver/frames`` the fusion takes, with their plot titles: the SI carriers' range,
+#: tower 0's first path, and the clock-free differences of towers 1 and 2 to tower 0 (docs/paths.md).
+RANGE_CHANNELS = (("range_change_m", "SI carriers (eq. 11)", None),
+                  ("first_path_range_change_m", "first path, tower 0", (0, None)),
+                  ("range_difference_change_1_m", "tower 1 - tower 0 (clock-free)", (1, 0)),
+                  ("range_difference_change_2_m", "tower 2 - tower 0 (clock-free)", (2, 0)))
+
+
+def direct_path_ranges(truth_paths: dict[str, np.ndarray] | None) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Per tower, the times (s) and length (m) of its direct path in ``/truth/paths`` (empty without it)."""
+    if truth_paths is None:
+        return {}
+    direct = truth_paths["kind"] == 0
+    return {int(k): (truth_paths["t_s"][direct & (truth_paths["tower_id"] == k)],
+                     truth_paths["range_m"][direct & (truth_paths["tower_id"] == k)])
+            for k in np.unique(truth_paths["tower_id"][direct])}
+
+
+def true_channel_m(channel: tuple[int, int | None] | None, t_s: np.ndarray, truth_frames: dict[str, np.ndarray],
+                   direct: dict[int, tuple[np.ndarray, np.ndarray]]) -> np.ndarray | None:
+    """The truth of one range channel at ``t_s`` (capture clock): tower 0's range for the SI carriers, a
+    tower's direct path, or the difference of two towers' direct paths; None where the truth lacks it."""
+    def direct_range(k: int) -> np.ndarray | None:
+        if k in direct:
+            return np.interp(t_s, *direct[k])
+        return np.interp(t_s, truth_frames["t_s"], truth_frames["range_m"]) if k == 0 else None
+
+    if channel is None:
+        return np.interp(t_s, truth_frames["t_s"], truth_frames["range_m"])
+    tower, minus = channel
+    value = direct_range(tower)
+    if value is None or minus is None:
+        return value
+    other = direct_range(minus)
+    return None if other is None else value - other
+
+
+def plot_ranges(path: Path, frames: dict[str, np.ndarray], time_offset_s: float, truth_frames: dict | None,
+                truth_paths: dict[str, np.ndarray] | None = None) -> None:
+    """Every range channel of the receiver file, and with truth its error, one row per channel.
+
+    Each channel is a change since its first measured frame, so the truth is
+    drawn as the change of the true range since that frame.
+    """
+    channels = [(column, title, channel) for column, title, channel in RANGE_CHANNELS
+                if column in frames and np.isfinite(frames[column]).any()]
+    direct = direct_path_ranges(truth_paths)
+    fig, axes = plt.subplots(len(channels), 2, figsize=(11, 2.6 * len(channels) + 0.6), sharex=True, squeeze=False)
+    t_rx = frames["t_s"]
+    for (column, title, channel), (ax, ax_err) in zip(channels, axes):
+        measured = frames[column]
+        ok = np.isfinite(measured)
+        ax.plot(t_rx[ok] + time_offset_s, measured[ok], ".", ms=1.5, label="receiver")
+        truth = None if truth_frames is None else true_channel_m(channel, t_rx, truth_frames, direct)
+        if truth is not None:
+            first = np.argmax(ok)
+            change = truth - truth[first]
+            ax.plot(t_rx + time_offset_s, change, "k--", lw=1, label="truth")
+            ax_err.plot(t_rx[ok] + time_offset_s, measured[ok] - change[ok], ".", ms=1.5)
+        ax.set_ylabel("change (m)")
+        ax.set_title(title, fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="best")
+        ax_err.set_ylabel("error (m)")
+        ax_err.set_title(f"{title}: receiver - truth", fontsize=9)
+        ax_err.grid(alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("time (s)")
+    fig.tight_layout()
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
+
+
+def _truth_paths(truth_path: str | os.PathLike) -> dict[str, np.ndarray] | None:
+    """``/truth/paths`` of a truth file (None in a file written before it existed)."""
+    with h5py.File(truth_path, "r") as f:
+        present = schema.TRUTH_PATHS in f
+    return read_columns(truth_path, schema.TRUTH_PATHS) if present else None
 
 
 def plot_cdf(path: Path, errors: dict[str, np.ndarray]):
@@ -170,7 +229,7 @@ def write_report(results_path: str | os.PathLike, out_dir: str | os.PathLike,
     out.mkdir(parents=True, exist_ok=True)
     tracks, pdr, heading, start_fix_xy = load_results(results_path)
     frames = read_columns(results_path, schema.RECEIVER_FRAMES)
-    truth = truth_frames = None
+    truth = truth_frames = truth_paths = None
     tower = None
     offset = 0.0
     estimates = {PDR_AT_FIX: place_pdr(pdr, *start_fix_xy, heading), **tracks}
@@ -178,13 +237,14 @@ def write_report(results_path: str | os.PathLike, out_dir: str | os.PathLike,
         walk_truth = read_walk_truth(truth_path)
         truth = walk_truth.track
         truth_frames = read_columns(truth_path, schema.TRUTH_FRAMES)
+        truth_paths = _truth_paths(truth_path)
         offset = float(read_attrs(truth_path, schema.TRUTH_FRAMES).get(schema.CAPTURE_START_ATTR, 0.0))
         tower = read_tower(truth_path)[:2]
         baselines, true_heading = pdr_baselines(pdr, truth, walk_truth.walk_start_t_s, start_fix_xy, heading)
         estimates = {**baselines, **tracks}
         heading_error_deg = float(np.rad2deg(heading_error_rad(heading, true_heading)))
     plot_trajectories(out / "trajectory.png", truth, estimates, tower)
-    plot_range(out / "range.png", frames, offset, truth_frames)
+    plot_ranges(out / "range.png", frames, offset, truth_frames, truth_paths)
     summary: dict = {"results": str(results_path), "initial_heading_deg": float(np.rad2deg(heading))}
     if truth is not None:
         errors = {name: position_errors_m(track, truth) for name, track in estimates.items()}
@@ -233,7 +293,8 @@ def write_receiver_report(receiver_path: str | os.PathLike, out_dir: str | os.Pa
     frames = read_columns(receiver_path, schema.RECEIVER_FRAMES)
     attrs = read_attrs(receiver_path, schema.RECEIVER_FRAMES)
     truth_frames = read_columns(truth_path, schema.TRUTH_FRAMES) if truth_path is not None else None
-    plot_range(out / "range.png", frames, 0.0, truth_frames)
+    truth_paths = _truth_paths(truth_path) if truth_path is not None else None
+    plot_ranges(out / "range.png", frames, 0.0, truth_frames, truth_paths)
     lines = ["# dtmbnav receiver report", "", f"Capture results: `{receiver_path}`", "",
              f"- header mode {attrs.get('pn_mode')}, SI word {attrs.get('si_index')}, "
              f"f_s = {float(attrs.get('clock_offset_hz', np.nan)):.2f} Hz, {len(frames['t_s'])} frames"]

@@ -1,0 +1,110 @@
+"""The generated results file and the report's range channels.
+
+``dtmbnav results`` must print every table from its walks and keep a file
+that a rerun reproduces; the report must draw each range channel the fusion
+takes against the right truth (a tower difference against the difference of
+the two towers' direct paths, not against tower 0's range).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dtmbnav import results
+from dtmbnav.evaluate import EvaluationRow
+from dtmbnav.report import RANGE_CHANNELS, direct_path_ranges, plot_ranges, true_channel_m
+
+
+def _rows(scenario: str, level: str, pf_95: float, seeds: int = 2) -> list[EvaluationRow]:
+    common = dict(scenario=scenario, seeds=seeds, p68_m=1.0, max_m=9.0, heading_error_median_deg=0.25,
+                  first_seed=200, level=level)
+    return [EvaluationRow(filter="pdr", p95_m=5.0, reduction_95=None, reduction_95_vs_fix=None, **common),
+            EvaluationRow(filter="pdr@fix", p95_m=4.0, reduction_95=None, reduction_95_vs_fix=None, **common),
+            EvaluationRow(filter="pf", p95_m=pf_95, reduction_95=1 - pf_95 / 5.0, reduction_95_vs_fix=1 - pf_95 / 4.0,
+                          worst_vs_fix=0.10, paper_reduction_95=0.41, **common),
+            EvaluationRow(filter="ukf", p95_m=3.0, reduction_95=0.4, reduction_95_vs_fix=0.25, worst_vs_fix=0.0,
+                          **common)]
+
+
+def _walks(scenario: str, pf: tuple[float, ...]) -> list[dict[str, object]]:
+    return [{"scenario": scenario, "k": k, "seed": 1000 + k, "first_seed": 200, "heading_error_deg": -0.5,
+             "p95_m": {"pdr": 5.0, "pdr@fix": 4.0, "pf": value, "ukf": 3.0}} for k, value in enumerate(pf)]
+
+
+def test_the_fusion_table_counts_the_walks_a_filter_made_worse():
+    table, headline = results.fusion_table(_rows("park-loop-cw", "obs", 2.5), _walks("park-loop-cw", (2.0, 4.3)))
+    lines = table.splitlines()
+    assert len(lines) == 3 and lines[1].count("|") == lines[0].count("|") == lines[2].count("|")
+    assert "2.50 m (50.0 % / 37.5 %)" in lines[2] and "+10.0 %" in lines[2] and "| 41 % |" in lines[2]
+    # Walk 1's PF (4.3 m) is more than 5 % worse than its PDR@fix (4.0 m); walk 0's is better.
+    assert headline == [{"scenario": "park-loop-cw", "level": "obs", "walks": 2, "pdr": 5.0, "pdr_at_fix": 4.0,
+                         "pf": 2.5, "reduction": 0.5, "reduction_at_fix": 0.375, "worst": 0.10, "walks_worse": 1,
+                         "paper": 0.41}]
+
+
+def test_a_section_run_alone_keeps_the_others_and_fills_the_readme(tmp_path):
+    def section(name: str, pf_95: float) -> str:
+        level = "iq" if name == "fusion-iq" else "obs"
+        table, headline = results.fusion_table(_rows("park-loop-cw", level, pf_95), _walks("park-loop-cw", (2.0,)))
+        return results.render_section(results.Section(name, name, f"--sections {name}", table + "\n", 61.0,
+                                                      headline), "abc", "2026-01-01", "a machine")
+
+    both = results.merge_sections("", {"fusion-obs": section("fusion-obs", 2.5),
+                                       "fusion-iq": section("fusion-iq", 3.5)})
+    # The file's order is SECTIONS', whatever order they were run in; a rerun of one section replaces it alone.
+    assert both.index("section: fusion-iq") < both.index("section: fusion-obs")
+    again = results.merge_sections(both, {"fusion-obs": section("fusion-obs", 2.0)})
+    assert again.count("section: fusion-obs") == 1 and "3.50 m" in again and "2.00 m" in again
+    assert "2.50 m" not in again
+    assert results.merge_sections(again, {}) == again
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{results.HEADLINE_BEGIN}\nold\n{results.HEADLINE_END}\noutro\n")
+    results.update_readme(readme, again)
+    text = readme.read_text()
+    assert "old" not in text and text.startswith("intro\n") and text.endswith(f"{results.HEADLINE_END}\noutro\n")
+    iq_line, obs_line = [line for line in text.splitlines() if line.startswith("| park-loop-cw")]
+    assert "| iq |" in iq_line and "3.50 m" in iq_line and "| obs |" in obs_line and "2.00 m" in obs_line
+
+
+def test_a_readme_without_the_markers_is_refused(tmp_path):
+    readme = tmp_path / "README.md"
+    readme.write_text("no block here\n")
+    with pytest.raises(ValueError, match="headline"):
+        results.update_readme(readme, "")
+
+
+def test_an_unknown_section_is_refused_before_any_work(tmp_path):
+    with pytest.raises(ValueError, match="unknown section"):
+        results.write_results(tmp_path / "r.md", ["fusion-everything"], results.ResultsConfig())
+    assert not (tmp_path / "r.md").exists()
+
+
+def _two_tower_truth(t_s: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Tower 0's direct path shortens at 1 m/s, tower 1's lengthens at 0.5 m/s; a wall reflection of tower 0
+    that the difference must not use."""
+    r0, r1, wall = 3000.0 - t_s, 5000.0 + 0.5 * t_s, 3050.0 + 2.0 * t_s
+    n = len(t_s)
+    paths = {"t_s": np.concatenate([t_s, t_s, t_s]), "tower_id": np.repeat([0, 1, 0], n).astype(np.int16),
+             "kind": np.repeat([0, 0, 3], n).astype(np.int8), "range_m": np.concatenate([r0, r1, wall])}
+    frames = {"t_s": t_s, "range_m": r0}
+    return frames, paths
+
+
+def test_each_range_channel_is_drawn_against_its_own_truth(tmp_path):
+    t = np.linspace(0.0, 10.0, 101)
+    truth_frames, truth_paths = _two_tower_truth(t)
+    direct = direct_path_ranges(truth_paths)
+    np.testing.assert_allclose(true_channel_m(None, t, truth_frames, direct), 3000.0 - t)
+    np.testing.assert_allclose(true_channel_m((0, None), t, truth_frames, direct), 3000.0 - t)
+    np.testing.assert_allclose(true_channel_m((1, 0), t, truth_frames, direct), 2000.0 + 1.5 * t)
+    assert true_channel_m((2, 0), t, truth_frames, direct) is None
+    # Without /truth/paths (files written before it), tower 0 comes from /truth/frames and no difference is known.
+    np.testing.assert_allclose(true_channel_m((0, None), t, truth_frames, {}), 3000.0 - t)
+    assert true_channel_m((1, 0), t, truth_frames, {}) is None
+    frames = {"t_s": t, "range_change_m": -t, "first_path_range_change_m": np.where(t > 1.0, -(t - 1.0), np.nan),
+              "range_difference_change_1_m": 1.5 * t, "range_difference_change_2_m": np.full(len(t), np.nan)}
+    plot_ranges(tmp_path / "range.png", frames, 0.0, truth_frames, truth_paths)
+    assert (tmp_path / "range.png").stat().st_size > 10_000
+    assert [c for c, _, _ in RANGE_CHANNELS] == ["range_change_m", "first_path_range_change_m",
+                                                 "range_difference_change_1_m", "range_difference_change_2_m"]
