@@ -27,6 +27,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from dtmbnav.distributed import IN_PROCESS, ClusterConfig
 from dtmbnav.seeds import REPORTING_SEEDS
 
@@ -220,6 +222,58 @@ def pdr_section(config: ResultsConfig) -> Section:
                    f"```text\n{table}\n```\n", time.perf_counter() - start)
 
 
+def _m(value: float, spec: str = ".3f") -> str:
+    return "-" if not np.isfinite(value) else f"{format(value, spec)} m"
+
+
+def receiver_section(config: ResultsConfig) -> Section:
+    """The receiver against the simulator's truth: 60 s of walking after each scenario's standstill, C/N 15 dB,
+    and the narrowband rates (:mod:`dtmbnav.accuracy`)."""
+    from dtmbnav.accuracy import NARROWBAND_WALK_S, SHORT_WALK_S, narrowband_cases, short_cases
+
+    start = time.perf_counter()
+    lines = ["| case | radial velocity RMSE, 1 s means | SI-carrier range error 95 % / max | f_s error "
+             "| first path 95 % / max | tower difference 95 % / max |", "|---" * 6 + "|"]
+    for label, acc, paths in short_cases():
+        difference = (f"{_m(paths.difference_error_p95_m)} / {_m(paths.difference_error_max_m)}"
+                      if np.isfinite(paths.difference_error_p95_m) else "(one tower)")
+        lines.append(f"| {label} | {acc.velocity_rmse_1s_mps:.3f} m/s | {_m(acc.range_error_p95_m)} / "
+                     f"{_m(acc.range_error_max_m)} | {acc.clock_offset_error_hz:+.3f} Hz | "
+                     f"{_m(paths.first_path_error_p95_m)} / {_m(paths.first_path_error_max_m)} | {difference} |")
+    narrow = ["| rate | radial velocity RMSE, 1 s means | SI-carrier range error 95 % / max | f_s error |",
+              "|---" * 4 + "|"]
+    for rate, acc in narrowband_cases():
+        narrow.append(f"| {rate / 1e6:g} Msps | {acc.velocity_rmse_1s_mps:.3f} m/s | {_m(acc.range_error_p95_m)} / "
+                      f"{_m(acc.range_error_max_m)} | {acc.clock_offset_error_hz:+.3f} Hz |")
+    body = (f"Each scenario file's walk and seed, C/N 15 dB, {SHORT_WALK_S:g} s of walking after its standstill; "
+            "range errors of the change since the first frame, the first path against the first tower's direct "
+            "path (`python -m dtmbnav.accuracy` prints the same cases).\n\n" + "\n".join(lines) +
+            f"\n\nNarrowband (an RTL-SDR's rates): park-loop-cw, GNSS-disciplined clock, {NARROWBAND_WALK_S:g} s of "
+            "walking (`python -m dtmbnav.accuracy --narrowband`).\n\n" + "\n".join(narrow) + "\n")
+    return Section("receiver", "Receiver against truth", "--sections receiver", body, time.perf_counter() - start)
+
+
+def paths_section(config: ResultsConfig) -> Section:
+    """The path tracker over whole walks (:func:`dtmbnav.accuracy.walk_case`)."""
+    from dtmbnav.accuracy import WALK_CASES, walk_case
+    from dtmbnav.evaluate import receiver_clock_model
+
+    start = time.perf_counter()
+    lines = ["| walk (clock) | seconds scored | first path 95 % / max | SI carriers 95 % | first path found "
+             "| tower difference 95 % / max (clock-free) |", "|---" * 6 + "|"]
+    for name in WALK_CASES:
+        scn, acc = walk_case(name)
+        difference = (f"{_m(acc.difference_error_p95_m)} / {_m(acc.difference_error_max_m)}"
+                      if np.isfinite(acc.difference_error_p95_m) else "(one tower)")
+        lines.append(f"| {name} ({receiver_clock_model(scn)}) | {acc.seconds:.0f} s | {_m(acc.first_path_error_p95_m)} "
+                     f"/ {_m(acc.first_path_error_max_m)} | {_m(acc.si_error_p95_m)} | "
+                     f"{100 * acc.first_path_share:.1f} % | {difference} |")
+    body = ("Each scenario file's whole walk and seed, C/N 15 dB, ci8 at 7.56 Msps; range changes scored from the end "
+            "of the standstill against the first tower's direct path (`python -m dtmbnav.accuracy --walk NAME` "
+            "prints one walk).\n\n" + "\n".join(lines) + "\n")
+    return Section("paths", "Path tracker over whole walks", "--sections paths", body, time.perf_counter() - start)
+
+
 def bench_section(config: ResultsConfig) -> Section:
     """Throughput of every kernel next to its numpy reference (``dtmbnav bench``); every figure is a timing."""
     import contextlib
@@ -245,12 +299,14 @@ def _sections(config: ResultsConfig) -> dict[str, Callable[[], Section]]:
         "fusion-exact": lambda: fusion_section("fusion-exact", "Fusion with the exact range (the filters' bound)",
                                                EXACT_SCENARIOS, "exact", config.obs_seeds, config, per_walk=False),
         "pdr": lambda: pdr_section(config),
+        "receiver": lambda: receiver_section(config),
+        "paths": lambda: paths_section(config),
         "bench": lambda: bench_section(config),
     }
 
 
 #: Every section, in the file's order.
-SECTIONS = ("fusion-iq", "fusion-obs", "fusion-exact", "pdr", "bench")
+SECTIONS = ("fusion-iq", "fusion-obs", "fusion-exact", "receiver", "paths", "pdr", "bench")
 
 
 def render_section(section: Section, commit: str, date: str, machine: str) -> str:

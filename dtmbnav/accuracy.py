@@ -1,4 +1,4 @@
-"""End-to-end accuracy of the receiver on simulated captures (tests and a report script).
+"""End-to-end accuracy of the receiver on simulated captures (tests, ``dtmbnav results`` and a script).
 
 :func:`run_capture` simulates a scenario segment with :class:`sim.rf.CaptureGenerator`
 (quantised to the requested format and decoded back, as a file would be),
@@ -10,8 +10,7 @@ the first path's range change against the first tower's direct path, and the
 clock-free range difference of two towers against theirs, from the per-path
 truth (``/truth/paths``).
 
-Run ``python tests/receiver_accuracy.py`` (from the repository root) to print
-the 60 s figures of the brief: park-loop with the GNSS-disciplined and the
+Run ``python -m dtmbnav.accuracy`` to print the 60 s figures: park-loop with the GNSS-disciplined and the
 free-running clock, and street, SI carriers and first path. ``--walk NAME``
 scores a whole walk (or ``--start``/``--seconds`` a segment of it), simulated
 in the process; ``--capture DIR`` scores a capture that ``dtmbnav simulate``
@@ -25,29 +24,27 @@ on which the first path's f_s is measured. ``--narrowband`` prints the narrowban
 from __future__ import annotations
 
 import argparse
-import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from dtmbnav_core import schema  # noqa: E402
-from dtmbnav_core.h5io import read_columns  # noqa: E402
-from dtmbnav_core.iqformat import decode  # noqa: E402
-from dtmbnav_core.records import FrameBatch, FrameFlag  # noqa: E402
-from receiver.delay_doppler import CHECK_FRAMES, DopplerConfig  # noqa: E402
-from receiver.capture import open_capture  # noqa: E402
-from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH  # noqa: E402
-from receiver.pipeline import Receiver, ReceiverConfig, receive_stream  # noqa: E402
-from dtmbnav.evaluate import seed_scenario  # noqa: E402
-from sim.channel import DIRECT  # noqa: E402
-from sim.path_truth import PathTruth, path_truth  # noqa: E402
-from sim.rf import CaptureGenerator, FrameTruth  # noqa: E402
-from sim.scenario import Scenario, load_scenario, scenario_from_dict  # noqa: E402
-from sim.walk import simulate_walk  # noqa: E402
+from dtmbnav_core import schema
+from dtmbnav_core.h5io import read_columns
+from dtmbnav_core.iqformat import decode
+from dtmbnav_core.records import FrameBatch, FrameFlag
+from receiver.delay_doppler import CHECK_FRAMES, DopplerConfig
+from receiver.capture import open_capture
+from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH
+from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
+from dtmbnav.evaluate import seed_scenario
+from sim.channel import DIRECT
+from sim.path_truth import PathTruth, path_truth
+from sim.rf import CaptureGenerator, FrameTruth
+from sim.scenario import Scenario, load_scenario, scenario_from_dict
+from sim.walk import simulate_walk
 
 
 @dataclass
@@ -275,6 +272,44 @@ def report(run: CaptureRun, label: str, t_from_s: float, t_to_s: float) -> None:
           "time incl. simulation wait", flush=True)
 
 
+#: The 60 s cases of :func:`short_cases`: scenario, receiver overrides and label.
+SHORT_CASES = (("park-loop-cw", {}, "park-loop, GNSS-disciplined clock"),
+               ("park-loop-cw", {"clock": {"preset": "free-running"}}, "park-loop, free-running clock"),
+               ("street-out", {}, "street (out), GNSS-disciplined clock"),
+               ("sfn-park", {}, "sfn-park, free-running clock"))
+#: Seconds of walking the 60 s cases score, after the scenario's standstill.
+SHORT_WALK_S = 60.0
+#: Whole walks of :func:`walk_cases` (the scenario files' own walk and seed).
+WALK_CASES = ("park-loop-cw", "sfn-park", "street-out", "street-back")
+
+
+def short_cases() -> Iterator[tuple[str, Accuracy, PathAccuracy]]:
+    """Each 60 s case (:data:`SHORT_CASES`): its label, SI-carrier and path scores over the walking minute."""
+    for name, overrides, label in SHORT_CASES:
+        scn = load_scenario(name)
+        still = scn.walk.start_still_s
+        run = run_capture(scn, start_s=0.0, seconds=still + SHORT_WALK_S, config=segment_config(scn, 0.0),
+                          **overrides)
+        yield label, accuracy(run, still, still + SHORT_WALK_S), path_accuracy(run, still, still + SHORT_WALK_S)
+
+
+def narrowband_cases() -> Iterator[tuple[float, Accuracy]]:
+    """park-loop recorded at each narrowband rate (:data:`NARROWBAND_RATES_HZ`), Hz, and its scores."""
+    for rate in NARROWBAND_RATES_HZ:
+        scn = load_scenario("park-loop-cw")
+        still = scn.walk.start_still_s
+        run = run_capture(scn, start_s=0.0, seconds=still + NARROWBAND_WALK_S, config=segment_config(scn, 0.0),
+                          sample_rate_hz=rate)
+        yield rate, accuracy(run, still, still + NARROWBAND_WALK_S)
+
+
+def walk_case(name: str) -> tuple[Scenario, PathAccuracy]:
+    """A scenario file's whole walk through the receiver, path figures scored from the end of its standstill."""
+    scn = load_scenario(name)
+    run = run_capture(scn, start_s=0.0, seconds=None, config=segment_config(scn, 0.0))
+    return scn, path_accuracy(run, scn.walk.start_still_s, float(run.frames.t_s[-1]) + 1e-9)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Print the brief's 60 s figures, or a whole walk's (module docstring)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -291,13 +326,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="with --walk: the walk dtmbnav evaluate runs as Monte Carlo index K (its seed and layout)")
     args = parser.parse_args(argv)
     if args.narrowband:
-        for rate in NARROWBAND_RATES_HZ:
-            scn = load_scenario("park-loop-cw")
-            still = scn.walk.start_still_s
-            run = run_capture(scn, start_s=0.0, seconds=still + NARROWBAND_WALK_S, config=segment_config(scn, 0.0),
-                              sample_rate_hz=rate)
-            print(f"park-loop at {rate / 1e6:g} Msps, GNSS-disciplined clock: "
-                  f"{accuracy(run, still, still + NARROWBAND_WALK_S)}", flush=True)
+        for rate, acc in narrowband_cases():
+            print(f"park-loop at {rate / 1e6:g} Msps, GNSS-disciplined clock: {acc}", flush=True)
         return
     if args.capture is not None:
         run = run_simulated_capture(args.capture)
@@ -325,16 +355,9 @@ def main(argv: list[str] | None = None) -> None:
         print(f"first-path f_s {run.receiver.first_path_ranging.clock_offset_hz:+.4f} Hz, measured on the "
               f"{args.clock_path} path (true {true_clock_offset_hz(run):+.4f} Hz)", flush=True)
         return
-    cases = [("park-loop-cw", {}, "park-loop, GNSS-disciplined clock"),
-             ("park-loop-cw", {"clock": {"preset": "free-running"}}, "park-loop, free-running clock"),
-             ("street-out", {}, "street (out), GNSS-disciplined clock"),
-             ("sfn-park", {}, "sfn-park, free-running clock")]
-    for name, overrides, label in cases:
-        scn = load_scenario(name)
-        still = scn.walk.start_still_s
-        run = run_capture(scn, start_s=0.0, seconds=still + 60.0, config=segment_config(scn, 0.0), **overrides)
-        report(run, label, still, still + 60.0)
-
+    for label, acc, paths in short_cases():
+        print(f"{label}: {acc}", flush=True)
+        print(f"{label}: {paths}", flush=True)
 
 if __name__ == "__main__":
     main()
