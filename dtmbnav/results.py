@@ -18,6 +18,7 @@ and is rewritten from the fusion sections when ``--readme`` names it.
 from __future__ import annotations
 
 import datetime as dt
+import json
 import os
 import platform
 import re
@@ -147,31 +148,34 @@ def fusion_table(rows: Sequence, walks: Sequence[dict[str, object]]) -> tuple[st
         by_scenario.setdefault(r.scenario, {})[r.filter] = r
     kalman_titles = [title for name, title in KALMAN_COLUMNS]
     lines = ["| walk (clock) | walks | PDR | PDR@fix | PF (vs PDR / vs PDR@fix) | " + " | ".join(kalman_titles)
-             + " | PF worst@fix | heading error (median) | paper PF reduction |",
-             "|---" * (8 + len(kalman_titles)) + "|"]
+             + " | PF worst@fix | walks > 5 % worse than PDR@fix (PF, " + ", ".join(kalman_titles)
+             + ") | heading error (median) | paper PF reduction |",
+             "|---" * (9 + len(kalman_titles)) + "|"]
     headline = []
     for scenario, named in by_scenario.items():
         pdr, at_fix, pf = named["pdr"], named["pdr@fix"], named.get("pf")
         kalman = [_fmt(named[name].p95_m, ".2f", " m") if name in named else "-" for name, _ in KALMAN_COLUMNS]
+        mine = [w for w in walks if w["scenario"] == scenario]
+        worse = {name: sum(w["p95_m"][name] > 1.05 * w["p95_m"]["pdr@fix"] for w in mine)
+                 for name in ("pf", *(name for name, _ in KALMAN_COLUMNS)) if name in named}
         pf_text = (f"{pf.p95_m:.2f} m ({_pct(pf.reduction_95)} / {_pct(pf.reduction_95_vs_fix)})" if pf else "-")
         lines.append(f"| {scenario} ({_clock_of(scenario)}) | {pdr.seeds} | {pdr.p95_m:.2f} m | {at_fix.p95_m:.2f} m "
                      f"| {pf_text} | " + " | ".join(kalman) +
-                     f" | {_pct(pf.worst_vs_fix, '+.1f') if pf else '-'} | {pdr.heading_error_median_deg:.2f} deg "
+                     f" | {_pct(pf.worst_vs_fix, '+.1f') if pf else '-'} | {' / '.join(map(str, worse.values()))} "
+                     f"| {pdr.heading_error_median_deg:.2f} deg "
                      f"| {_pct(pf.paper_reduction_95, '.0f') if pf else '-'} |")
-        worse = [w for w in walks if w["scenario"] == scenario and pf is not None
-                 and w["p95_m"]["pf"] > 1.05 * w["p95_m"]["pdr@fix"]]
         headline.append({"scenario": scenario, "level": pdr.level, "walks": pdr.seeds, "pdr": pdr.p95_m,
                          "pdr_at_fix": at_fix.p95_m, "pf": pf.p95_m if pf else None,
                          "reduction": pf.reduction_95 if pf else None,
                          "reduction_at_fix": pf.reduction_95_vs_fix if pf else None,
-                         "worst": pf.worst_vs_fix if pf else None, "walks_worse": len(worse),
+                         "worst": pf.worst_vs_fix if pf else None, "walks_worse": worse.get("pf", 0),
                          "paper": pf.paper_reduction_95 if pf else None})
     return "\n".join(lines), headline
 
 
 def per_walk_table(walks: Sequence[dict[str, object]], filters: Sequence[str] = ("pf", "ukf")) -> str:
     """Markdown table of each walk's 95 % error: the PDR baselines and ``filters``, and eq. 15's heading error."""
-    lines = ["| walk | k | seed | PDR | PDR@fix | " + " | ".join(f.upper() for f in filters) + " | heading error |",
+    lines = ["| walk | index | seed | PDR | PDR@fix | " + " | ".join(f.upper() for f in filters) + " | heading error |",
              "|---" * (6 + len(filters)) + "|"]
     for w in sorted(walks, key=lambda w: (FUSION_SCENARIOS.index(w["scenario"]) if w["scenario"] in FUSION_SCENARIOS
                                           else len(FUSION_SCENARIOS), w["scenario"], w["k"])):
@@ -310,23 +314,22 @@ SECTIONS = ("fusion-iq", "fusion-obs", "fusion-exact", "receiver", "paths", "pdr
 
 
 def render_section(section: Section, commit: str, date: str, machine: str) -> str:
-    """A section with its markers, header line and body."""
+    """A section with its markers, header line and body (and its headline figures as a hidden comment)."""
     minutes = section.wall_s / 60.0
     return (f"<!-- section: {section.name} -->\n## {section.title}\n\n"
             f"Printed by `dtmbnav results {section.options}` at commit `{commit}` on {date}; {machine}; "
             f"wall time {minutes:.1f} min.\n\n{section.body}"
-            + _headline_block(section) + f"<!-- end: {section.name} -->\n")
+            + _headline_block(section, commit, date) + f"<!-- end: {section.name} -->\n")
 
 
-def _headline_block(section: Section) -> str:
+def _headline_block(section: Section, commit: str, date: str) -> str:
     """The section's headline figures as a hidden JSON comment, for the README's table."""
     if not section.headline:
         return ""
-    import json
-
     rounded = [{key: round(value, 4) if isinstance(value, float) else value for key, value in row.items()}
                for row in section.headline]
-    return f"<!-- headline {json.dumps(rounded, sort_keys=True)} -->\n"
+    record = {"section": section.name, "options": section.options, "commit": commit, "date": date, "rows": rounded}
+    return f"<!-- headline {json.dumps(record, sort_keys=True)} -->\n"
 
 
 SECTION_RE = re.compile(r"<!-- section: (?P<name>[\w-]+) -->\n.*?<!-- end: (?P=name) -->\n", re.S)
@@ -342,14 +345,22 @@ def merge_sections(existing: str, rendered: dict[str, str]) -> str:
 
 
 def headline_table(results_text: str) -> str:
-    """The README's headline table from the fusion sections' headline figures in a results file."""
-    import json
+    """The README's headline table from the fusion sections' headline figures in a results file.
 
+    Rows of the IQ and the observation level (the exact level is a bound, not
+    a result), under a line per section naming its command, commit and date.
+    """
     rows: dict[tuple[str, str], dict[str, object]] = {}
+    sources = []
     for match in re.finditer(r"<!-- headline (.*?) -->", results_text):
-        for row in json.loads(match.group(1)):
+        record = json.loads(match.group(1))
+        if record["section"] not in ("fusion-iq", "fusion-obs"):
+            continue
+        sources.append(f"`dtmbnav results {record['options']}` at commit `{record['commit']}` on {record['date']}")
+        for row in record["rows"]:
             rows[(row["scenario"], row["level"])] = row
-    lines = ["| walk | level | walks | PDR | PDR@fix | PF | PF vs PDR / vs PDR@fix | walks > 5 % worse than PDR@fix "
+    lines = ["Printed by " + "; ".join(sources) + " (docs/results.md has every filter, walk and table).", "",
+             "| walk | level | walks | PDR | PDR@fix | PF | PF vs PDR / vs PDR@fix | walks > 5 % worse than PDR@fix "
              "| paper PF reduction |", "|---" * 9 + "|"]
     for level in ("iq", "obs"):
         for scenario in FUSION_SCENARIOS:
