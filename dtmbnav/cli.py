@@ -614,22 +614,17 @@ def _add_cluster_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="use an existing Dask cluster")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="dtmbnav", description="DTMB (GB 20600) Doppler-ranging receiver and PDR fusion for pedestrian "
-                                    "navigation.", epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--version", action=_Version)
-    _add_global_options(parser, False)
-    common = argparse.ArgumentParser(add_help=False)
-    _add_global_options(common, argparse.SUPPRESS)
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+def _command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser, name: str,
+             help_text: str) -> argparse.ArgumentParser:
+    """A subcommand's parser, which takes the global options of ``common`` (``-q``, ``--debug``) too."""
+    p = subparsers.add_parser(name, help=help_text, parents=[common])
+    p.set_defaults(parser=p)  # for usage errors found after parsing (check_usage)
+    return p
 
-    def command(name: str, help_text: str) -> argparse.ArgumentParser:
-        p = sub.add_parser(name, help=help_text, parents=[common])
-        p.set_defaults(parser=p)  # for usage errors found after parsing (check_usage)
-        return p
 
-    p = command("simulate", "scenario -> IQ capture + IMU + GNSS + truth.h5")
+def _add_simulate_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``dtmbnav simulate`` and its options."""
+    p = _command(subparsers, common, "simulate", "scenario -> IQ capture + IMU + GNSS + truth.h5")
     p.add_argument("scenario", type=_scenario,
                    help="park-loop, park-loop-ccw, street, street-back, or a scenario .toml file")
     p.add_argument("-o", "--output", required=True, type=Path, help="output folder")
@@ -648,7 +643,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--jobs", type=_positive_int, default=1, help="threads generating the IQ (same bytes for any N)")
     p.set_defaults(handler=cmd_simulate)
 
-    p = command("receive", "IQ capture -> per-frame CFO, Doppler, range (HDF5)")
+
+def _add_receive_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``dtmbnav receive`` and its options."""
+    p = _command(subparsers, common, "receive", "IQ capture -> per-frame CFO, Doppler, range (HDF5)")
     p.add_argument("capture", help="SigMF .sigmf-meta/.sigmf-data, raw file (+ .json sidecar), or - for stdin")
     p.add_argument("-o", "--output", required=True, type=Path, help="output HDF5 file")
     p.add_argument("--format", choices=IQ_FORMATS, help="sample format of a raw file/stdin")
@@ -673,14 +671,20 @@ def build_parser() -> argparse.ArgumentParser:
     _add_receiver_options(p)
     p.set_defaults(handler=cmd_receive)
 
-    p = command("pdr", "IMU log (/imu of an HDF5 file) -> pedestrian dead reckoning")
+
+def _add_pdr_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``dtmbnav pdr`` and its options."""
+    p = _command(subparsers, common, "pdr", "IMU log (/imu of an HDF5 file) -> pedestrian dead reckoning")
     p.add_argument("sensors", help="HDF5 file with /imu (e.g. truth.h5 from simulate)")
     p.add_argument("-o", "--output", required=True, type=Path, help="output HDF5 file (/pdr)")
     p.add_argument("--csv", metavar="FILE", help="also write the steps as CSV ('-' for stdout)")
     _add_pdr_options(p)
     p.set_defaults(handler=cmd_pdr)
 
-    p = command("fuse", "receiver range + PDR -> corrected trajectory")
+
+def _add_fuse_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``dtmbnav fuse`` and its options."""
+    p = _command(subparsers, common, "fuse", "receiver range + PDR -> corrected trajectory")
     p.add_argument("--receiver", required=True, help="HDF5 file with /receiver/frames")
     p.add_argument("--sensors", required=True, help="HDF5 file with /imu and /gnss (start fix)")
     p.add_argument("-o", "--output", required=True, type=Path, help="output HDF5 file (/pdr, /fusion/<filter>)")
@@ -697,7 +701,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_pdr_options(p)
     p.set_defaults(handler=cmd_fuse)
 
-    p = command("run", "the whole chain (receive, PDR, fuse, report) on capture sets")
+
+def _add_run_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``dtmbnav run`` and its options."""
+    p = _command(subparsers, common, "run", "the whole chain (receive, PDR, fuse, report) on capture sets")
     p.add_argument("directory", nargs="*", type=Path,
                    help="folders, each with one capture and its sensors/truth file (default: captures/); "
                         "several run as Dask tasks")
@@ -708,13 +715,20 @@ def build_parser() -> argparse.ArgumentParser:
     _add_cluster_options(p)
     p.set_defaults(handler=cmd_run)
 
-    p = command("report", "plots and a summary table from a results file")
+
+def _add_report_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``dtmbnav report`` and its options."""
+    p = _command(subparsers, common, "report", "plots and a summary table from a results file")
     p.add_argument("results", help="HDF5 file from run/fuse")
     p.add_argument("-o", "--output", required=True, type=Path, help="report folder")
     p.add_argument("--truth", help="truth.h5 (default: the truth group inside the results file)")
     p.set_defaults(handler=cmd_report)
 
-    p = command("doppler-map", "Doppler lines of the CIR around the first path, from a receive --dump file")
+
+def _add_doppler_map_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``dtmbnav doppler-map`` and its options."""
+    p = _command(subparsers, common, "doppler-map",
+                 "Doppler lines of the CIR around the first path, from a receive --dump file")
     p.add_argument("dump", help="HDF5 file from receive --dump (with the paths stage)")
     p.add_argument("--at", type=_non_negative, required=True, metavar="T", help="centre of the window, capture s")
     p.add_argument("--seconds", type=_positive, default=1.0, help="window length, s (default 1: 1.1 Hz bins)")
@@ -724,7 +738,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--floor", type=float, default=-25.0, help="lines within this many dB of the strongest (-25)")
     p.set_defaults(handler=cmd_doppler_map)
 
-    p = command("evaluate", "Monte Carlo accuracy table of every filter against truth")
+
+def _add_evaluate_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``dtmbnav evaluate`` and its options."""
+    p = _command(subparsers, common, "evaluate", "Monte Carlo accuracy table of every filter against truth")
     p.add_argument("scenarios", nargs="+", help="scenario names/files; 'all', 'park-loop', 'street' = groups")
     p.add_argument("--seeds", type=_positive_int, default=20, help="walks per scenario (default 20)")
     p.add_argument("--filters", type=_filter_list((*FILTER_NAMES, FOOT_INS)), default=FILTER_NAMES,
@@ -751,18 +768,46 @@ def build_parser() -> argparse.ArgumentParser:
     _add_cluster_options(p)
     p.set_defaults(handler=cmd_evaluate)
 
-    p = command("bench", "throughput of every kernel next to its plain-numpy reference")
+
+def _add_bench_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``dtmbnav bench`` and its options."""
+    p = _command(subparsers, common, "bench", "throughput of every kernel next to its plain-numpy reference")
     p.add_argument("--json", metavar="FILE", help="also write the results as JSON ('-' for stdout)")
     p.add_argument("--quick", action="store_true", help="short runs (smoke test)")
     p.set_defaults(handler=cmd_bench)
 
-    p = command("demo", "simulate a walk at IQ level, receive, fuse and write a report")
+
+def _add_demo_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``dtmbnav demo`` and its options."""
+    p = _command(subparsers, common, "demo", "simulate a walk at IQ level, receive, fuse and write a report")
     p.add_argument("-o", "--output", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
     p.add_argument("--scenario", type=_scenario, default="park-loop", help="scenario (default park-loop)")
     p.add_argument("--seconds", type=_positive, help="simulate only this many seconds (default: the whole walk)")
     p.add_argument("--jobs", type=_positive_int, metavar="N",
                    help="threads generating the IQ while the receiver runs (default: one per CPU core)")
     p.set_defaults(handler=cmd_demo)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``dtmbnav`` parser: its global options, then each subcommand's parser, in the order of ``--help``."""
+    parser = argparse.ArgumentParser(
+        prog="dtmbnav", description="DTMB (GB 20600) Doppler-ranging receiver and PDR fusion for pedestrian "
+                                    "navigation.", epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action=_Version)
+    _add_global_options(parser, False)
+    common = argparse.ArgumentParser(add_help=False)
+    _add_global_options(common, argparse.SUPPRESS)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    _add_simulate_command(sub, common)
+    _add_receive_command(sub, common)
+    _add_pdr_command(sub, common)
+    _add_fuse_command(sub, common)
+    _add_run_command(sub, common)
+    _add_report_command(sub, common)
+    _add_doppler_map_command(sub, common)
+    _add_evaluate_command(sub, common)
+    _add_bench_command(sub, common)
+    _add_demo_command(sub, common)
     return parser
 
 

@@ -1,45 +1,14 @@
-"""Path tracking from the PN-header channel estimate: each path's delay and carrier phase (``docs/paths.md``).
+"""Path tracking: the paths' lives, carrier phases, towers and first paths (:mod:`receiver.paths`).
 
-The SI-carrier CFO (eq. 5-8) sees the sum of all paths; in a street it follows
-the strongest reflection. The PN header gives, every frame, the channel
-impulse response (CIR) over the header's cyclic extension
-(:meth:`receiver.channel_estimate.ChannelEstimator.span_taps`: inside it no
-previous body and no header tail reach the correlation window, so nothing
-needs removing); this module separates the paths in it and tracks each one:
+:class:`PathTracker` runs, per batch of frames, the fit
+(:mod:`receiver.paths.fit`) and the detection (:mod:`receiver.paths.detection`)
+and keeps each path's state between batches:
 
-1. **Model.** The CIR of a frame is ``y[l] = sum_i a_i g(l - lambda_i) + noise``:
-   path i has a complex amplitude ``a_i`` (its carrier phase) and a fractional
-   delay ``lambda_i`` (samples after the frame's window start), and ``g`` is the
-   known pulse seen through the header correlation: the SRRC of GB 20600
-   (``docs/dtmb.md`` §1; roll-off 0.05) times the resampler's response, made
-   periodic over the m-sequence period (the correlation is circular).
-   :func:`pulse_tables` builds ``g`` and ``g'`` from that spectrum.
-2. **Fit (SAGE-style least squares).** :func:`fit_paths_kernel`: over runs of
-   frames the delays are held, the amplitudes of every frame are the
-   least-squares fit of the model (so two paths closer than a chip are
-   separated by the pulse shape: super-resolution), and every
-   ``block_frames`` frames one Gauss-Newton step on the delays, with the
-   amplitudes projected out (variable projection), is applied with a gain: a
-   delay-locked loop per path, with a rate per path for the drift of the
-   receiver clock and the walker's motion. A confirmed path's correction is
-   held to ``steady_delay_step`` per block (paths move by hundredths of a chip
-   per second): a spurious neighbour cannot drag a path away.
-3. **Detection.** What the paths' pulses and their delay derivatives leave
-   unexplained (so a slightly mis-delayed strong path leaves nothing behind),
-   as power per lag over a batch of F frames, divided by the noise floor (the
-   lags outside the span), is ``Gamma(F, 1/F)`` distributed where there is
-   only noise; a lag above the threshold with false-alarm probability
-   ``false_alarm`` per lag and batch, above ``relative_floor_db`` of the
-   strongest path and standing out of its surroundings like a pulse
-   (:func:`detect_paths`) is a new path: the strongest such peak per batch,
-   and none next to a path whose delay loop is still settling (that residual
-   is its fitting error). The next batch fits it with the others, so the
-   residual stays exact and a strong path's sidelobes are never taken for
-   paths. A new path is confirmed (reported) once its delay has held still,
-   above ``survival_snr_db``, for ``confirm_batches`` batches; a path below
-   ``survival_snr_db`` for ``lost_batches`` batches, or that drifts closer
-   than ``min_separation`` to an older one, is dropped.
-4. **Carrier phase.** A path's frequency is the phase of its amplitude from
+1. **Lives.** A new path is confirmed (reported) once its delay has held
+   still, above ``survival_snr_db``, for ``confirm_batches`` batches; a path
+   below ``survival_snr_db`` for ``lost_batches`` batches, or that drifts
+   closer than ``min_separation`` to an older one, is dropped.
+2. **Carrier phase.** A path's frequency is the phase of its amplitude from
    one frame to the next (``receiver.cfo.cfo_from_theta``, as the PN CFO
    estimate), and eq. 9-11 integrate it (``receiver.ranging``). A cycle slip
    (:func:`slip_kernel`): frames whose phase step departs from the path's
@@ -49,52 +18,44 @@ needs removing); this module separates the paths in it and tracks each one:
    constant ``frequency_time_s`` is a lasting frequency step, not a burst:
    the reference restarts at the run's mean frequency, so one step is one
    slip rather than a flag that never clears.
-5. **Towers.** Paths within ``tower_gap`` of one another belong to one tower
+3. **Towers.** Paths within ``tower_gap`` of one another belong to one tower
    (the delay spread of a street is a few chips; the towers of a
    single-frequency network are hundreds of metres apart, tens of chips).
    Each tower's earliest confirmed path that has lived ``first_path_batches``
-   batches is its first path, the direct-path candidate; the differences of the towers' first-path phases give
-   clock-free range differences.
-6. **Doppler check** (an option, off by default: ``docs/paths.md``). A first
+   batches is its first path, the direct-path candidate; the differences of
+   the towers' first-path phases give clock-free range differences.
+4. **Doppler check** (an option, off by default: ``docs/paths.md``). A first
    path may still be a pair under a third of a chip whose phase follows the
-   stronger member, a reflection: every
-   ``doppler.hop_frames`` frames :class:`receiver.delay_doppler.FirstPathDoppler`
-   maps the CIR around tower 0's first path in delay and Doppler and moves
-   the first-path frequency to the Doppler line whose super-resolved
-   earliest path comes first (``docs/paths.md``).
+   stronger member, a reflection: every ``doppler.hop_frames`` frames
+   :class:`receiver.delay_doppler.FirstPathDoppler` maps the CIR around tower
+   0's first path in delay and Doppler and moves the first-path frequency to
+   the Doppler line whose super-resolved earliest path comes first.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import numpy as np
 from numba import njit
 
-from dtmbnav_core import gb20600
 from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
 from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ, PnMode
 from dtmbnav_core.records import PathBatch, PathFlag
 from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH
 from receiver.cfo import cfo_from_theta
 from receiver.delay_doppler import DopplerConfig, FirstPathDoppler
+from receiver.paths.detection import detect_paths, detection_threshold
+from receiver.paths.fit import PULSE_OVERSAMPLING, _pulse_tables_cached, fit_paths_kernel
 from receiver.ranging import held_doppler
-from receiver.resample import design_filter
 
-#: Points per chip of the pulse tables (linear interpolation between them).
-PULSE_OVERSAMPLING = 32
-#: Lags (from, to) on either side of a residual peak whose median is its local background (detect_paths).
-RING = (3, 10)
 #: Towers whose clock-free range differences go to ``/receiver/frames`` (towers 1 and 2 against tower 0).
 RANGE_DIFFERENCE_TOWERS = 2
 
 
 @dataclass(frozen=True)
 class PathConfig:
-    """Path-tracker settings (module docstring).
+    """Path-tracker settings (:mod:`receiver.paths` and its modules' docstrings).
 
     Attributes
     ----------
@@ -192,285 +153,13 @@ class PathConfig:
                 m.preamble if self.taps_after is None else self.taps_after)
 
 
-# ---- the pulse model -------------------------------------------------------------------------
-
-def srrc_spectrum(f: np.ndarray, rolloff: float = gb20600.SRRC_ROLLOFF) -> np.ndarray:
-    """Square-root raised-cosine spectrum at ``f`` cycles per chip (1 in the pass band; unit-energy pulse)."""
-    f = np.abs(np.asarray(f, dtype=np.float64))
-    edge = (1.0 - rolloff) / 2.0
-    out = np.where(f <= edge, 1.0, 0.0)
-    slope = (f > edge) & (f <= (1.0 + rolloff) / 2.0)
-    return np.where(slope, np.sqrt(0.5 * (1.0 + np.cos(np.pi / rolloff * (f - edge)))), out)
-
-
-def resampler_response(up: int, down: int) -> Callable[[np.ndarray], np.ndarray] | None:
-    """Zero-phase response of the receiver's resampler (``receiver.resample.design_filter``) at ``f`` cycles per chip.
-
-    None for a 7.56 Msps capture (no resampling). The prototype runs at
-    ``up`` times the input rate, i.e. ``down`` samples per chip.
-    """
-    if up == 1 and down == 1:
-        return None
-    h = design_filter(up, down).astype(np.float64)
-    n = np.arange(len(h)) - (len(h) - 1) // 2
-
-    def response(f: np.ndarray) -> np.ndarray:
-        return np.cos(2.0 * np.pi * np.outer(f, n) / down) @ h / up
-
-    return response
-
-
-def pulse_tables(period: int, oversampling: int = PULSE_OVERSAMPLING,
-                 response: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The CIR of a unit path, ``g(x)``, and ``g'(x)`` over one period, ``oversampling`` points per chip.
-
-    ``g`` is the pulse the header correlation sees (module docstring), made
-    periodic over ``period`` chips: its Fourier series holds the pulse's
-    spectrum at ``k / period`` cycles per chip, including the roll-off beyond
-    half the chip rate, which the 1-sample-per-chip correlation aliases, as
-    sampling the continuous pulse does. Entry ``m`` is ``x = m / oversampling``;
-    one extra entry repeats the first (for interpolation).
-    """
-    reach = int(np.ceil((1.0 + gb20600.SRRC_ROLLOFF) / 2.0 * period))
-    k = np.arange(-reach, reach + 1)
-    f = k / period
-    coef = srrc_spectrum(f) / period
-    if response is not None:
-        coef = coef * response(f)
-    size = period * oversampling
-    spectrum = np.zeros(size, dtype=np.complex128)
-    spectrum[k % size] = coef
-    g = np.real(np.fft.ifft(spectrum)) * size
-    spectrum[k % size] = coef * 2j * np.pi * f
-    dg = np.real(np.fft.ifft(spectrum)) * size
-    return np.append(g, g[0]), np.append(dg, dg[0])
-
-
-@lru_cache(maxsize=8)
-def _pulse_tables_cached(period: int, up: int, down: int) -> tuple[np.ndarray, np.ndarray]:
-    return pulse_tables(period, PULSE_OVERSAMPLING, resampler_response(up, down))
-
-
-# ---- the least-squares fit (numba kernel and its numpy twin) ---------------------------------
-
-@njit(cache=True, fastmath=True)
-def _table_at(table: np.ndarray, x: float, period: int, oversampling: int) -> float:
-    """Periodic table lookup with linear interpolation, ``x`` in chips."""
-    pos = (x % period) * oversampling
-    i0 = int(pos)
-    w = pos - i0
-    return table[i0] * (1.0 - w) + table[i0 + 1] * w
-
-
-@njit(cache=True, fastmath=True)
-def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np.ndarray, rate: np.ndarray,
-                     max_step: np.ndarray, table: np.ndarray, dtable: np.ndarray, oversampling: int,
-                     block_frames: int, gain: float, rate_gain: float, amplitudes: np.ndarray, lags: np.ndarray,
-                     variance: np.ndarray, residual_power: np.ndarray) -> None:
-    """Least-squares path amplitudes and delay-loop updates over a batch (module docstring, step 2).
-
-    The frames are fitted in runs with one window offset (the lags of a
-    path do not move inside a run); the delay loops are updated every
-    ``block_frames`` frames whatever the runs, so their bandwidth per frame
-    does not depend on how often the receiver's timing moves the window.
-
-    Parameters
-    ----------
-    taps : (F, L) complex64
-        Raw CIR of each frame; column j is lag ``lag0 + j``.
-    offsets : (F,) float64
-        Each frame's window start on the path-delay grid: path i sits at lag
-        ``delay_i - offsets[k]``.
-    lag0 : int
-        Lag of column 0 (``-taps_before``).
-    delay, rate : (n,) float64
-        Grid delay of each path at the batch's first frame and its drift per
-        frame, samples; updated in place to the frame after the batch.
-    max_step : (n,) float64
-        Largest delay correction per update of each path, samples.
-    table, dtable : float64
-        :func:`pulse_tables` (period ``(len - 1) / oversampling`` chips).
-    block_frames, gain, rate_gain
-        Frames per update and the loop gains.
-    amplitudes : (F, n) complex128, out
-        Fitted amplitude of each path in each frame.
-    lags : (F, n) float64, out
-        Lag of each path in each frame, samples after the window start.
-    variance : (F, n) float64, out
-        Diagonal of ``(G^T G)^-1``: the amplitude's noise variance in units of the tap noise.
-    residual_power : (L,) float64, in/out
-        Accumulates, per lag, the power of what neither the paths' pulses nor
-        their delay derivatives explain (``y`` minus its projection on
-        ``[G, G']``): a slightly mis-delayed strong path leaves no trace there
-        that detection could take for a path.
-    """
-    n_frames, n_lags = taps.shape
-    n = delay.shape[0]
-    period = (table.shape[0] - 1) // oversampling
-    # Pulses and their derivatives, one contiguous row per path: the per-frame sums run along the lags.
-    both = np.empty((2 * n, n_lags))
-    lam = np.empty(n)
-    hess = np.zeros((n, n))
-    grad = np.zeros(n)
-    y_re = np.empty(n_lags)
-    y_im = np.empty(n_lags)
-    r_re = np.empty(n_lags)
-    r_im = np.empty(n_lags)
-    uv_re = np.empty(2 * n)
-    uv_im = np.empty(2 * n)
-    pending = 0
-    start = 0
-    while start < n_frames:
-        stop = start + 1
-        while stop < n_frames and pending + stop - start < block_frames and offsets[stop] == offsets[start]:
-            stop += 1
-        count = stop - start
-        mid = 0.5 * (count - 1)
-        for i in range(n):
-            lam[i] = delay[i] + rate[i] * mid - offsets[start]
-            for j in range(n_lags):
-                x = lag0 + j - lam[i]
-                both[i, j] = _table_at(table, x, period, oversampling)
-                both[n + i, j] = _table_at(dtable, x, period, oversampling)
-        gram2 = both @ both.T
-        ridge = 1e-6 * np.trace(gram2[:n, :n]) / max(n, 1)
-        for i in range(2 * n):
-            gram2[i, i] += ridge
-        inverse = np.linalg.inv(gram2[:n, :n].copy())
-        cross = gram2[n:, :n].copy()
-        q = gram2[n:, n:] - cross @ inverse @ cross.T
-        for i in range(n):
-            q[i, i] -= ridge
-        inverse2 = np.linalg.inv(gram2)
-        for k in range(start, stop):
-            y = taps[k]
-            for j in range(n_lags):
-                y_re[j] = y[j].real
-                y_im[j] = y[j].imag
-            for i in range(2 * n):
-                row = both[i]
-                acc_re = 0.0
-                acc_im = 0.0
-                for j in range(n_lags):
-                    acc_re += row[j] * y_re[j]
-                    acc_im += row[j] * y_im[j]
-                uv_re[i] = acc_re
-                uv_im[i] = acc_im
-            for j in range(n_lags):
-                r_re[j] = y_re[j]
-                r_im[j] = y_im[j]
-            for i in range(2 * n):
-                c_re = 0.0
-                c_im = 0.0
-                for m in range(2 * n):
-                    c_re += inverse2[i, m] * uv_re[m]
-                    c_im += inverse2[i, m] * uv_im[m]
-                row = both[i]
-                for j in range(n_lags):
-                    r_re[j] -= row[j] * c_re
-                    r_im[j] -= row[j] * c_im
-            for j in range(n_lags):
-                residual_power[j] += r_re[j] * r_re[j] + r_im[j] * r_im[j]
-            for i in range(n):
-                a_re = 0.0
-                a_im = 0.0
-                for m in range(n):
-                    a_re += inverse[i, m] * uv_re[m]
-                    a_im += inverse[i, m] * uv_im[m]
-                amplitudes[k, i] = complex(a_re, a_im)
-                lags[k, i] = lam[i] + rate[i] * (k - start - mid)
-                variance[k, i] = inverse[i, i]
-            for i in range(n):
-                ca = 0j
-                for m in range(n):
-                    ca += cross[i, m] * amplitudes[k, m]
-                a = amplitudes[k, i]
-                # d(model)/d(lambda_i) = -a_i g'_i: gradient term Re(J^H r), r = y - G a orthogonal to G.
-                grad[i] += -(np.conj(a) * (complex(uv_re[n + i], uv_im[n + i]) - ca)).real
-                for m in range(n):
-                    hess[i, m] += q[i, m] * (np.conj(a) * amplitudes[k, m]).real
-        for i in range(n):
-            delay[i] += rate[i] * count
-        pending += count
-        if n > 0 and (pending >= block_frames or stop == n_frames):
-            for i in range(n):
-                hess[i, i] += 1e-9 + 1e-6 * abs(hess[i, i])
-            step = np.linalg.solve(hess, grad)
-            # A partial block (the batch's end) moves the loop in proportion to its frames.
-            weight = gain * pending / block_frames
-            for i in range(n):
-                correction = min(max(step[i], -max_step[i]), max_step[i])
-                delay[i] += weight * correction
-                rate[i] += rate_gain * correction / block_frames
-                for m in range(n):
-                    hess[i, m] = 0.0
-                grad[i] = 0.0
-            pending = 0
-        start = stop
-
-
-def fit_paths_reference(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np.ndarray, rate: np.ndarray,
-                        max_step: np.ndarray, table: np.ndarray, dtable: np.ndarray, oversampling: int,
-                        block_frames: int, gain: float,
-                        rate_gain: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Plain-numpy :func:`fit_paths_kernel` (vectorised over the frames of each run).
-
-    Returns ``amplitudes, lags, variance, residual_power``; ``delay`` and
-    ``rate`` are updated in place.
-    """
-    n_frames, n_lags = taps.shape
-    n = len(delay)
-    period = (len(table) - 1) // oversampling
-    grid = np.arange(len(table) - 1) / oversampling
-    amplitudes = np.zeros((n_frames, n), complex)
-    lags = np.zeros((n_frames, n))
-    variance = np.zeros((n_frames, n))
-    residual_power = np.zeros(n_lags)
-    lag_axis = lag0 + np.arange(n_lags)
-    hess, grad, pending = np.zeros((n, n)), np.zeros(n), 0
-    start = 0
-    while start < n_frames:
-        limit = min(block_frames - pending, n_frames - start)
-        same = np.flatnonzero(offsets[start:start + limit] != offsets[start])
-        stop = start + (same[0] if len(same) else limit)
-        count, mid = stop - start, 0.5 * (stop - start - 1)
-        lam = delay + rate * mid - offsets[start]
-        x = np.mod(lag_axis[:, None] - lam[None, :], period)
-        g = np.interp(x, grid, table[:-1], period=period)
-        dg = np.interp(x, grid, dtable[:-1], period=period)
-        ridge = 1e-6 * np.trace(g.T @ g) / max(n, 1)
-        inverse = np.linalg.inv(g.T @ g + ridge * np.eye(n))
-        cross = dg.T @ g
-        q = dg.T @ dg - cross @ inverse @ cross.T
-        both = np.hstack([g, dg])
-        y = taps[start:stop].astype(np.complex128)
-        a = (y @ g) @ inverse.T
-        c = np.linalg.solve(both.T @ both + ridge * np.eye(2 * n), (y @ both).T).T if n else np.zeros((count, 0))
-        residual_power += np.sum(np.abs(y - c @ both.T) ** 2, axis=0)
-        amplitudes[start:stop] = a
-        lags[start:stop] = lam[None, :] + rate[None, :] * (np.arange(count) - mid)[:, None]
-        variance[start:stop] = np.diag(inverse)[None, :]
-        grad += -np.real(np.conj(a) * (y @ dg - a @ cross.T)).sum(axis=0)
-        hess += q * np.real(np.conj(a).T @ a)
-        delay += rate * count
-        pending += count
-        if n and (pending >= block_frames or stop == n_frames):
-            hess += np.diag(1e-9 + 1e-6 * np.abs(np.diag(hess)))
-            correction = np.clip(np.linalg.solve(hess, grad), -max_step, max_step)
-            delay += gain * pending / block_frames * correction
-            rate += rate_gain * correction / block_frames
-            hess, grad, pending = np.zeros((n, n)), np.zeros(n), 0
-        start = stop
-    return amplitudes, lags, variance, residual_power
-
-
 # ---- cycle slips ---------------------------------------------------------------------------
 
 @njit(cache=True)
 def slip_kernel(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarray, smooth_hz: float,
                 run_cycles: float, run_s: float, alpha: float, sigmas: float, min_cycles: float,
                 bridged: np.ndarray, slips: np.ndarray) -> tuple[float, float, float]:
-    """Bridge and flag phase-step outliers of one path over a batch (module docstring, step 4).
+    """Bridge and flag phase-step outliers of one path over a batch (module docstring, step 2).
 
     Parameters
     ----------
@@ -571,107 +260,6 @@ def slip_reference(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarra
             bridged[k] = f
             smooth_hz += min(alpha * dt_s[k], 1.0) * (f - smooth_hz)
     return bridged, slips, smooth_hz, run_cycles, run_s
-
-
-# ---- detection -----------------------------------------------------------------------------
-
-def erlang_log_survival(x: float, shape: int) -> float:
-    """log P(X > x) for X the sum of ``shape`` independent unit-mean exponential variables.
-
-    For a whole-number shape the survival function of the Gamma (Erlang)
-    distribution is the finite sum ``exp(-x) * sum_{k < shape} x**k / k!``,
-    evaluated here in the log domain.
-    """
-    if x <= 0.0:
-        return 0.0
-    k = np.arange(shape)
-    log_terms = k * math.log(x) - x - np.array([math.lgamma(i + 1.0) for i in range(shape)])
-    peak = log_terms.max()
-    return float(peak + math.log(np.exp(log_terms - peak).sum()))
-
-
-@lru_cache(maxsize=64)
-def detection_threshold(frames: int, false_alarm: float) -> float:
-    """Residual power over the noise floor that noise alone exceeds with probability ``false_alarm``.
-
-    The mean of ``frames`` exponential variables (the power of a complex
-    Gaussian tap, unit mean) is ``Gamma(frames, 1 / frames)``; its inverse
-    survival function is found by bisection on :func:`erlang_log_survival`.
-    Written out rather than taken from ``scipy.stats.gamma.isf``, which gives
-    the same value but whose import costs ~1.2 s of every ``dtmbnav receive``
-    (a quarter of a 20 s capture's whole run).
-    """
-    target = math.log(false_alarm)
-    low, high = 0.0, float(frames)
-    while erlang_log_survival(high, frames) > target:
-        low, high = high, 2.0 * high
-    for _ in range(200):  # bisection to the float's resolution
-        middle = 0.5 * (low + high)
-        if middle in (low, high):
-            break
-        if erlang_log_survival(middle, frames) > target:
-            low = middle
-        else:
-            high = middle
-    return 0.5 * (low + high) / frames
-
-
-def detect_paths(power: np.ndarray, lag0: int, limit: float, existing: np.ndarray, settled: np.ndarray,
-                 min_separation: float, settle_guard: float, max_births: int) -> list[float]:
-    """New paths in the residual power of a batch: its strongest peaks above ``limit``.
-
-    A path is a pulse about a chip wide: its peak must stand above the
-    residual around it (the median over ``RING`` lags on either side) by the
-    factor the threshold stands above the noise floor. Interference spread
-    over the lags (a tone, a DC offset: their header correlation is a smooth
-    function of the lag) raises the floor and the ring alike and is never
-    taken for a path. A peak next to a path that is still settling (its
-    delay not yet converged) is that path's fitting error, not a path: no
-    birth within ``settle_guard`` of one. Peaks are taken strongest first,
-    one chip apart.
-
-    Parameters
-    ----------
-    power : (L,) ndarray
-        Mean residual power per lag over the noise floor.
-    lag0 : int
-        Lag of ``power[0]``.
-    limit : float
-        Detection threshold (noise and relative floor).
-    existing : ndarray
-        Lags of the paths already tracked.
-    settled : ndarray of bool
-        Which of them have settled.
-    min_separation, settle_guard : float
-        Closest allowed to a settled / a settling path, samples.
-    max_births : int
-        Most paths returned.
-
-    Returns
-    -------
-    list of float
-        Fractional lags of the new paths (parabolic interpolation of the peak).
-    """
-    p = np.asarray(power, dtype=np.float64)
-    if len(p) < 3:
-        return []
-    inner = np.arange(1, len(p) - 1)
-    peaks = inner[(p[inner] > limit) & (p[inner] >= p[inner - 1]) & (p[inner] >= p[inner + 1])]
-    found: list[float] = []
-    for peak in peaks[np.argsort(p[peaks])[::-1]]:
-        ring = np.concatenate([p[max(peak - RING[1], 0): max(peak - RING[0] + 1, 0)], p[peak + RING[0]: peak + RING[1] + 1]])
-        if len(ring) and p[peak] <= limit * np.median(ring):
-            continue
-        left, centre, right = p[peak - 1: peak + 2]
-        curvature = left - 2.0 * centre + right
-        lag = lag0 + peak + (float(np.clip(0.5 * (left - right) / curvature, -0.5, 0.5)) if curvature < 0 else 0.0)
-        distance = np.abs(np.asarray(existing, dtype=np.float64) - lag)
-        guard = np.where(settled, min_separation, settle_guard)
-        if np.all(distance >= guard) and all(abs(lag - f) >= 1.0 for f in found):
-            found.append(lag)
-            if len(found) >= max_births:
-                break
-    return found
 
 
 # ---- the tracker ---------------------------------------------------------------------------
@@ -956,7 +544,7 @@ class PathTracker:
                 column = self._range_difference[slot] - self.wavelength_m * np.cumsum(difference * dt)
                 self._range_difference[slot] = float(column[-1])
                 # The rate held across a later gap: the batch's median, not its last frame's (a path that is
-                # being lost ends on wild frequencies, which held over a second made jumps of hundreds of metres).
+                # being lost ends on wild frequencies, which, held over a gap, would make the range jump).
                 measured = cfo_of[tower] - cfo_of[0]
                 measured = measured[np.isfinite(measured)]
                 if len(measured):
@@ -968,7 +556,7 @@ class PathTracker:
         return out
 
     def _maintain(self, residual: np.ndarray, noise_floor: float, offsets: np.ndarray, count: int) -> None:
-        """Ages, fading and merging of the paths, then births from the residual (module docstring, step 3)."""
+        """Ages, fading and merging of the paths (module docstring, step 1), then births (:func:`detect_paths`)."""
         cfg = self.config
         survival = 10.0 ** (cfg.survival_snr_db / 10.0)
         strongest = max((p.power for p in self.paths), default=0.0)
@@ -1029,4 +617,3 @@ class PathTracker:
             delays = [p.delay for p in self.paths if p.tower_id == tower]
             if delays:
                 self._towers[tower] = min(delays)
-
