@@ -75,6 +75,7 @@ examples:
   dtmbnav evaluate park-loop --seeds 20 --json table.json
   dtmbnav evaluate all --level iq --seeds 10      # IQ-level Monte Carlo on a local Dask cluster
   dtmbnav bench --json bench.json
+  dtmbnav results --readme README.md             # every result table into docs/results.md
 """
 
 
@@ -168,13 +169,13 @@ def _int_range(text: str) -> tuple[int, int]:
     return int(low), int(high)
 
 
-def _filter_list(known: tuple[str, ...]) -> Callable[[str], tuple[str, ...]]:
-    """An argparse type: comma-separated names, each one of ``known``."""
+def _filter_list(known: tuple[str, ...], what: str = "filter") -> Callable[[str], tuple[str, ...]]:
+    """An argparse type: comma-separated names, each one of ``known`` (``what`` names them in the error)."""
     def parse(text: str) -> tuple[str, ...]:
         names = tuple(name for name in text.split(",") if name)
         unknown = [name for name in names if name not in known]
         if unknown or not names:
-            raise argparse.ArgumentTypeError(f"unknown filter(s) {unknown or [text]}; choose from {','.join(known)}")
+            raise argparse.ArgumentTypeError(f"unknown {what}(s) {unknown or [text]}; choose from {','.join(known)}")
         return names
     return parse
 
@@ -241,6 +242,8 @@ def _io_paths(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[tup
                                                                            ("--walks", args.walks)]
     elif command == "bench":
         files = [("--json", args.json)]
+    elif command == "results":
+        files = [("-o", args.output), ("--readme", args.readme)]
     elif command in ("simulate", "run", "demo"):
         folders = [("-o", args.output)]
     keep = [(o, str(v)) for o, v in inputs if v is not None and str(v) != "-"]
@@ -523,6 +526,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return run_benchmarks(json_path=str(tmp), quick=args.quick)
 
 
+def cmd_results(args: argparse.Namespace) -> int:
+    from dtmbnav.results import ResultsConfig, write_results
+
+    config = ResultsConfig(iq_seeds=args.iq_seeds, obs_seeds=args.obs_seeds, first_seed=args.first_seed,
+                           cluster=_cluster(args), progress=not args.quiet)
+    write_results(args.output, args.sections, config, readme=args.readme)
+    print(f"results written to {args.output}", file=sys.stderr)
+    return EXIT_OK
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from dtmbnav.demo import run_demo
 
@@ -777,6 +790,27 @@ def _add_bench_command(subparsers: argparse._SubParsersAction, common: argparse.
     p.set_defaults(handler=cmd_bench)
 
 
+def _add_results_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``dtmbnav results`` and its options."""
+    from dtmbnav.results import IQ_SEEDS, OBS_SEEDS, SECTIONS
+
+    p = _command(subparsers, common, "results", "every result table, generated into one Markdown file")
+    p.add_argument("-o", "--output", type=Path, default=Path("docs/results.md"),
+                   help="the results file (default docs/results.md); sections not run are kept as they are")
+    p.add_argument("--sections", type=_filter_list(SECTIONS, "section"), default=SECTIONS,
+                   help=f"comma-separated sections to run (default: all, {','.join(SECTIONS)})")
+    p.add_argument("--iq-seeds", type=_positive_int, default=IQ_SEEDS,
+                   help=f"Monte Carlo walks per scenario at the IQ level (default {IQ_SEEDS})")
+    p.add_argument("--obs-seeds", type=_positive_int, default=OBS_SEEDS,
+                   help=f"Monte Carlo walks per scenario at the observation and exact levels (default {OBS_SEEDS})")
+    p.add_argument("--first-seed", type=_index, default=REPORTING_SEEDS.start, metavar="N",
+                   help=f"first Monte Carlo index (default {REPORTING_SEEDS.start}, the reporting range)")
+    p.add_argument("--readme", type=Path, metavar="FILE",
+                   help="also rewrite the headline table between this README's results markers")
+    _add_cluster_options(p)
+    p.set_defaults(handler=cmd_results)
+
+
 def _add_demo_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
     """``dtmbnav demo`` and its options."""
     p = _command(subparsers, common, "demo", "simulate a walk at IQ level, receive, fuse and write a report")
@@ -807,6 +841,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_doppler_map_command(sub, common)
     _add_evaluate_command(sub, common)
     _add_bench_command(sub, common)
+    _add_results_command(sub, common)
     _add_demo_command(sub, common)
     return parser
 

@@ -373,12 +373,18 @@ def headline_table(results_text: str) -> str:
     return "\n".join(lines)
 
 
-def update_readme(readme: Path, results_text: str) -> None:
-    """Rewrite the block between the README's headline markers with :func:`headline_table`."""
+def _headline_span(readme: Path) -> tuple[str, int, int]:
+    """The README's text and where its headline block begins and ends (ValueError without one)."""
     text = readme.read_text(encoding="utf-8")
     begin, end = text.find(HEADLINE_BEGIN), text.find(HEADLINE_END)
     if begin < 0 or end < begin:
         raise ValueError(f"{readme}: no {HEADLINE_BEGIN} ... {HEADLINE_END} block to fill")
+    return text, begin, end
+
+
+def update_readme(readme: Path, results_text: str) -> None:
+    """Rewrite the block between the README's headline markers with :func:`headline_table`."""
+    text, begin, end = _headline_span(readme)
     block = f"{HEADLINE_BEGIN}\n{headline_table(results_text)}\n"
     readme.write_text(text[:begin] + block + text[end:], encoding="utf-8")
 
@@ -409,6 +415,8 @@ def write_results(path: Path, sections: Sequence[str], config: ResultsConfig, re
     unknown = [name for name in sections if name not in SECTIONS]
     if unknown:
         raise ValueError(f"results: unknown section(s) {unknown}; known: {', '.join(SECTIONS)}")
+    if readme is not None:
+        _headline_span(readme)  # a README without the block fails before the campaign, not after it
     runners = _sections(config)
     commit, machine = commit_id(), machine_description()
     date = date or dt.date.today().isoformat()

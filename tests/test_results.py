@@ -72,6 +72,10 @@ def test_a_readme_without_the_markers_is_refused(tmp_path):
     readme.write_text("no block here\n")
     with pytest.raises(ValueError, match="headline"):
         results.update_readme(readme, "")
+    # Refused before any walk runs (an unknown section would fail after the check; here none runs at all).
+    with pytest.raises(ValueError, match="headline"):
+        results.write_results(tmp_path / "r.md", [], results.ResultsConfig(), readme=readme)
+    assert not (tmp_path / "r.md").exists()
 
 
 def test_an_unknown_section_is_refused_before_any_work(tmp_path):
