@@ -13,9 +13,9 @@ different thread counts, and the rounding with it (a complex64 product
 differs in its last bits between one and two threads), and Dask's worker
 processes start with one BLAS thread while this process has one per core.
 The receiver's decisions (a path's detection threshold, a cycle slip) can
-turn on such a bit: the same street walk received in this process and on a
-worker gave first-path ranges 1.5 m apart and particle-filter 95 % errors of
-4.66 and 4.34 m (docs/evaluation.md).
+turn on such a bit, and one such decision moves a walk's ranges and its
+filters' errors by far more than a rounding (docs/evaluation.md;
+docs/decisions.md, D36).
 
 Where the tasks run (:class:`ClusterConfig`):
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 #: Monte Carlo indices on which defaults are chosen (``--first-seed 100``, up to 50 walks).
 TUNING_SEEDS = range(100, 150)
 #: Monte Carlo indices the README reports, on which no default was chosen (``--first-seed 200``, up to 50
-#: walks; indices 0-19, reported before this protocol, were looked at while defaults were chosen).
+#: walks; indices 0-19 are neither: defaults were looked at on them, docs/evaluation.md).
 REPORTING_SEEDS = range(200, 250)
 #: Monte Carlo indices per scenario seed: walk k of a scenario with file seed s runs seed ``SEED_STRIDE * s + k``.
 SEED_STRIDE = 1000

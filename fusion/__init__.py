@@ -8,9 +8,9 @@ importing the numba kernels (the command line's parser uses them).
 #: The fusion filters, in table order ("pf" is the paper's particle filter); ``fusion.run.FILTERS``
 #: maps each to its runner.
 FILTER_NAMES = ("pf", "ukf", "wt-ukf", "adaptive-kf", "rank-kf")
-#: Particle-filter Np unless a caller says otherwise. 40 000, not 10 000: on the street tuning walks the
-#: filter's own random draws moved a walk's 95 % error by 0.86 m (standard deviation over its seed) at 10 000
-#: and 0.30 m at 40 000, so that whether a walk ends worse than its PDR was partly luck (docs/method.md §5).
+#: Particle-filter Np unless a caller says otherwise: enough particles that the filter's own random draws
+#: move a walk's error little next to what the ranges and the PDR decide, so that whether a walk ends worse
+#: than its PDR does not turn on the filter's seed (chosen on the tuning walks; docs/decisions.md, D18).
 DEFAULT_PARTICLES = 40_000
 #: Row name of the foot-mounted ZUPT INS (:mod:`fusion.foot_ins`) in evaluations: it runs on its own
 #: IMU, not on the range/PDR epochs the filters share.

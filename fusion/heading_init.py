@@ -61,9 +61,10 @@ class HeadingSolution:
         :data:`COST_FLOOR_M` first: 0 when the mirror solution is as good as
         the best, 1 when there is a single minimum. Costs below the floor (a
         few centimetres, the integrated range's noise) count as equally good:
-        on a straight street leg walked across the line to the tower the
-        mirror fitted 0.01 m and the truth 0.03 m, which without the clamp
-        read as confidence 0.4 and chose the mirror (180 deg off).
+        on a straight leg walked across the line to the tower the mirror and
+        the truth both fit to within that noise, and the ratio of two such
+        costs would otherwise read as a confident choice of whichever is
+        lower, the mirror as often as not (180 deg off).
     n_used : int
         Number of epochs with a range observation that entered the cost.
     """

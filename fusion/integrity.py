@@ -1,114 +1,72 @@
 """Range integrity: fall back on the PDR where a range channel stops agreeing with the motion.
 
-A reflection with its own Doppler, a clock that drifts off, or a path tracker
-locked on the wrong path bends an integrated range by a steady 0.5-1 m/s
-(docs/paths.md). The particle filter's outlier mixture rejects single wild
-values, but a steady bend is followed: a filter explains it by turning and
-speeding up its track, each epoch's innovation stays small, and the track is
-dragged away. A test on the filter's own innovations cannot see this (the
-filter has already moved to agree). What the bend cannot move is the PDR:
-this monitor, used alike by every filter (:mod:`fusion.particle_filter`,
-:mod:`fusion.kalman`), compares each range channel
-(:class:`fusion.model.ObservationLayout`) with the PDR.
+A reflection with its own Doppler, a drifting clock or a tracker on the
+wrong path bends an integrated range by a steady fraction of a metre per
+second (docs/paths.md). A filter follows such a bend (it turns and speeds up
+its track, and its innovations stay small), but the PDR does not. This
+monitor, shared by every filter (:mod:`fusion.particle_filter`,
+:mod:`fusion.kalman`), sets each range channel
+(:class:`fusion.model.ObservationLayout`) against the PDR (docs/method.md §8).
 
-**Open-loop prediction.** The monitor keeps, for each of the last
-``window`` epochs m, the filter's posterior state and covariance ``(x_m,
-P_m)`` (:meth:`IntegrityMonitor.posterior`), and carries them forward
-through the process model with the PDR's steps alone
-(:func:`fusion.model.propagate`, linearised with
+**Open-loop prediction.** The posterior ``(x_m, P_m)`` of each of the last
+``window`` epochs (:meth:`IntegrityMonitor.posterior`) is carried forward
+with the PDR's steps alone (:func:`fusion.model.propagate`,
 :func:`fusion.model.transition_jacobian`): ``x_n|m``, ``P_n|m = Phi P_m
-Phi^T + Q_acc`` and ``C = Phi P_m``, where no range has pulled them.
+Phi^T + Q_acc`` and ``C = Phi P_m``.
 
-**Consistency test.** At epoch n, a channel with observation ``z_n`` is set
-against the oldest kept epoch m of its window that has one (``z_m``):
+**Consistency test.** A channel's observation ``z_n`` is set against that of
+the oldest kept epoch m of its window that has one:
 
     d = (z_n - z_m) - (g(x_n|m) - g(x_m))
     Var(d) = 2 e^2 + (r (t_n - t_m))^2 + J_n P_n|m J_n^T + J_m P_m J_m^T - 2 J_n C J_m^T
+             + k range_offset_m^2
 
-with ``g`` the channel's range, range difference or clock range
-(:func:`fusion.model.observe`; the origin cancels) and ``J`` its Jacobian,
-plus ``range_offset_m^2`` (:class:`fusion.model.ModelNoise`) for each epoch
-in between without the channel's data: across a gap the range may have
-jumped, as the filters themselves allow.
-The channel's own part is that of a *change* of a carrier-phase range:
-``e`` (``change_noise_m``) the white error of one epoch's value and ``r``
-(``rate_sigma_mps``) the range-rate error a consistent channel may carry
-over the span. It is not the observation's sigma ``s`` that the filters
-weigh it by (:mod:`fusion.observations`), ``s_n^2 + s_m^2``: that sigma
-describes the range's error about the truth, most of it an offset that a
-change cancels, and inflates it where the path is weak (1-2 m for a
-street's attenuated direct path); counted twice as independent, it let a
-first path that gained 8 m in 10 s at a corner pass as consistent
-(street-out, docs/paths.md).
-The channel agrees with the PDR while ``d^2 <= chi2_1(1 - false_alarm)
-Var(d)`` (``chi2_1(p)``: the p quantile of the chi-square distribution
-with one degree of freedom). When it does not, the channel is dropped (its epochs count as
-having no such range), and the filter **falls back**: its state is replaced
-by the open-loop prediction from the oldest kept epoch, up to ``window``
-epochs back, discarding what the ranges did to the track since. Not only
-from epoch m: a channel's test span restarts at each new origin, but the
-track it dragged does not. A path tracker that slides onto a reflection at
-a corner and is then re-acquired (street-out: a first path that turned
-0.8 m/s away from the truth for 10 s, re-acquired, and failed its test
-half a second later) is caught only after the new origin, with the track
-already 10 m off; falling back to its window's start then undid nothing.
-The kept epochs after the one fallen back to are forgotten (their
-posteriors belong to the abandoned track), so a later fallback never lands
-on one of them.
+with ``g`` the channel's model (:func:`fusion.model.observe`, the origin
+cancelling), ``J`` its Jacobian and ``k`` the epochs in between without the
+channel (:class:`fusion.model.ModelNoise`). ``e`` (``change_noise_m``) and
+``r`` (``rate_sigma_mps``) are the noise of a *change* of a carrier-phase
+range, not the filters' sigma (:mod:`fusion.observations`): that sigma is
+mostly an offset a change cancels, inflated on weak paths, and counted at
+both ends it would hide the bends of the very paths that need testing. The
+channel agrees while ``d^2 <= chi2_1(1 - false_alarm) Var(d)``, ``chi2_1(p)``
+the p quantile of the chi-square distribution with one degree of freedom.
 
-**Return.** A dropped channel is tested in the same way from its first
-observation after the drop onwards, once ``readmit_window`` observations are
-in, but against a far stricter bound, the chi-square's ``return_quantile``
-(its median by default): taking a biased channel back drags the track
-again, while keeping a good one out a little longer only leaves the filter
-on the PDR, and with the PDR alone the filter's own heading uncertainty
-widens until a bend of half a metre per second fits inside a loose bound.
-When it agrees, the channel comes back as a new origin: the offset it
-gathered meanwhile says nothing about the position, so the filter
-re-anchors the channel on that observation and takes only changes from
-there.
+**Fallback.** A failing channel is dropped, and the filter's state is
+replaced by the open-loop prediction from the oldest kept epoch, undoing
+what the ranges did to the track since: not only from epoch m, because a
+channel's test restarts at each new origin but the track it dragged does
+not. The kept epochs after it belong to the abandoned track and are
+forgotten.
 
-A channel whose data restart from a new origin (a cycle slip, a re-acquired
-path; or a Kalman filter's re-anchoring after a long gap) is re-anchored by
-the filter, and its window starts afresh.
+**Return.** A dropped channel is tested again once ``readmit_window``
+observations are in, against the far stricter ``return_quantile`` (the
+median by default): a biased channel taken back drags the track again, a
+good one kept out a little longer only leaves the filter on the PDR. It
+comes back as a new origin: the filter re-anchors it and takes only changes
+from there. A channel whose data restart from a new origin (a slip, a
+re-acquired path) is re-anchored by the filter, and its window restarts.
 
-**Late first path.** None of this sees a tracker that has taken a wall
-reflection for the first path where the reflection's range changes as the
-truth's does (walking along the wall): its carrier range is consistent, but
-the path is not the direct one, and at the next corner its carrier bends
-with the wall (street-out, docs/paths.md). The code range of the first path
-(:class:`dtmbnav_core.records.PathRangeSeries`) can tell: it is absolute up
-to a constant, and a reflection only ever arrives *late*. Its constant
-``b`` is calibrated on the first ``code_calibration_epochs`` epochs that
-have one, as the median of ``code - g(x)`` with ``x`` the open-loop
-prediction of the epoch (the filter's prior, PDR only) and ``g`` the
-first-path channel's range; at the start the walker stands at the fix. From
-then on a first path whose excess ``e = code - b - g(x)`` exceeds
-``code_late_m`` is taken to follow a reflection, and the filters go without
-that epoch's first-path range (as if the receiver had none;
-:attr:`IntegrityMonitor.late_epochs` counts them). The street tuning walks
-chose this over a bound that grows with the prior's range variance ``J P
-J^T``: the particle filter's cloud is metres wide in range where its mean is
-right, and such a bound let a reflection 4-5 m late through (docs/method.md
-§8). Nor does ``b`` move where the excess is as far below zero (a path can
-arrive no earlier than the direct one, so it would say ``b`` was calibrated
-on a late path): a prior dragged off by a reflection moved it, and the direct
-path counted as late from then on. The heading solution (eq. 15) is not
-affected: reflections along the street serve it (docs/paths.md).
+**Late first path.** A reflection taken for the first path while its range
+changes as the truth's (walking along a wall) passes that test. Its code
+range (:class:`dtmbnav_core.records.PathRangeSeries`) is absolute up to a
+constant ``b``, and a reflection only ever arrives *late*. ``b`` is the
+median of ``code - g(x)`` over the first ``code_calibration_epochs`` epochs
+with a code, ``x`` the filter's prior (the walker starts at the fix); from
+then on a first path whose excess ``code - b - g(x)`` exceeds ``code_late_m``
+is kept from the filters that epoch (:attr:`IntegrityMonitor.late_epochs`).
+The bound is a distance, not a multiple of the prior's ``J P J^T``, which a
+particle cloud makes metres wide even where its mean is right; and an early
+code does not move ``b``, since no path arrives before the direct one. Eq.
+15 keeps every first path: reflections along the street serve it.
 
-**Two references.** The prior is the filter's own. A filter that is off
-along the line of sight (dragged before the gate caught a reflection, or
-coasting through a stretch without ranges) sees the direct path late by
-its own error, and dropping it keeps from the filter the one range that
-would bring it back: the gate holds itself shut (street-back at IQ level:
-the direct path dropped for the last 130 s of a walk, the particle filter
-10 m off). With ``code_pdr_reference`` the excess is also taken against
-the PDR alone from the first epoch (the first posterior carried over every
-control since, which no range has moved; its clock columns are the
-prior's), with a constant of its own calibrated alike, and a path is late
-only when it is late against both. A reflection is late against both by
-its excess less each reference's error along the line of sight; the PDR's
-error there is its own drift, which no decision of the gate moves.
+**Two references.** A filter that is off along the line of sight sees the
+direct path late by its own error and would drop the one range that brings
+it back. With ``code_pdr_reference`` the excess is also taken against the
+PDR alone from the first posterior (its clock columns the prior's), with a
+constant of its own, and a path is late only when late against both: the
+PDR's error is its own drift, which no decision of the gate moves.
+
+The defaults were chosen on the tuning walks (docs/decisions.md, D24-D28).
 """
 
 from __future__ import annotations
@@ -146,19 +104,19 @@ class IntegrityConfig:
     rate_sigma_mps : float
         Range-rate error a consistent channel may carry, m/s (``r``). A
         carrier-phase range of the path it claims to follow errs by
-        millimetres per second; 0.02 was chosen over 0.05 on the street
-        tuning walks, where a first path that follows a wall reflection round
-        a corner bends by a few tenths of a metre per second (docs/method.md
-        §8).
+        millimetres per second, a first path that follows a wall reflection
+        round a corner by tenths of a metre per second; the default lies
+        between (chosen on the tuning walks; docs/decisions.md, D25).
     code_gate : bool
         Whether a late first path (module docstring) is kept from the filters.
     code_calibration_epochs : int
         Epochs with a code range the constant ``b`` is calibrated on.
     code_late_m : float
         Excess of the code range over the prior's range beyond which the
-        first path is late, m: above the IQ receiver's code error (0.6 m RMS
-        in 0.2 s on a street's diffracted direct path, docs/paths.md) plus
-        the prior's range error where the filter is right.
+        first path is late, m: above the IQ receiver's code error on a
+        street's diffracted direct path (docs/paths.md) plus the prior's
+        range error where the filter is right (chosen on the tuning walks;
+        docs/decisions.md, D27).
     code_change_m : float or None
         A late first path is kept while its excess stays within this of its
         value where the late stretch began (a reflection off a wall along the

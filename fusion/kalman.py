@@ -27,10 +27,10 @@ filter is compared on the same equations:
   its covariance with the state (``J P``, and ``J P J^T + sigma^2`` its
   variance): stochastic cloning. The observation is not weighed (it says
   nothing about the state), and later ones say how the state changed since.
-  Setting the origin to a number instead, as these filters did before, made
-  the next observations absolute ranges from the state of that epoch: the
-  state's uncertainty along the line of sight collapsed to the
-  observation's, around a position still the fix's (docs/method.md §8).
+  An origin set to a number, without that covariance, would make the next
+  observations absolute ranges from the state of that epoch: the state's
+  uncertainty along the line of sight would collapse to the observation's,
+  around a position still the fix's (docs/method.md §8).
 - A tower difference that carries its code range difference (docs/paths.md)
   re-anchors on the code instead: ``o_j = code - z_j``, of variance
   ``ModelNoise.difference_code_sigma_m^2`` and independent of the state, and

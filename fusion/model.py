@@ -202,10 +202,10 @@ class ModelNoise:
         increments over a step are good to far better than a degree, and
         where the range is missing only the wide PDR-heading observation
         holds this random walk, so the cloud widens to about
-        ``sqrt(heading_rad * pdr_heading_rad)``; the mean position of a
-        cloud that is 10-15 deg wide falls short of the distance walked.
-        The range corrects a heading error mostly through the heading rate
-        instead.
+        ``sqrt(heading_rad * pdr_heading_rad)``, and the mean position of a
+        cloud spread over an arc falls short of the distance walked. The
+        range corrects a heading error mostly through the heading rate
+        instead (docs/decisions.md, D19).
     speed_mps : float
         xi5: speed random walk per step, m/s.
     pdr_heading_rad : float
@@ -241,11 +241,9 @@ class ModelNoise:
         is then tens of metres off every particle, the likelihood mixture
         keeps only the tail particles that happen to fit it, and the cloud
         jumps along the line of sight. Short fades keep their offset. 10 m
-        (about 50 s without the channel at two epochs a second) was chosen on
-        the tuning walks 100-119 at the observation level against 5 m and
-        never: the streets' worst walk against the PDR started at the fix
-        went from +234 % / +801 % (never) to +15 % / +27 % (10 m; 5 m: +23 %
-        / +26 %), the parks' figures unchanged.
+        by default, about 50 s without the channel at two epochs a second
+        (chosen on the tuning walks against a tighter bound and none;
+        docs/decisions.md, D17).
     difference_code_sigma_m : float
         Standard deviation of a tower difference's origin taken from its
         code range difference (:meth:`EpochObservation.anchor_channels`),
@@ -253,10 +251,10 @@ class ModelNoise:
         first epoch, a new origin, a return), the origin comes from the
         code, known to this, instead of from the filter's own position,
         which would inherit the GNSS fix's error; the carrier then holds the
-        walker on that hyperbola. 0.3 m: the IQ receiver's code difference
-        on sfn-park tuning walk 100 has a per-frame scatter of 0.3 m and a
-        bias of 0.1-0.2 m over the walk (docs/paths.md). ``inf``: the
-        towers' transmit delay offsets are not known (the code is not used).
+        walker on that hyperbola. 0.3 m by default: the per-frame scatter of
+        the IQ receiver's code difference, which outweighs its bias over a
+        walk (docs/paths.md; docs/decisions.md, D15). ``inf``: the towers'
+        transmit delay offsets are not known (the code is not used).
     initial_position_m : float
         Spread of the initial position around P0 (GNSS fix error), m.
     initial_heading_rad : float
@@ -315,8 +313,8 @@ class ClockModel:
     runs on its own reference (holdover) with an Allan deviation about 1e-12
     (docs/paths.md): its rate's random walk integrates to sigma 1.6 m of
     range over 300 s, metres over a street walk; with ``state`` the filters
-    carry its states (docs/method.md §8: off by default, the tuning walks
-    did not favour it), without it there is no clock (the paper's model).
+    carry its states (off by default: docs/method.md §8; docs/decisions.md, D23),
+    without it there is no clock (the paper's model).
     ``free-running``: a TCXO whose frequency wanders by a random walk
     (random-walk FM); the filters always carry its states. Its Allan variance
     is ``q_y tau / 3`` (q_y per second, fractional), so a deviation

@@ -62,9 +62,8 @@ class FusionConfig:
     clock_state : bool
         Whether the filters carry a disciplined clock's states too (its
         holdover wander; :class:`fusion.model.ClockModel`). Off by default
-        (the paper's model, no clock): on the tuning walks it helped the
-        walks whose clock drifted and did not help on average
-        (docs/method.md §8).
+        (the paper's model, no clock): it helps a walk whose clock drifts,
+        but not on average over the tuning walks (docs/decisions.md, D23).
     integrity : IntegrityConfig
         The range integrity monitor every filter uses.
     paths : PathAggregationConfig

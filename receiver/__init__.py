@@ -14,9 +14,9 @@ DEFAULT_STATIC_WINDOW_S = 10.0
 DEFAULT_CFO_SEARCH_HZ = 60e3
 
 #: Where the path ranges' f_s is measured over the static window (``receiver.paths.PathConfig.clock_path``):
-#: on the first path, or on the path whose phase is steadiest there. Chosen on the tuning walks 100-111 of
-#: street-out (docs/paths.md, "Which path measures f_s"): the first path's f_s was up to 273 mHz off where
-#: the direct path is blocked at the start, the steadiest path's at most 43 mHz (within 1 mHz on nine of
-#: twelve); with the direct path in sight (street-back, park-loop) both within 1 mHz.
+#: on the first path, or on the path whose phase is steadiest there. The steadiest by default: where the
+#: direct path is blocked during the standstill the first path merges with diffuse scatter and its mean
+#: frequency there is off, while a wall reflection may hold its phase; with the direct path in sight both
+#: agree (:mod:`receiver.ranging`; docs/paths.md, "Which path measures f_s"; docs/decisions.md, D5).
 CLOCK_PATHS = ("first", "steadiest")
 DEFAULT_CLOCK_PATH = "steadiest"

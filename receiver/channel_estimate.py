@@ -31,9 +31,9 @@ from dtmbnav_core.gb20600 import PnMode
 #: Symmetric because the frame timing follows the taps' power centroid: in a
 #: single-frequency network the first tower sits that far before the centroid
 #: (a second tower 44 chips later and 4 dB weaker puts it 12-17 samples
-#: before as the two fade), and with 16 samples before it fell off the span,
-#: the header metric collapsed to the second tower's share and the lock was
-#: lost every few seconds.
+#: before as the two fade); a span that loses the first tower takes its
+#: share out of the header metric, which then collapses to the second
+#: tower's share and loses the lock (docs/decisions.md, D8).
 TAPS_BEFORE = 48
 TAPS_AFTER = 48
 #: Default tap power over the noise floor needed to keep a tap.

@@ -220,7 +220,7 @@ class DopplerConfig:
         Frames per map (0, the default: the check is off; :data:`CHECK_FRAMES`
         turns it on: ``dtmbnav receive --doppler-check``). It is off by default
         because on held-out street layouts it made the fusion worse
-        (``docs/paths.md``).
+        (``docs/paths.md``; ``docs/decisions.md``, D6).
     hop_frames : int
         Frames between maps (the correction is held in between).
     line_floor_db : float

@@ -16,13 +16,13 @@ random stream, so the same multipath as the IQ level and as
   (its ``PathConfig.min_separation``), unless one is more than
   ``weak_power_db`` weaker than a later one within ``weak_separation_chips``:
   the strong path's fitting error then swamps the weak one, which is
-  *swallowed*. docs/paths.md: a diffracted direct path 22 dB under a wall
-  reflection 0.2-0.9 chip later is not separated, one 20 dB under a
-  reflection 1-2 chips later is, and two paths 0.5 chip and 10 dB apart are.
-  The two settings were fitted to street-out tuning walk 100's corner, where
-  the IQ tracker separated a wall reflection 17 dB above the direct path
-  once it was 0.69 chip behind it, and kept the direct path next to a
-  diffuse tap some 7 dB above it. A path counts only while its tap SNR (the
+  *swallowed*: a diffracted direct path far under a wall reflection a
+  fraction of a chip later is not separated, one whose reflection trails it
+  by more is, and two paths of comparable power are (docs/paths.md). The two
+  settings are fitted to what the IQ tracker separates at a street corner of
+  the tuning walks, a wall reflection far above the direct path and a
+  diffuse tap a few dB above it (docs/decisions.md, D34). A path counts only
+  while its tap SNR (the
   sample SNR times the header's correlation gain, averaged over
   ``power_time_s`` as the tracker keeps or drops paths batch by batch)
   holds ``survival_snr_db``, the receiver's own survival threshold.
@@ -100,7 +100,7 @@ class ObsPathConfig:
     weak_separation_chips, weak_power_db : float
         A path more than ``weak_power_db`` (dB) weaker than a later path
         within ``weak_separation_chips`` (chips) is swallowed by it (module
-        docstring: fitted to street-out tuning walk 100).
+        docstring; fitted on the tuning walks, docs/decisions.md, D34).
     survival_snr_db : float
         Per-frame tap SNR below which a path is not tracked, dB (``PathConfig.survival_snr_db``).
     power_time_s : float
@@ -115,10 +115,9 @@ class ObsPathConfig:
         The code range's error: ``code_noise_m`` (m, RMS) on a path of
         sample SNR ``code_noise_snr_db`` (dB), growing as 1/amplitude below
         it and shrinking above, correlated over ``code_noise_time_s`` (s; a
-        first-order Gauss-Markov process). Measured on the IQ receiver
-        (street-out tuning walk 102, the diffracted direct path at -7.5 dB:
-        0.68 m per frame, 0.63 m in 0.2 s means, 0.34 m in 1 s means;
-        docs/paths.md).
+        first-order Gauss-Markov process). Calibrated on the IQ receiver's
+        code error on a street's diffracted direct path (docs/paths.md;
+        docs/decisions.md, D34).
     noise_draw : int
         Which draw of the receiver's phase noise and code-range error.
     """
@@ -424,7 +423,7 @@ def simulate_obs_paths(scenario: Scenario, truth: Track, config: ObsPathConfig =
     clock_m = SPEED_OF_LIGHT_MPS * (oscillator.time_error_s(t_s) - oscillator.time_error_s(t_s[:1]))
     clock_m -= clock_m[cal] / (t_s[cal] - t_s[0]) * (t_s - t_s[0])
     snr_db = 10.0 * np.log10(tap_snr / header_gain)
-    # Each tower's code error (tower 0's stream as before there were towers' own: its draws unchanged).
+    # Each tower's code error; tower 0's stream is keyed without a tower index, as with a single tower.
     code_error = np.stack([code_error_m(t_s, snr_db[k], config, np.random.default_rng(
         [scenario.seed, _STREAM_CODE_NOISE, config.noise_draw, *([k] if k else [])])) for k in range(n_towers)])
     code_m = path_delay_m[0] + clock_m + code_error[0]
