@@ -2,7 +2,7 @@
 
 :mod:`sim.obs_range` models the receiver's SI-carrier range; the IQ receiver
 also tracks the paths of the PN header's channel estimate
-(``receiver/paths.py``, ``docs/paths.md``) and gives, per frame, tower 0's
+(``receiver/paths/``, ``docs/paths.md``) and gives, per frame, tower 0's
 first-path range change and the change of each further tower's first-path
 range minus tower 0's. The fusion uses these wherever they exist, so an
 evaluation without them measures another receiver. This module gives them from

@@ -1,4 +1,4 @@
-"""The path tracker (receiver/paths.py): pulse model, kernels against their numpy twins, and
+"""The path tracker (receiver/paths/): pulse model, kernels against their numpy twins, and
 tracking on constructed signals with known answers (close paths, a weak first path, a forced
 cycle slip, two towers), no paths from noise or from the SI carriers alone, and the output."""
 
