@@ -31,8 +31,8 @@ import numpy as np
 from dtmbnav_core import schema
 from dtmbnav_core.h5io import atomic_folder, atomic_h5, open_h5, read_attrs, read_columns, write_columns
 from dtmbnav_core.records import ImuLog
-from dtmbnav_core.sensors import (read_capture_start_s, read_gnss, read_imu, read_tower, read_walk_truth,
-                                  read_weinberg_k_m)
+from dtmbnav_core.sensors import (read_capture_start_s, read_gnss, read_has_magnetometer, read_imu, read_tower,
+                                  read_walk_truth, read_weinberg_k_m)
 from dtmbnav.errors import NoResult
 from dtmbnav.receive import receive_capture
 from fusion.model import Geometry
@@ -192,11 +192,17 @@ def read_transmit_delays(sensors_path: str | os.PathLike) -> tuple[float, ...] |
 
 
 def resolve_pdr_config(config: PdrConfig, sensors_path: str | os.PathLike) -> PdrConfig:
-    """Fill in the Weinberg gain from the sensors file when the user gave none.
+    """The PDR settings a sensors file needs: its Weinberg gain, and no magnetometer where it has none.
 
     A file without a calibrated gain falls back to the linear step-frequency
-    model, which needs no calibration (docs/method.md §3).
+    model, which needs no calibration (docs/method.md §3), when the user gave
+    no gain. A file whose log had no magnetometer (``has_magnetometer``
+    False) gets the attitude from the gyro and accelerometer alone, whatever
+    the settings say: the zeros that stand in for the magnetometer would
+    otherwise be taken for a field.
     """
+    if not read_has_magnetometer(sensors_path) and config.attitude.use_magnetometer:
+        config = dataclasses.replace(config, attitude=dataclasses.replace(config.attitude, use_magnetometer=False))
     if config.step_model != "weinberg" or config.weinberg_k_m is not None:
         return config
     k_m = read_weinberg_k_m(sensors_path)
@@ -239,11 +245,12 @@ def write_fusion(h5: h5py.File, result: FusionResult) -> None:
 def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike, out_path: str | os.PathLike,
                filters: tuple[str, ...], pdr_config: PdrConfig, tower_xy_m: tuple[float, float] | None = None,
                start_xy_m: tuple[float, float] | None = None,
-               config: FusionConfig = FusionConfig()) -> FusionResult:
+               config: FusionConfig = FusionConfig(), tower_height_m: float = 0.0) -> FusionResult:
     """``dtmbnav fuse``: receiver range + PDR of the sensors file -> ``/pdr`` and ``/fusion/*``.
 
     ``config`` carries the receiver's clock model, the range eq. 15 is solved on, where the
     filters take the SI-carrier range and every filter setting (:class:`fusion.run.FusionConfig`).
+    ``tower_height_m`` is the height of a given tower (``tower_xy_m``) above the receiver's antenna, m.
 
     Every input is read and checked first, including that both files are of
     one walk (:func:`check_same_walk`).
@@ -256,7 +263,7 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
     if start_xy_m is None:
         fix = read_gnss(sensors_path)[1]
         start_xy_m = (fix.x_m, fix.y_m)
-    height_m = 0.0
+    height_m = tower_height_m
     other_towers: tuple[tuple[float, float, float], ...] = ()
     transmit_delays_s: tuple[float, ...] | None = None
     if tower_xy_m is None:

@@ -47,6 +47,7 @@ from fusion import (CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DE
 from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH, DEFAULT_STATIC_WINDOW_S
 
 if TYPE_CHECKING:  # the fusion's modules are imported by the handlers that run them (module docstring)
+    from dtmbnav.geodetic import GeodeticPoint
     from fusion.run import FusionConfig
 
 EXIT_OK = 0
@@ -70,6 +71,7 @@ examples:
   rtl_sdr ... | dtmbnav receive - --format cu8 --rate 2.4e6 --center 666e6 -o rx.h5
   dtmbnav pdr out/truth.h5 -o out/pdr.h5
   dtmbnav fuse --receiver out/rx.h5 --sensors out/truth.h5 -o out/fused.h5
+  dtmbnav sensors gnss_log.txt -o sensors.h5      # a phone's GnssLogger (or Sensor Logger) log -> /imu, /gnss
   dtmbnav run captures/                          # the whole chain on the bundled capture set
   dtmbnav report out/results.h5 -o out/report
   dtmbnav evaluate park-loop --seeds 20 --json table.json
@@ -144,6 +146,16 @@ def _xy(text: str) -> tuple[float, float]:
     except argparse.ArgumentTypeError:
         raise argparse.ArgumentTypeError(f"expected X,Y as two finite numbers in metres, got {text!r}") from None
     return x, y
+
+
+def _geodetic(text: str) -> GeodeticPoint:
+    """An argparse type: ``LAT,LON[,HEIGHT_M]`` on WGS84 (deg, deg, m above the ellipsoid), as a GeodeticPoint."""
+    from dtmbnav.geodetic import parse_point
+
+    try:
+        return parse_point(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _colon_pair(text: str, convert: Callable[[str], float], expected: str) -> tuple[float, float]:
@@ -235,6 +247,8 @@ def _io_paths(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[tup
         inputs, files = [("SENSORS", args.sensors)], [("-o", args.output), ("--csv", args.csv)]
     elif command == "fuse":
         inputs, files = [("--receiver", args.receiver), ("--sensors", args.sensors)], [("-o", args.output)]
+    elif command == "sensors":
+        inputs, files = [("LOG", log) for log in args.logs], [("-o", args.output)]
     elif command == "report":
         inputs, folders = [("RESULTS", args.results), ("--truth", args.truth)], [("-o", args.output)]
     elif command == "evaluate":
@@ -261,8 +275,9 @@ def check_usage(args: argparse.Namespace) -> str | None:
         if args.dump is None and (args.dump_stages is not None or args.dump_window is not None):
             return "--dump-stages and --dump-window need --dump FILE"
     if getattr(args, "output", None) is not None and str(args.output) == "-" and args.command in ("receive", "pdr",
-                                                                                                  "fuse"):
-        return "-o -: an HDF5 file cannot be written to stdout (use --csv - for the rows)"
+                                                                                                  "fuse", "sensors"):
+        hint = " (use --csv - for the rows)" if hasattr(args, "csv") else ""
+        return f"-o -: an HDF5 file cannot be written to stdout{hint}"
     inputs, files, folders = _io_paths(args)
     outputs = files + folders
     for out_option, out in outputs:
@@ -383,21 +398,51 @@ def cmd_receive(args: argparse.Namespace) -> int:
     return EXIT_OK if summary.frames else EXIT_NO_RESULT
 
 
+def _say_attitude_source(args: argparse.Namespace) -> None:
+    """Say when a sensors file without a magnetometer makes the PDR's attitude gyro-and-accelerometer only."""
+    from dtmbnav_core.sensors import read_has_magnetometer
+
+    if not read_has_magnetometer(args.sensors):
+        _warn(args, f"{args.sensors}: no magnetometer in the log: the PDR's attitude comes from the gyro and "
+                    "accelerometer alone (its heading drifts with the gyro's bias)")
+
+
 def cmd_pdr(args: argparse.Namespace) -> int:
     from dtmbnav.chain import run_pdr_file
 
+    _say_attitude_source(args)
     result = run_pdr_file(args.sensors, args.output, _pdr_config(args), csv_path=args.csv)
     print(f"pdr: {len(result.steps)} steps, {result.steps.step_length_m.sum():.1f} m walked -> {args.output}",
           file=sys.stderr)
     return EXIT_OK if len(result.steps) else EXIT_NO_RESULT
 
 
+def cmd_sensors(args: argparse.Namespace) -> int:
+    from dtmbnav.sensors_import import describe, gap_warnings, import_phone_log
+
+    result = import_phone_log(args.logs, args.output, rate_hz=args.rate, origin=args.origin)
+    for line in describe(result):
+        print(f"sensors: {line}", file=sys.stderr)
+    for message in [*gap_warnings(result), *result.notes]:
+        _warn(args, message)
+    print(f"sensors: -> {args.output}", file=sys.stderr)
+    return EXIT_OK
+
+
 def cmd_fuse(args: argparse.Namespace) -> int:
     from dtmbnav.chain import fuse_files
 
     config = _fusion_config(args, seed=args.seed, clock_model=args.clock_model)
+    _say_attitude_source(args)
+    tower, tower_height_m = args.tower, 0.0
+    if args.tower_ll is not None:
+        from dtmbnav.geodetic import tower_in_sensors_frame
+
+        x_m, y_m, tower_height_m = tower_in_sensors_frame(args.sensors, args.tower_ll)
+        tower = (x_m, y_m)
     result = fuse_files(args.receiver, args.sensors, args.output, filters=args.filters,
-                        pdr_config=_pdr_config(args), tower_xy_m=args.tower, start_xy_m=args.start, config=config)
+                        pdr_config=_pdr_config(args), tower_xy_m=tower, start_xy_m=args.start, config=config,
+                        tower_height_m=tower_height_m)
     print(f"initial heading {result.heading.describe()}", file=sys.stderr)
     print(f"fused {', '.join(result.tracks)} -> {args.output}", file=sys.stderr)
     return EXIT_OK
@@ -695,6 +740,20 @@ def _add_pdr_command(subparsers: argparse._SubParsersAction, common: argparse.Ar
     p.set_defaults(handler=cmd_pdr)
 
 
+def _add_sensors_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``dtmbnav sensors`` and its options."""
+    p = _command(subparsers, common, "sensors", "a phone's own log (GnssLogger, Sensor Logger) -> sensors file "
+                                                 "(/imu, /gnss)")
+    p.add_argument("logs", nargs="+", metavar="LOG",
+                   help="a GnssLogger text log, or a Sensor Logger export (its folder, zip, or CSV files)")
+    p.add_argument("-o", "--output", required=True, type=Path, help="output HDF5 file (/imu, /gnss)")
+    p.add_argument("--rate", type=_positive, default=100.0, help="rate of the resampled /imu, Hz (default 100)")
+    p.add_argument("--origin", type=_geodetic, metavar="LAT,LON[,H]",
+                   help="origin of the ENU frame, WGS84 deg and m above the ellipsoid (default: the first fix; "
+                        "without H, the first fix's height)")
+    p.set_defaults(handler=cmd_sensors)
+
+
 def _add_fuse_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
     """``dtmbnav fuse`` and its options."""
     p = _command(subparsers, common, "fuse", "receiver range + PDR -> corrected trajectory")
@@ -702,7 +761,12 @@ def _add_fuse_command(subparsers: argparse._SubParsersAction, common: argparse.A
     p.add_argument("--sensors", required=True, help="HDF5 file with /imu and /gnss (start fix)")
     p.add_argument("-o", "--output", required=True, type=Path, help="output HDF5 file (/pdr, /fusion/<filter>)")
     p.add_argument("--filters", type=_filter_list(FILTER_NAMES), default=FILTER_NAMES, help=FILTERS_HELP)
-    p.add_argument("--tower", type=_xy, metavar="X,Y", help="tower position, ENU m (default: from the sensors file)")
+    tower = p.add_mutually_exclusive_group()
+    tower.add_argument("--tower", type=_xy, metavar="X,Y", help="tower position, ENU m (default: from the sensors file)")
+    tower.add_argument("--tower-ll", type=_geodetic, metavar="LAT,LON[,H]",
+                       help="tower position, WGS84 deg, and its antenna's height above the ellipsoid, m; put into the "
+                            "ENU frame of a sensors file written by 'dtmbnav sensors' (without H its height above "
+                            "the receiver is 0, as with --tower)")
     p.add_argument("--start", type=_xy, metavar="X,Y", help="start fix P0, ENU m (default: from /gnss)")
     p.add_argument("--particles", type=_positive_int, help=f"particle-filter Np (default {DEFAULT_PARTICLES})")
     p.add_argument("--seed", type=_seed, default=0, help="particle-filter seed")
@@ -835,6 +899,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_simulate_command(sub, common)
     _add_receive_command(sub, common)
     _add_pdr_command(sub, common)
+    _add_sensors_command(sub, common)
     _add_fuse_command(sub, common)
     _add_run_command(sub, common)
     _add_report_command(sub, common)

@@ -42,6 +42,9 @@ TRACK_COLUMNS = ("t_s", "x_m", "y_m", "heading_rad", "speed_mps")
 STEP_COLUMNS = ("t_s", "step_length_m")
 IMU_COLUMNS = ("t_s", "acc_mps2", "gyro_radps", "mag_ut")
 GNSS_COLUMNS = ("t_s", "x_m", "y_m", "cn0_dbhz")
+#: Further /gnss columns of an imported phone log: up (m) in the ENU frame, the stated horizontal accuracy
+#: (m), and the fix as logged (WGS84 latitude and longitude, deg; height above the ellipsoid, m).
+GNSS_GEODETIC_COLUMNS = ("z_m", "accuracy_m", "lat_deg", "lon_deg", "height_m")
 
 # --- attributes ------------------------------------------------------------------------------
 #: On /truth/trajectory: tower position (ENU, m), its height above the receiver antenna (m).
@@ -57,6 +60,14 @@ START_FIX_ATTRS = ("start_fix_t_s", "start_fix_x_m", "start_fix_y_m", "start_fix
 CAPTURE_START_ATTR = "capture_start_s"
 #: On /imu: the Weinberg gain K calibrated for the walker and device, m.
 WEINBERG_K_ATTR = "weinberg_k_m"
+#: On /imu of an imported phone log: the UTC time of t_s = 0, as ISO 8601 text and as ns since the Unix epoch.
+START_UTC_ATTR = "start_utc"
+START_UTC_NS_ATTR = "start_utc_unix_ns"
+#: On /imu of an imported phone log: False when the log had no magnetometer (``mag_ut`` then holds zeros).
+HAS_MAGNETOMETER_ATTR = "has_magnetometer"
+#: On /gnss of an imported phone log: the geodetic origin of the ENU frame (WGS84 latitude and longitude,
+#: deg; height above the ellipsoid, m).
+ORIGIN_ATTRS = ("origin_lat_deg", "origin_lon_deg", "origin_height_m")
 #: On /fusion/<filter>: the initial heading used and how it was chosen.
 INITIAL_HEADING_ATTR = "initial_heading_rad"
 #: On /fusion/<filter>: the start fix P0 every filter started from (x, y), m.

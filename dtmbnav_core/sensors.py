@@ -72,9 +72,15 @@ def write_imu(h5file: h5py.File, imu: ImuLog, attrs: Mapping[str, Any]) -> None:
     write_columns(h5file, schema.IMU, imu, attrs=attrs)
 
 
-def write_gnss(h5file: h5py.File, gnss: GnssLog, fix: StartFix, attrs: Mapping[str, Any]) -> None:
-    """Write ``/gnss`` and the start fix P0 as its attributes."""
-    write_columns(h5file, schema.GNSS, gnss, attrs={**attrs, **start_fix_attrs(fix)})
+def write_gnss(h5file: h5py.File, gnss: GnssLog, fix: StartFix, attrs: Mapping[str, Any],
+               extra_columns: Mapping[str, np.ndarray] | None = None) -> None:
+    """Write ``/gnss`` and the start fix P0 as its attributes.
+
+    ``extra_columns`` are further columns of the same length (an imported phone log's
+    :data:`~dtmbnav_core.schema.GNSS_GEODETIC_COLUMNS`); readers take only the columns they know.
+    """
+    columns = {**gnss.columns(), **(extra_columns or {})}
+    write_columns(h5file, schema.GNSS, columns, attrs={**attrs, **start_fix_attrs(fix)})
 
 
 def read_walk_truth(path: str | os.PathLike) -> WalkTruth:
@@ -116,6 +122,21 @@ def read_gnss(path: str | os.PathLike) -> tuple[GnssLog, StartFix]:
     return GnssLog(**{k: cols[k] for k in schema.GNSS_COLUMNS}), fix
 
 
+def read_geodetic_origin(path: str | os.PathLike) -> tuple[float, float, float] | None:
+    """The geodetic origin of the file's ENU frame (latitude, longitude, deg; ellipsoidal height, m), from the
+    ``/gnss`` attributes of an imported phone log; None when the file has none (a simulation's)."""
+    attrs = read_attrs(path, schema.GNSS)
+    if not all(name in attrs for name in schema.ORIGIN_ATTRS):
+        return None
+    try:
+        lat, lon, height = (float(attrs[name]) for name in schema.ORIGIN_ATTRS)
+    except (TypeError, ValueError):
+        raise ValueError(f"{path}: /{schema.GNSS}: malformed origin attributes {schema.ORIGIN_ATTRS}") from None
+    if not (abs(lat) <= 90.0 and abs(lon) <= 180.0 and np.isfinite(height)):
+        raise ValueError(f"{path}: /{schema.GNSS}: origin {lat}, {lon}, {height} out of range")
+    return lat, lon, height
+
+
 def read_weinberg_k_m(path: str | os.PathLike) -> float | None:
     """The Weinberg gain calibrated for the walker and device (``/imu`` attribute), m; None if absent."""
     value = read_attrs(path, schema.IMU).get(schema.WEINBERG_K_ATTR)
@@ -144,3 +165,9 @@ def read_capture_start_s(path: str | os.PathLike) -> float:
         if schema.TRUTH_FRAMES in f:
             return float(f[schema.TRUTH_FRAMES].attrs.get(schema.CAPTURE_START_ATTR, 0.0))
     return 0.0
+
+
+def read_has_magnetometer(path: str | os.PathLike) -> bool:
+    """Whether the file's ``/imu`` holds magnetometer samples: False where an imported log had none
+    (attribute ``has_magnetometer``; ``/imu/mag_ut`` then holds zeros), True otherwise."""
+    return bool(read_attrs(path, schema.IMU).get(schema.HAS_MAGNETOMETER_ATTR, True))

@@ -26,6 +26,7 @@ import h5py
 import numpy as np
 import pytest
 from conftest import TINY_FORMAT, TINY_RATE_HZ, TINY_WALK
+from phone_log_samples import gnsslogger_lines, static_log, write_sensor_logger
 
 from dtmbnav import package_version
 from dtmbnav.cli import EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_NO_RESULT, EXIT_OK, EXIT_USAGE, main
@@ -639,6 +640,282 @@ def pdr_unknown_step_model(ctx):
     return ["-q", "pdr", str(ctx.truth), "-o", ctx.o(), "--step-model", "giant"], ["--step-model"]
 
 
+# -------------------------------------------------------------------------------------------------- sensors
+
+def _static_lines() -> list[str]:
+    """A GnssLogger log of a phone lying still (``phone_log_samples.static_log``), one provider's fixes."""
+    return gnsslogger_lines(*static_log(), flp=False)
+
+
+def _first(lines: list[str], prefix: str, after: int = 0) -> int:
+    """Index of the first line starting with ``prefix`` after index ``after``."""
+    return next(i for i, line in enumerate(lines) if i >= after and line.startswith(prefix))
+
+
+def _gnss_log(ctx, lines: list[str], end: str = "\n") -> str:
+    return ctx.write("gnss_log.txt", "\n".join(lines) + end)
+
+
+def _edit_field(lines: list[str], prefix: str, field: int, value: str) -> int:
+    """Set one field of the first row starting with ``prefix``; its index."""
+    i = _first(lines, prefix)
+    fields = lines[i].split(",")
+    fields[field] = value
+    lines[i] = ",".join(fields)
+    return i
+
+
+def _sensors(ctx, *logs: str, extra: tuple[str, ...] = ()) -> list[str]:
+    return ["-q", "sensors", *logs, "-o", ctx.o("sensors.h5"), *extra]
+
+
+def _export(ctx, *drop: str) -> Path:
+    """A Sensor Logger export of the still phone in ``export/``, without the files ``drop``."""
+    folder = write_sensor_logger(ctx.tmp / "export", *static_log())
+    for name in drop:
+        (folder / name).unlink()
+    return folder
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_empty_log(ctx):
+    log = ctx.write("gnss_log.txt", "")
+    return _sensors(ctx, log), [log, "empty file"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_log_of_blank_lines(ctx):
+    log = ctx.write("gnss_log.txt", "\n \r\n\n")
+    return _sensors(ctx, log), [log, "empty file"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_truncated_last_row(ctx):
+    lines = _static_lines()
+    row = lines[_first(lines, "UncalAccel,")]
+    lines.append(row[:len(row) // 2])
+    log = _gnss_log(ctx, lines, end="")
+    return _sensors(ctx, log), [f"{log}:{len(lines)}", "truncated", "ends inside it"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_row_with_an_extra_field(ctx):
+    lines = _static_lines()
+    i = _first(lines, "Gyro,")
+    lines[i] += ",0.5"
+    log = _gnss_log(ctx, lines)
+    return _sensors(ctx, log), [f"{log}:{i + 1}", "Gyro row has 7 fields", "header (line"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_fix_row_missing_a_field(ctx):
+    lines = _static_lines()
+    i = _first(lines, "Fix,")
+    lines[i] = lines[i].rsplit(",", 1)[0]
+    log = _gnss_log(ctx, lines)
+    return _sensors(ctx, log), [f"{log}:{i + 1}", "Fix row has 13 fields"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_unknown_format(ctx):
+    log = ctx.write("track.txt", "latitude;longitude\n30.5;114.3\n")
+    return _sensors(ctx, log), [log, "unknown format", "GnssLogger", "Sensor Logger"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_binary_log(ctx):
+    log = ctx.write("gnss_log.txt", b"\x89PNG\r\n\x1a\n\xff\x00\x00")
+    return _sensors(ctx, log), [log, "not a text log"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_log_without_imu_rows(ctx):
+    lines = [line for line in _static_lines() if not line.startswith(("UncalAccel,", "Gyro,", "UncalMag,"))]
+    log = _gnss_log(ctx, lines)
+    return _sensors(ctx, log), [log, "no accelerometer rows", "UncalAccel"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_log_without_gyro(ctx):
+    log = _gnss_log(ctx, [line for line in _static_lines() if not line.startswith("Gyro,")])
+    return _sensors(ctx, log), [log, "no gyroscope rows"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_time_going_back(ctx):
+    lines = _static_lines()
+    a = _first(lines, "UncalAccel,")
+    b = _first(lines, "UncalAccel,", a + 1)
+    lines[a], lines[b] = lines[b], lines[a]
+    log = _gnss_log(ctx, lines)
+    return _sensors(ctx, log), [f"{log}:{b + 1}", "time goes back"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_nan_value(ctx):
+    lines = _static_lines()
+    i = _edit_field(lines, "UncalAccel,", 4, "NaN")
+    log = _gnss_log(ctx, lines)
+    return _sensors(ctx, log), [f"{log}:{i + 1}", "UncalAccelYMps2", "NaN"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_empty_value(ctx):
+    lines = _static_lines()
+    i = _edit_field(lines, "Gyro,", 3, "")
+    log = _gnss_log(ctx, lines)
+    return _sensors(ctx, log), [f"{log}:{i + 1}", "GyroXRadPerSec is empty"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_text_timestamp(ctx):
+    lines = _static_lines()
+    i = _edit_field(lines, "UncalMag,", 2, "soon")
+    log = _gnss_log(ctx, lines)
+    return _sensors(ctx, log), [f"{log}:{i + 1}", "elapsedRealtimeNanos", "'soon'"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_log_without_fix_rows(ctx):
+    log = _gnss_log(ctx, [line for line in _static_lines() if not line.startswith("Fix,")])
+    return _sensors(ctx, log), [log, "no Fix rows"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_latitude_out_of_range(ctx):
+    lines = _static_lines()
+    i = _edit_field(lines, "Fix,", 2, "91.5")
+    log = _gnss_log(ctx, lines)
+    return _sensors(ctx, log), [f"{log}:{i + 1}", "latitude 91.5", "out of range"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_longitude_out_of_range(ctx):
+    lines = _static_lines()
+    i = _edit_field(lines, "Fix,", 3, "-190.0")
+    log = _gnss_log(ctx, lines)
+    return _sensors(ctx, log), [f"{log}:{i + 1}", "longitude -190", "out of range"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_row_before_its_header(ctx):
+    log = _gnss_log(ctx, [line for line in _static_lines() if not line.startswith("# Gyro,")])
+    return _sensors(ctx, log), [log, "before any '# Gyro,...' header line"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_fixes_without_accuracy(ctx):
+    lines = _static_lines()
+    for i, line in enumerate(lines):
+        if line.startswith("Fix,"):
+            fields = line.split(",")
+            fields[6] = ""
+            lines[i] = ",".join(fields)
+    log = _gnss_log(ctx, lines)
+    return _sensors(ctx, log), [log, "no fix states its horizontal accuracy"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_two_gnsslogger_logs(ctx):
+    a = ctx.write("a.txt", "\n".join(_static_lines()) + "\n")
+    b = ctx.write("b.txt", "\n".join(_static_lines()) + "\n")
+    return _sensors(ctx, a, b), [a, "give it alone"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_nonexistent_log(ctx):
+    log = str(ctx.tmp / "gnss_log.txt")
+    return _sensors(ctx, log), [log, "no such file"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_sensor_logger_folder_without_accelerometer(ctx):
+    folder = str(_export(ctx, "Accelerometer.csv", "TotalAcceleration.csv"))
+    return _sensors(ctx, folder), [folder, "no Accelerometer.csv"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_sensor_logger_acceleration_without_gravity(ctx):
+    folder = _export(ctx, "TotalAcceleration.csv")
+    return _sensors(ctx, str(folder)), [str(folder / "Accelerometer.csv"), "without gravity", "TotalAcceleration.csv"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_sensor_logger_without_gyroscope(ctx):
+    folder = str(_export(ctx, "Gyroscope.csv"))
+    return _sensors(ctx, folder), [folder, "no Gyroscope.csv"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_sensor_logger_without_location(ctx):
+    folder = str(_export(ctx, "Location.csv"))
+    return _sensors(ctx, folder), [folder, "no Location.csv"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_sensor_logger_nan_sample(ctx):
+    path = _export(ctx) / "Gyroscope.csv"
+    lines = path.read_text().splitlines()
+    lines[3] = ",".join(lines[3].split(",")[:2] + ["nan", "0.0", "0.0"])
+    path.write_text("\n".join(lines) + "\n")
+    return _sensors(ctx, str(path.parent)), [f"{path}:4", "z is nan", "NaN"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_sensor_logger_latitude_out_of_range(ctx):
+    path = _export(ctx) / "Location.csv"
+    lines = path.read_text().splitlines()
+    lines[1] = lines[1].rsplit(",", 1)[0] + ",-95.0"
+    path.write_text("\n".join(lines) + "\n")
+    return _sensors(ctx, str(path.parent)), [f"{path}:2", "latitude -95", "out of range"]
+
+
+@case(EXIT_OK)
+def sensors_repeated_timestamp_is_dropped_with_a_warning(ctx):
+    lines = _static_lines()
+    i = _first(lines, "Gyro,")
+    lines.insert(i + 1, lines[i])
+    log = _gnss_log(ctx, lines)
+    return ["sensors", log, "-o", ctx.o("sensors.h5")], ["warning", "repeated timestamp dropped", f"line {i + 2})"]
+
+
+@case(EXIT_USAGE)
+def sensors_origin_one_number(ctx):
+    return _sensors(ctx, str(ctx.tmp / "gnss_log.txt"), extra=("--origin", "30.5")), ["--origin", "LAT,LON"]
+
+
+@case(EXIT_USAGE)
+def sensors_origin_text(ctx):
+    return _sensors(ctx, str(ctx.tmp / "gnss_log.txt"), extra=("--origin", "north,east")), ["--origin", "numbers"]
+
+
+@case(EXIT_USAGE)
+def sensors_origin_latitude_out_of_range(ctx):
+    return _sensors(ctx, str(ctx.tmp / "gnss_log.txt"), extra=("--origin", "95,114")), ["--origin", "out of range"]
+
+
+@case(EXIT_USAGE)
+def sensors_origin_nan(ctx):
+    return _sensors(ctx, str(ctx.tmp / "gnss_log.txt"), extra=("--origin", "nan,114,3")), ["--origin", "finite"]
+
+
+@case(EXIT_USAGE)
+def sensors_rate_zero(ctx):
+    return _sensors(ctx, str(ctx.tmp / "gnss_log.txt"), extra=("--rate", "0")), ["--rate"]
+
+
+@case(EXIT_USAGE)
+def sensors_output_is_the_log(ctx):
+    log = _gnss_log(ctx, _static_lines())
+    return ["-q", "sensors", log, "-o", log], ["-o", log, "LOG"]
+
+
+@case(EXIT_USAGE)
+def sensors_hdf5_to_stdout(ctx):
+    log = _gnss_log(ctx, _static_lines())
+    return ["-q", "sensors", log, "-o", "-"], ["-o -"]
+
+
 # ----------------------------------------------------------------------------------------------------- fuse
 
 def _fuse(ctx, receiver: str | Path, sensors: str | Path, *extra: str) -> list[str]:
@@ -777,6 +1054,23 @@ def fuse_tower_three_numbers(ctx):
 @case(EXIT_USAGE)
 def fuse_tower_nan(ctx):
     return _fuse(ctx, ctx.rx, ctx.truth, "--tower", "nan,2200"), ["--tower", "finite"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_tower_ll_without_a_geodetic_origin(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--tower-ll", "30.5,114.3"), [str(ctx.truth), "no geodetic origin",
+                                                                        "--tower X,Y"]
+
+
+@case(EXIT_USAGE)
+def fuse_tower_and_tower_ll(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--tower", "1,2", "--tower-ll", "30.5,114.3"), ["--tower-ll",
+                                                                                           "not allowed with"]
+
+
+@case(EXIT_USAGE)
+def fuse_tower_ll_longitude_out_of_range(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--tower-ll", "30.5,200"), ["--tower-ll", "out of range"]
 
 
 @case(EXIT_USAGE)

@@ -1,0 +1,99 @@
+"""WGS84 latitude, longitude and height to the project's local ENU frame, through ``pymap3d``.
+
+The ENU frame (x east, y north, z up, m; ``docs/conventions.md``) of an imported phone log is the
+tangent plane at a geodetic origin stored on its ``/gnss`` group
+(:data:`dtmbnav_core.schema.ORIGIN_ATTRS`); ``fuse --tower-ll`` puts a tower given by latitude and
+longitude into the same frame.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+import pymap3d
+
+from dtmbnav_core.sensors import read_geodetic_origin
+
+
+@dataclass(frozen=True)
+class GeodeticPoint:
+    """A point on WGS84.
+
+    Attributes
+    ----------
+    lat_deg, lon_deg : float
+        Latitude (-90..90) and longitude (-180..180), deg.
+    height_m : float or None
+        Height above the WGS84 ellipsoid, m; None where not given (see :meth:`with_height`).
+    """
+
+    lat_deg: float
+    lon_deg: float
+    height_m: float | None = None
+
+    def __post_init__(self) -> None:
+        values = (self.lat_deg, self.lon_deg) + (() if self.height_m is None else (self.height_m,))
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"latitude, longitude and height must be finite numbers, got {values}")
+        if abs(self.lat_deg) > 90.0:
+            raise ValueError(f"latitude {self.lat_deg} deg is out of range (-90..90)")
+        if abs(self.lon_deg) > 180.0:
+            raise ValueError(f"longitude {self.lon_deg} deg is out of range (-180..180)")
+
+    def with_height(self, default_m: float) -> GeodeticPoint:
+        """This point, its height ``default_m`` where none was given."""
+        return self if self.height_m is not None else GeodeticPoint(self.lat_deg, self.lon_deg, float(default_m))
+
+
+def parse_point(text: str) -> GeodeticPoint:
+    """``LAT,LON`` or ``LAT,LON,HEIGHT_M`` (deg, deg, m above the ellipsoid; the height None when not given);
+    ValueError naming what is wrong."""
+    parts = text.split(",")
+    if len(parts) not in (2, 3):
+        raise ValueError(f"expected LAT,LON[,HEIGHT_M], got {text!r}")
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise ValueError(f"expected LAT,LON[,HEIGHT_M] as numbers, got {text!r}") from None
+    return GeodeticPoint(*values)
+
+
+def to_enu(lat_deg: np.ndarray, lon_deg: np.ndarray, height_m: np.ndarray,
+           origin: GeodeticPoint) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """East, north and up of WGS84 points about ``origin`` (whose height must be known), m (``pymap3d.geodetic2enu``)."""
+    if origin.height_m is None:
+        raise ValueError("the ENU origin needs a height")
+    east, north, up = pymap3d.geodetic2enu(np.asarray(lat_deg, dtype=np.float64), np.asarray(lon_deg, dtype=np.float64),
+                                           np.asarray(height_m, dtype=np.float64), origin.lat_deg, origin.lon_deg,
+                                           origin.height_m)
+    return np.asarray(east, dtype=np.float64), np.asarray(north, dtype=np.float64), np.asarray(up, dtype=np.float64)
+
+
+def tower_in_sensors_frame(sensors_path: str | os.PathLike, tower: GeodeticPoint) -> tuple[float, float, float]:
+    """A tower given by latitude and longitude in the ENU frame of a sensors file.
+
+    Returns
+    -------
+    x_m, y_m : float
+        East and north of the tower about the file's origin, m.
+    height_m : float
+        The tower antenna's height above the receiver's antenna, m: its up coordinate (the origin is the
+        phone's first fix, so its height is the antenna's) when the tower's height is given, else 0 (as
+        ``--tower X,Y``).
+
+    Raises
+    ------
+    ValueError
+        The file has no geodetic origin (not an imported phone log).
+    """
+    origin = read_geodetic_origin(sensors_path)
+    if origin is None:
+        raise ValueError(f"{sensors_path}: no geodetic origin (/gnss attributes origin_lat_deg, origin_lon_deg, "
+                         "origin_height_m, written by 'dtmbnav sensors'); give the tower in its frame with --tower X,Y")
+    origin_point = GeodeticPoint(*origin)
+    height = tower.height_m if tower.height_m is not None else origin_point.height_m
+    east, north, up = to_enu(np.array([tower.lat_deg]), np.array([tower.lon_deg]), np.array([height]), origin_point)
+    return float(east[0]), float(north[0]), float(up[0]) if tower.height_m is not None else 0.0
