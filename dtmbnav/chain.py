@@ -34,6 +34,7 @@ from dtmbnav_core.records import ImuLog
 from dtmbnav_core.sensors import (read_capture_start_s, read_gnss, read_has_magnetometer, read_imu, read_tower,
                                   read_walk_truth, read_weinberg_k_m)
 from dtmbnav.errors import NoResult
+from dtmbnav.geodetic import GeodeticPoint, read_origin, to_geodetic
 from dtmbnav.receive import receive_capture
 from fusion.model import Geometry
 from fusion.pdr import PdrConfig, PdrResult, run_pdr
@@ -242,6 +243,28 @@ def write_fusion(h5: h5py.File, result: FusionResult) -> None:
             "initial_heading_minima_rad": heading.minima_rad, "initial_heading_costs_m": heading.costs_m})
 
 
+def write_geodetic(h5: h5py.File, sensors_path: str | os.PathLike, origin: GeodeticPoint,
+                   towers: tuple[tuple[float, float, float], ...]) -> None:
+    """What a map of the results needs, for a sensors file with a geodetic origin (``docs/schema.md``).
+
+    Copies the sensors file's ``/gnss`` (its fixes, and the origin as its attributes), adds
+    ``lat_deg`` and ``lon_deg`` to every ``/fusion/<filter>`` (up 0 m: at the origin's height), and
+    records ``towers`` (east, north and height above the receiver's antenna, m) with their latitude
+    and longitude on ``/fusion``.
+    """
+    write_columns(h5, schema.GNSS, read_columns(sensors_path, schema.GNSS), read_attrs(sensors_path, schema.GNSS))
+    fusion = h5[schema.FUSION]
+    for group in fusion.values():
+        lat, lon = to_geodetic(group["x_m"][()], group["y_m"][()], 0.0, origin)
+        for name, values in zip(schema.FUSION_GEODETIC_COLUMNS, (lat, lon)):
+            group.create_dataset(name, data=values)
+    sites = np.array(towers, dtype=np.float64).reshape(-1, 3)
+    lat, lon = to_geodetic(sites[:, 0], sites[:, 1], sites[:, 2], origin)
+    for name, values in zip((*schema.FUSION_TOWER_ATTRS, *schema.FUSION_TOWER_GEODETIC_ATTRS),
+                            (*sites.T, lat, lon)):
+        fusion.attrs[name] = values
+
+
 def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike, out_path: str | os.PathLike,
                filters: tuple[str, ...], pdr_config: PdrConfig, tower_xy_m: tuple[float, float] | None = None,
                start_xy_m: tuple[float, float] | None = None,
@@ -253,10 +276,12 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
     ``tower_height_m`` is the height of a given tower (``tower_xy_m``) above the receiver's antenna, m.
 
     Every input is read and checked first, including that both files are of
-    one walk (:func:`check_same_walk`).
+    one walk (:func:`check_same_walk`). A sensors file with a geodetic origin
+    (``dtmbnav sensors``) also gets the tracks and towers on WGS84 (:func:`write_geodetic`).
     """
     frames, rx_attrs = read_receiver_frames(receiver_path)
     imu = read_checked_imu(sensors_path)
+    origin = read_origin(sensors_path)
     capture_start_s = read_capture_start_s(sensors_path)
     check_same_walk(receiver_path, rx_attrs, frames["t_s"], sensors_path, imu.t_s, capture_start_s)
     pdr_config = resolve_pdr_config(pdr_config, sensors_path)
@@ -288,6 +313,8 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
         write_columns(h5, schema.RECEIVER_FRAMES, frames, rx_attrs)
         write_pdr(h5, pdr, pdr_config)
         write_fusion(h5, result)
+        if origin is not None:
+            write_geodetic(h5, sensors_path, origin, ((*tower_xy_m, height_m), *other_towers))
     return result
 
 
@@ -327,8 +354,12 @@ def check_report_inputs(results_path: str | os.PathLike, truth_path: str | os.Pa
 
 
 def write_report_folder(results_path: str | os.PathLike, out_dir: str | os.PathLike,
-                        truth_path: str | os.PathLike | None = None, receiver_only: bool = False) -> Path:
+                        truth_path: str | os.PathLike | None = None, receiver_only: bool = False,
+                        origin: GeodeticPoint | None = None) -> Path:
     """``dtmbnav report``: the report of a results file (or of a receiver file alone) into ``out_dir``.
+
+    ``origin`` places the results' ENU frame on WGS84 for the map files (``report --origin``), in place
+    of the origin the results file holds.
 
     Written into a temporary folder and moved into ``out_dir`` only when
     complete (:func:`dtmbnav_core.h5io.atomic_folder`): a bad input leaves no
@@ -341,7 +372,7 @@ def write_report_folder(results_path: str | os.PathLike, out_dir: str | os.PathL
         if receiver_only:
             write_receiver_report(results_path, tmp, truth_path=truth_path)
         else:
-            write_report(results_path, tmp, truth_path=truth_path)
+            write_report(results_path, tmp, truth_path=truth_path, origin=origin)
     return Path(out_dir)
 
 

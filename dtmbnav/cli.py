@@ -496,7 +496,7 @@ def _rerun_walk(args: argparse.Namespace, failure) -> str:
 def cmd_report(args: argparse.Namespace) -> int:
     from dtmbnav.chain import write_report_folder
 
-    folder = write_report_folder(args.results, args.output, truth_path=args.truth)
+    folder = write_report_folder(args.results, args.output, truth_path=args.truth, origin=args.origin)
     print(f"report written to {folder}", file=sys.stderr)
     return EXIT_OK
 
@@ -799,6 +799,10 @@ def _add_report_command(subparsers: argparse._SubParsersAction, common: argparse
     p.add_argument("results", help="HDF5 file from run/fuse")
     p.add_argument("-o", "--output", required=True, type=Path, help="report folder")
     p.add_argument("--truth", help="truth.h5 (default: the truth group inside the results file)")
+    p.add_argument("--origin", type=_geodetic, metavar="LAT,LON[,H]",
+                   help="place the results' ENU frame on WGS84 for the map files (tracks.geojson, tracks.gpx, "
+                        "map.html): its origin, deg, and height above the ellipsoid, m (default 0); default: the "
+                        "origin the results file holds (fused from a 'dtmbnav sensors' file), else no map files")
     p.set_defaults(handler=cmd_report)
 
 

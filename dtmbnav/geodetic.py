@@ -1,9 +1,10 @@
-"""WGS84 latitude, longitude and height to the project's local ENU frame, through ``pymap3d``.
+"""WGS84 latitude, longitude and height to and from the project's local ENU frame, through ``pymap3d``.
 
 The ENU frame (x east, y north, z up, m; ``docs/conventions.md``) of an imported phone log is the
 tangent plane at a geodetic origin stored on its ``/gnss`` group
 (:data:`dtmbnav_core.schema.ORIGIN_ATTRS`); ``fuse --tower-ll`` puts a tower given by latitude and
-longitude into the same frame.
+longitude into the same frame, and ``fuse`` and ``report`` put the fused tracks and the towers back onto
+WGS84 for maps.
 """
 
 from __future__ import annotations
@@ -70,6 +71,25 @@ def to_enu(lat_deg: np.ndarray, lon_deg: np.ndarray, height_m: np.ndarray,
                                            np.asarray(height_m, dtype=np.float64), origin.lat_deg, origin.lon_deg,
                                            origin.height_m)
     return np.asarray(east, dtype=np.float64), np.asarray(north, dtype=np.float64), np.asarray(up, dtype=np.float64)
+
+
+def to_geodetic(east_m: np.ndarray, north_m: np.ndarray, up_m: np.ndarray | float,
+                origin: GeodeticPoint) -> tuple[np.ndarray, np.ndarray]:
+    """WGS84 latitude and longitude, deg, of ENU points about ``origin`` (whose height must be known)
+    (``pymap3d.enu2geodetic``; east, north and up in m)."""
+    if origin.height_m is None:
+        raise ValueError("the ENU origin needs a height")
+    east = np.asarray(east_m, dtype=np.float64)
+    up = np.broadcast_to(np.asarray(up_m, dtype=np.float64), east.shape)
+    lat, lon, _ = pymap3d.enu2geodetic(east, np.asarray(north_m, dtype=np.float64), up, origin.lat_deg,
+                                       origin.lon_deg, origin.height_m)
+    return np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
+
+
+def read_origin(path: str | os.PathLike) -> GeodeticPoint | None:
+    """The geodetic origin of a sensors or results file's ENU frame (:func:`read_geodetic_origin`), None without."""
+    origin = read_geodetic_origin(path)
+    return None if origin is None else GeodeticPoint(*origin)
 
 
 def tower_in_sensors_frame(sensors_path: str | os.PathLike, tower: GeodeticPoint) -> tuple[float, float, float]:

@@ -3,7 +3,10 @@
 Reads a results file (``/receiver/frames``, ``/pdr``, ``/fusion/<filter>``)
 and, when available, the truth (``/truth``) of the same walk. Figures are PNG
 (matplotlib, Agg backend); the table is written as Markdown and JSON, with the
-paper's figures (``docs/method.md`` §6) next to ours.
+paper's figures (``docs/method.md`` §6) next to ours. Where the results' ENU
+frame has a geodetic origin (stored by ``fuse`` from a sensors file of
+``dtmbnav sensors``, or given as ``report --origin``), the tracks, the GNSS
+fixes and the towers also go onto WGS84 as map files (:mod:`dtmbnav.maps`).
 """
 
 from __future__ import annotations
@@ -25,6 +28,17 @@ from dtmbnav_core import schema  # noqa: E402
 from dtmbnav_core.h5io import read_attrs, read_columns  # noqa: E402
 from dtmbnav_core.records import PdrSteps, Track  # noqa: E402
 from dtmbnav_core.sensors import read_tower, read_walk_truth  # noqa: E402
+from dtmbnav.geodetic import GeodeticPoint, read_origin, to_geodetic  # noqa: E402
+from dtmbnav.maps import (  # noqa: E402
+    KIND_FILTER,
+    KIND_FIX,
+    KIND_PDR,
+    KIND_TOWER,
+    KIND_TRUTH,
+    MapPoint,
+    MapTrack,
+    write_map_files,
+)
 from dtmbnav.paper import paper_figures  # noqa: E402
 from fusion.metrics import (  # noqa: E402
     PDR_AT_FIX,
@@ -218,12 +232,72 @@ def plot_cdf(path: Path, errors: dict[str, np.ndarray]):
     plt.close(fig)
 
 
+#: The summary's line for a report without map files.
+NO_MAP_NOTE = ("no map files: the results have no geodetic origin (local metres, e.g. a simulated walk); "
+               "'report --origin LAT,LON[,H]' places them on the map")
+
+
+def _has_group(path: str | os.PathLike, name: str) -> bool:
+    with h5py.File(path, "r") as f:
+        return name in f
+
+
+def map_towers(results_path: str | os.PathLike, truth_path: str | os.PathLike | None,
+               origin: GeodeticPoint) -> list[MapPoint]:
+    """The towers the filters used (``/fusion`` attributes), else the truth's; empty where neither has them.
+
+    Each tower goes onto WGS84 at its height above the receiver's antenna where the results record it
+    (as ``fuse`` put it), else at up 0 m.
+    """
+    attrs = read_attrs(results_path, schema.FUSION)
+    if all(name in attrs for name in schema.FUSION_TOWER_ATTRS):
+        x, y, up = (np.atleast_1d(np.asarray(attrs[name], dtype=np.float64)) for name in schema.FUSION_TOWER_ATTRS)
+    elif truth_path is not None:
+        paths_attrs = read_attrs(truth_path, schema.TRUTH_PATHS) if _has_group(truth_path, schema.TRUTH_PATHS) else {}
+        if "towers_x_m" in paths_attrs and "towers_y_m" in paths_attrs:
+            x, y = (np.atleast_1d(np.asarray(paths_attrs[n], dtype=np.float64)) for n in ("towers_x_m", "towers_y_m"))
+        else:
+            x, y = (np.array([v]) for v in read_tower(truth_path)[:2])
+        up = np.zeros_like(x)
+    else:
+        return []
+    lat, lon = to_geodetic(x, y, up, origin)
+    return [MapPoint(f"tower {k}", KIND_TOWER, float(a), float(b)) for k, (a, b) in enumerate(zip(lat, lon))]
+
+
+def map_fixes(results_path: str | os.PathLike, truth_path: str | os.PathLike | None,
+              origin: GeodeticPoint) -> list[MapPoint]:
+    """The GNSS fixes of the results file's ``/gnss`` (copied by ``fuse``), else of the truth file's; at up 0 m."""
+    source = results_path if _has_group(results_path, schema.GNSS) else truth_path
+    if source is None or not _has_group(source, schema.GNSS):
+        return []
+    gnss = read_columns(source, schema.GNSS)
+    lat, lon = to_geodetic(gnss["x_m"], gnss["y_m"], 0.0, origin)
+    return [MapPoint(f"GNSS fix at {t:.1f} s", KIND_FIX, float(a), float(b))
+            for t, a, b in zip(gnss["t_s"], lat, lon)]
+
+
+def map_tracks(estimates: dict[str, Track], truth: Track | None, origin: GeodeticPoint) -> list[MapTrack]:
+    """The truth (when given), ``pdr@fix`` and every filter's track on WGS84, at up 0 m.
+
+    The ``pdr`` baseline is left out: it is placed with the truth's start and heading, which a
+    user in the field does not have.
+    """
+    named = ([("truth", KIND_TRUTH, truth)] if truth is not None else []) + [
+        (name, KIND_PDR if name == PDR_AT_FIX else KIND_FILTER, track) for name, track in estimates.items()
+        if name != PDR_BASELINE]
+    return [MapTrack(name, kind, *to_geodetic(track.x_m, track.y_m, 0.0, origin)) for name, kind, track in named]
+
+
 def write_report(results_path: str | os.PathLike, out_dir: str | os.PathLike,
-                 truth_path: str | os.PathLike | None = None) -> Path:
+                 truth_path: str | os.PathLike | None = None, origin: GeodeticPoint | None = None) -> Path:
     """Write the report folder for a results file; returns the folder.
 
     Without a truth file the trajectory and range plots are drawn without
-    truth and no error table is made.
+    truth and no error table is made. With a geodetic origin, ``origin``
+    (height 0 m where not given) or else the one the results file holds,
+    the map files ``tracks.geojson``, ``tracks.gpx`` and ``map.html`` are
+    written too; without one the summary says there are none.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -246,6 +320,17 @@ def write_report(results_path: str | os.PathLike, out_dir: str | os.PathLike,
     plot_trajectories(out / "trajectory.png", truth, estimates, tower)
     plot_ranges(out / "range.png", frames, offset, truth_frames, truth_paths)
     summary: dict = {"results": str(results_path), "initial_heading_deg": float(np.rad2deg(heading))}
+    origin = origin.with_height(0.0) if origin is not None else read_origin(results_path)
+    written: list[Path] = []
+    if origin is not None:
+        points = map_fixes(results_path, truth_path, origin) + map_towers(results_path, truth_path, origin)
+        written = write_map_files(out, map_tracks(estimates, truth, origin), points)
+        summary["map_origin"] = [origin.lat_deg, origin.lon_deg, origin.height_m]
+    map_line = NO_MAP_NOTE if origin is None else (
+        f"map: {', '.join(p.name for p in written)} (ENU origin {origin.lat_deg:.7f}, {origin.lon_deg:.7f} deg, "
+        f"{origin.height_m:.1f} m)")
+    summary["map"] = map_line
+    summary["map_files"] = [p.name for p in written]
     if truth is not None:
         errors = {name: position_errors_m(track, truth) for name, track in estimates.items()}
         plot_cdf(out / "error_cdf.png", errors)
@@ -257,7 +342,7 @@ def write_report(results_path: str | os.PathLike, out_dir: str | os.PathLike,
             f"Initial heading (eq. 15): {np.rad2deg(heading):.1f} deg, {heading_error_deg:.1f} deg from the "
             f"true {np.rad2deg(true_heading) % 360:.1f} deg\n\n{table}\n\n"
             "`pdr` is placed as the paper reports PDR error (true start, true initial heading); `pdr@fix` "
-            "starts like the filters, at the GNSS fix with the eq. 15 heading.\n")
+            f"starts like the filters, at the GNSS fix with the eq. 15 heading.\n\n{map_line}\n")
         summary["rows"] = [asdict(r) for r in rows]
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return out

@@ -65,9 +65,18 @@ START_UTC_ATTR = "start_utc"
 START_UTC_NS_ATTR = "start_utc_unix_ns"
 #: On /imu of an imported phone log: False when the log had no magnetometer (``mag_ut`` then holds zeros).
 HAS_MAGNETOMETER_ATTR = "has_magnetometer"
-#: On /gnss of an imported phone log: the geodetic origin of the ENU frame (WGS84 latitude and longitude,
-#: deg; height above the ellipsoid, m).
+#: On /gnss of an imported phone log, and of a results file fused from one (``fuse`` copies that /gnss): the
+#: geodetic origin of the ENU frame (WGS84 latitude and longitude, deg; height above the ellipsoid, m).
 ORIGIN_ATTRS = ("origin_lat_deg", "origin_lon_deg", "origin_height_m")
+#: Further /fusion/<filter> columns where the ENU frame has a geodetic origin: the fused track as WGS84 latitude
+#: and longitude, deg (``pymap3d.enu2geodetic`` of x_m, y_m with up 0 m, i.e. at the origin's height).
+FUSION_GEODETIC_COLUMNS = ("lat_deg", "lon_deg")
+#: On /fusion where the ENU frame has a geodetic origin: every tower the filters used, tower 0 first (as
+#: arrays): east and north, m, and the antenna's height above the receiver's antenna, m.
+FUSION_TOWER_ATTRS = ("towers_x_m", "towers_y_m", "towers_height_m")
+#: On /fusion with :data:`FUSION_TOWER_ATTRS`: the towers' WGS84 latitude and longitude, deg (up = their height
+#: above the receiver's antenna about the origin).
+FUSION_TOWER_GEODETIC_ATTRS = ("towers_lat_deg", "towers_lon_deg")
 #: On /fusion/<filter>: the initial heading used and how it was chosen.
 INITIAL_HEADING_ATTR = "initial_heading_rad"
 #: On /fusion/<filter>: the start fix P0 every filter started from (x, y), m.

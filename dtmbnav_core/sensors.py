@@ -20,7 +20,7 @@ import h5py
 import numpy as np
 
 from dtmbnav_core import schema
-from dtmbnav_core.h5io import read_attrs, read_columns, write_columns
+from dtmbnav_core.h5io import open_h5, read_attrs, read_columns, write_columns
 from dtmbnav_core.records import GnssLog, ImuLog, StartFix, Track, WalkTruth
 
 
@@ -124,7 +124,11 @@ def read_gnss(path: str | os.PathLike) -> tuple[GnssLog, StartFix]:
 
 def read_geodetic_origin(path: str | os.PathLike) -> tuple[float, float, float] | None:
     """The geodetic origin of the file's ENU frame (latitude, longitude, deg; ellipsoidal height, m), from the
-    ``/gnss`` attributes of an imported phone log; None when the file has none (a simulation's)."""
+    ``/gnss`` attributes of an imported phone log (or of a results file fused from one); None when the file has
+    none (a simulation's) or has no ``/gnss`` (a results file of a simulation)."""
+    with open_h5(path) as f:
+        if schema.GNSS not in f:
+            return None
     attrs = read_attrs(path, schema.GNSS)
     if not all(name in attrs for name in schema.ORIGIN_ATTRS):
         return None
