@@ -398,19 +398,23 @@ def cmd_receive(args: argparse.Namespace) -> int:
     return EXIT_OK if summary.frames else EXIT_NO_RESULT
 
 
-def _say_attitude_source(args: argparse.Namespace) -> None:
-    """Say when a sensors file without a magnetometer makes the PDR's attitude gyro-and-accelerometer only."""
-    from dtmbnav_core.sensors import read_has_magnetometer
+def _say_pdr_choices(args: argparse.Namespace) -> None:
+    """Say what the sensors file makes the PDR do in place of the settings: gyro-and-accelerometer attitude
+    without a magnetometer, the step-frequency model without a calibrated Weinberg gain."""
+    from dtmbnav_core.sensors import read_has_magnetometer, read_weinberg_k_m
 
     if not read_has_magnetometer(args.sensors):
         _warn(args, f"{args.sensors}: no magnetometer in the log: the PDR's attitude comes from the gyro and "
                     "accelerometer alone (its heading drifts with the gyro's bias)")
+    if args.step_model == "weinberg" and args.weinberg_k is None and read_weinberg_k_m(args.sensors) is None:
+        _warn(args, f"{args.sensors}: no calibrated Weinberg gain (give --weinberg-k K): step lengths from the "
+                    "step-frequency model")
 
 
 def cmd_pdr(args: argparse.Namespace) -> int:
     from dtmbnav.chain import run_pdr_file
 
-    _say_attitude_source(args)
+    _say_pdr_choices(args)
     result = run_pdr_file(args.sensors, args.output, _pdr_config(args), csv_path=args.csv)
     print(f"pdr: {len(result.steps)} steps, {result.steps.step_length_m.sum():.1f} m walked -> {args.output}",
           file=sys.stderr)
@@ -433,7 +437,7 @@ def cmd_fuse(args: argparse.Namespace) -> int:
     from dtmbnav.chain import fuse_files
 
     config = _fusion_config(args, seed=args.seed, clock_model=args.clock_model)
-    _say_attitude_source(args)
+    _say_pdr_choices(args)
     tower, tower_height_m = args.tower, 0.0
     if args.tower_ll is not None:
         from dtmbnav.geodetic import tower_in_sensors_frame

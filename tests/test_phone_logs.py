@@ -202,7 +202,12 @@ def test_pdr_walks_the_imported_log(motion, tmp_path, capsys, mag):
     sensors, pdr = tmp_path / "sensors.h5", tmp_path / "pdr.h5"
     _import(capsys, "-q", str(log), "-o", str(sensors))
     assert main(["pdr", str(sensors), "-o", str(pdr)]) == EXIT_OK
-    assert ("gyro and accelerometer alone" in capsys.readouterr().err) is not mag
+    err = capsys.readouterr().err
+    assert ("gyro and accelerometer alone" in err) is not mag
+    # A phone log has no calibrated Weinberg gain: the PDR says it takes the step-frequency model instead.
+    assert "no calibrated Weinberg gain" in err
+    assert main(["pdr", str(sensors), "-o", str(pdr), "--weinberg-k", "0.45"]) == EXIT_OK
+    assert "Weinberg" not in capsys.readouterr().err
     with h5py.File(pdr, "r") as f:
         steps = len(f["pdr/t_s"])
         assert np.all(np.isfinite(f["pdr/x_m"][()])) and np.all(np.isfinite(f["pdr/heading_rad"][()]))
