@@ -358,6 +358,27 @@ def _pdr_config(args: argparse.Namespace):
     return PdrConfig(step_model=args.step_model, weinberg_k_m=args.weinberg_k)
 
 
+def _channel_centre(args: argparse.Namespace, source) -> float:
+    """The DTMB channel's centre, Hz: ``--channel``, else the capture's record of it, else its centre.
+
+    A channel whose SI carriers lie outside the recorded band is refused: a
+    usage error for ``--channel``, bad input when the file says so.
+    """
+    from receiver.mixer import check_channel_offset
+
+    channel = args.channel if args.channel is not None else source.channel_hz
+    if channel is None:
+        return source.center_hz
+    try:
+        check_channel_offset(channel - source.center_hz, source.sample_rate_hz)
+    except ValueError as exc:
+        if args.channel is not None:
+            raise UsageError(f"--channel {args.channel:g}: {exc} (capture centre {source.center_hz:g} Hz)") from None
+        raise ValueError(f"{args.capture}: the recorded channel centre {channel:g} Hz: {exc} "
+                         f"(capture centre {source.center_hz:g} Hz)") from None
+    return float(channel)
+
+
 def cmd_receive(args: argparse.Namespace) -> int:
     from dtmbnav.receive import receive_capture
     from receiver.capture import MissingCaptureOptions, open_capture
@@ -370,6 +391,9 @@ def cmd_receive(args: argparse.Namespace) -> int:
     if source.center_hz is None:
         raise UsageError(f"{args.capture}: the capture does not say its RF centre frequency; give --center")
     config = _receiver_config(args)
+    channel_hz = _channel_centre(args, source)
+    if channel_hz != source.center_hz:
+        config = dataclasses.replace(config, channel_offset_hz=channel_hz - source.center_hz)
     dump = None
     if args.dump is not None:
         from receiver.dump import DEFAULT_DUMP_STAGES, StageDump
@@ -382,7 +406,8 @@ def cmd_receive(args: argparse.Namespace) -> int:
             raise UsageError(f"--dump-stages/--dump-window: {exc}") from None
         config = dataclasses.replace(config, inspect=dump, inspect_stages=dump.stages)
     try:
-        summary = receive_capture(source, args.output, config, csv_path=args.csv, progress=not args.quiet)
+        summary = receive_capture(source, args.output, config, csv_path=args.csv, progress=not args.quiet,
+                                  carrier_hz=channel_hz)
     except BaseException:
         if dump is not None:
             dump.close(complete=False)
@@ -714,6 +739,9 @@ def _add_receive_command(subparsers: argparse._SubParsersAction, common: argpars
     p.add_argument("--format", choices=IQ_FORMATS, help="sample format of a raw file/stdin")
     p.add_argument("--rate", type=_positive, help="sample rate of a raw file/stdin, Hz")
     p.add_argument("--center", type=_positive, help="RF centre frequency, Hz (needed for velocity and range)")
+    p.add_argument("--channel", type=_positive, metavar="HZ",
+                   help="centre of the DTMB channel, Hz, for a capture tuned beside it (default: the channel the "
+                        "capture's metadata records, else its centre frequency)")
     p.add_argument("--csv", metavar="FILE", help="also write the frame table as CSV ('-' for stdout)")
     p.add_argument("--jobs", type=_positive_int, default=1, metavar="N",
                    help="threads for the per-frame work (default 1); the output is the same for any N")

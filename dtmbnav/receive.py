@@ -54,9 +54,14 @@ class ReceiveSummary:
 
 
 def receive_capture(source: CaptureSource, out_path: str | os.PathLike, config: ReceiverConfig,
-                    csv_path: str | None = None, progress: bool = True) -> ReceiveSummary:
-    """Receive a capture into ``out_path`` (``/receiver/frames``) and summarise it."""
-    sink, attrs = receive_file(source, out_path, config, csv_path=csv_path, progress=progress)
+                    csv_path: str | None = None, progress: bool = True,
+                    carrier_hz: float | None = None) -> ReceiveSummary:
+    """Receive a capture into ``out_path`` (``/receiver/frames``) and summarise it.
+
+    ``carrier_hz`` is the DTMB channel's centre, Hz (default: the capture's
+    centre plus ``config.channel_offset_hz``).
+    """
+    sink, attrs = receive_file(source, out_path, config, csv_path=csv_path, progress=progress, carrier_hz=carrier_hz)
     span = sink.last_t_s - sink.first_t_s if sink.frames else 0.0
     return ReceiveSummary(frames=sink.frames, attrs=attrs, gaps=sink.gaps, seconds=span,
                           ended_early=attrs.get(ENDED_EARLY_ATTR), path_rows=sink.paths)

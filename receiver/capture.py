@@ -8,6 +8,13 @@ Accepted inputs (``docs/conventions.md``):
 - **Raw + sidecar**: a raw interleaved file ``name.<fmt>`` with the project's
   JSON sidecar ``name.<fmt>.json`` (``sample_rate_hz``, ``sample_format``,
   ``center_hz``, ``start_utc_unix_ns``).
+
+The centre of the DTMB channel, when the capture was tuned beside it
+(``docs/schema.md``), is the project key ``channel_hz`` (``dtmbnav:channel_hz``
+in SigMF, ``"dtmbnav": {"channel_hz": ...}`` in a sidecar) or, in SigMF
+without it, the centre of an annotation's ``core:freq_lower_edge`` /
+``core:freq_upper_edge`` that lies within one sample rate of the capture's
+centre; :attr:`CaptureSource.channel_hz` holds it (None: not recorded).
 - **Plain raw**: any file, given ``sample_format`` and ``sample_rate_hz``.
 - ``"-"``: a binary stream on stdin, given ``sample_format`` and ``sample_rate_hz``.
 
@@ -89,6 +96,9 @@ class CaptureSource:
         The file's metadata as read (SigMF global object or the sidecar).
     header_bytes : int
         Bytes to skip at the start of the data file (SigMF ``core:header_bytes``).
+    channel_hz : float or None
+        Centre of the DTMB channel, Hz, when the metadata records it (module
+        docstring); None otherwise.
     """
 
     path: str
@@ -99,6 +109,7 @@ class CaptureSource:
     start_utc_unix_ns: int | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
     header_bytes: int = 0
+    channel_hz: float | None = None
 
     @property
     def format(self) -> IqFormat:
@@ -345,8 +356,27 @@ def _open_sigmf(path: Path, sample_format: str | None, sample_rate_hz: float | N
                     center_hz)
     start = _parse_utc(where, first["core:datetime"]) if "core:datetime" in first else None
     header = int(_number(where, "core:header_bytes", first.get("core:header_bytes", 0), positive=False) or 0)
+    channel = _number(where, f"{PROJECT_NAMESPACE}:channel_hz", info.get(f"{PROJECT_NAMESPACE}:channel_hz"))
+    if channel is None and centre is not None:
+        channel = _annotated_channel(where, meta.get("annotations"), float(centre), float(rate))
     return CaptureSource(str(data_path), rate, None if centre is None else float(centre), fmt.name,
-                         _file_samples(data_path, fmt, header), start, info, header)
+                         _file_samples(data_path, fmt, header), start, info, header, channel)
+
+
+def _annotated_channel(where: str, annotations: Any, centre_hz: float, rate_hz: float) -> float | None:
+    """Centre of the first SigMF annotation with both frequency edges that lies within ``rate_hz`` of the
+    capture's centre, Hz (the channel a capture tuned beside it records); None without one."""
+    if not isinstance(annotations, list):
+        return None
+    for note in annotations:
+        if not isinstance(note, dict) or "core:freq_lower_edge" not in note or "core:freq_upper_edge" not in note:
+            continue
+        low = _number(where, "core:freq_lower_edge", note["core:freq_lower_edge"])
+        high = _number(where, "core:freq_upper_edge", note["core:freq_upper_edge"])
+        middle = 0.5 * (low + high)
+        if abs(middle - centre_hz) < rate_hz:
+            return middle
+    return None
 
 
 def _open_raw(path: Path, sample_format: str | None, sample_rate_hz: float | None,
@@ -379,8 +409,11 @@ def _open_raw(path: Path, sample_format: str | None, sample_rate_hz: float | Non
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None
     _number(where, "sample rate", rate)
+    project = meta.get(PROJECT_NAMESPACE)
+    channel = _number(where, f"{PROJECT_NAMESPACE}.channel_hz",
+                      project.get("channel_hz") if isinstance(project, dict) else None)
     return CaptureSource(str(path), float(rate), None if centre is None else float(centre), fmt.name,
-                         _file_samples(path, fmt), meta.get("start_utc_unix_ns"), meta)
+                         _file_samples(path, fmt), meta.get("start_utc_unix_ns"), meta, channel_hz=channel)
 
 
 def open_capture(path: str | Path, *, sample_format: str | None = None, sample_rate_hz: float | None = None,

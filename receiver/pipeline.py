@@ -2,7 +2,7 @@
 
 Data path (each stage its own module)::
 
-    input chunks -> resample (resample.py) -> acquisition (acquisition.py)
+    input chunks -> [shift onto the channel (mixer.py)] -> resample (resample.py) -> acquisition (acquisition.py)
       -> per batch of frames, per frame on ``jobs`` threads (parallel.py):
          header windows + channel estimate (channel_estimate.py),
          header-tail removal + cyclic reconstruction (body.py), SI carriers (ofdm.py)
@@ -29,6 +29,17 @@ resampler lets through, scaled by its noise bandwidth); what such a capture
 cannot give (the header SNR and the channel taps cover only the recorded
 band, so paths closer than a few chips merge) is stated in the attributes
 (``narrowband``, ``bandwidth_hz``) and in :meth:`Receiver.notes`.
+
+**Off-centre tuning.** With ``ReceiverConfig.channel_offset_hz`` (channel
+centre minus capture centre, Hz) non-zero, the input is first shifted by
+that much (:class:`receiver.mixer.StreamMixer`, phase from the absolute input
+sample index) so that the channel lies at DC; at 0 no such stage runs. A
+front end that swaps I and Q mirrors the spectrum, the channel's place
+included, so an off-centre capture's orientation is given
+(``iq_orientation``; ``"auto"`` takes it as normal and says so) and a
+conjugated input is conjugated before the shift. The
+carrier handed to :class:`Receiver` is the channel's (eq. 10 converts
+Doppler with it), not the capture's centre.
 
 **I/Q orientation.** With ``iq_orientation = "auto"`` the rows of the first
 lock are held until the SI word has been scored in both orientations
@@ -62,6 +73,7 @@ from receiver.capture import CaptureSource
 from receiver.cfo import SiWordDetector, cfo_from_theta, expected_phase_variance, pn_theta_kernel, si_theta_kernel
 from receiver.channel_estimate import TAP_THRESHOLD, TAPS_AFTER, TAPS_BEFORE, ChannelEstimates
 from receiver.derotate import rotation_table
+from receiver.mixer import StreamMixer
 from receiver.ofdm import si_carrier_numbers, si_snr_db
 from receiver.parallel import BatchWindows, FrameWorkers
 from receiver.paths import PathConfig, PathTracker
@@ -132,6 +144,9 @@ class ReceiverConfig:
         SI word of the first lock (module docstring).
     cfo_search_hz : float
         Half-width of the acquisition's carrier-offset search, Hz.
+    channel_offset_hz : float
+        Centre of the DTMB channel minus the capture's centre frequency, Hz
+        (a capture tuned beside the channel); 0 runs no shift stage.
     cfo_scatter_limit : float
         SI phase scatter over its thermal-noise expectation above which a
         frame is flagged LOW_QUALITY.
@@ -173,6 +188,7 @@ class ReceiverConfig:
     clock_offset_hz: float | None = None
     iq_orientation: str = "auto"
     cfo_search_hz: float = DEFAULT_CFO_SEARCH_HZ
+    channel_offset_hz: float = 0.0
     cfo_scatter_limit: float = CFO_SCATTER_LIMIT
     si_polarity: int = 1
     si_frames: int = 256
@@ -199,6 +215,9 @@ class ReceiverConfig:
         if self.iq_orientation not in IQ_ORIENTATIONS:
             raise ValueError(f"ReceiverConfig.iq_orientation must be one of {', '.join(IQ_ORIENTATIONS)}, "
                              f"got {self.iq_orientation!r}")
+        if not np.isfinite(self.channel_offset_hz):
+            raise ValueError(f"ReceiverConfig.channel_offset_hz must be a finite frequency, got "
+                             f"{self.channel_offset_hz!r}")
         for name in ("cfo_search_hz", "cfo_scatter_limit"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
@@ -302,14 +321,24 @@ class Receiver:
     sample_rate_hz : float
         Input sample rate, Hz (resampled to 7.56 Msps).
     carrier_hz : float
-        RF carrier of the tower, Hz (for eq. 10-11).
+        RF carrier of the tower, Hz (for eq. 10-11): the channel's centre, also
+        when the capture is tuned beside it.
     config : ReceiverConfig, optional
+
+    Raises
+    ------
+    ValueError
+        ``config.channel_offset_hz`` puts the SI carriers outside the recorded
+        band (:func:`receiver.mixer.check_channel_offset`).
     """
 
     def __init__(self, sample_rate_hz: float, carrier_hz: float, config: ReceiverConfig | None = None) -> None:
         self.config = config or ReceiverConfig()
         self.sample_rate_hz = float(sample_rate_hz)
         self.carrier_hz = float(carrier_hz)
+        #: Shift onto the channel of a capture tuned beside it (None when tuned on it: no stage).
+        self.mixer = (StreamMixer(self.config.channel_offset_hz, self.sample_rate_hz)
+                      if self.config.channel_offset_hz != 0.0 else None)
         self.resampler = StreamResampler(sample_rate_hz)
         self.ranging = RangeIntegrator(carrier_hz, self.config.clock_offset_hz, self.config.static_window_s)
         #: The capture holds only the centre of the channel (module docstring).
@@ -342,7 +371,9 @@ class Receiver:
         self._lock_starts_gap = False               # the current lock follows a loss of lock
         #: The input is conjugated (given, or decided by ``iq_orientation = "auto"``).
         self.conjugated = self.config.iq_orientation == "conjugate"
-        self._orientation_pending = self.config.iq_orientation == "auto"
+        # An off-centre capture is shifted before anything can tell its orientation, and a front end that swaps
+        # I and Q mirrors the channel's place too: there the orientation must be given, not detected.
+        self._orientation_pending = self.config.iq_orientation == "auto" and self.mixer is None
         self._held: list[FrameBatch] = []           # rows of the lock the orientation is decided on
         self._restart: tuple | None = None          # state before that lock's acquisition
         self.acquisitions: list[Acquisition] = []
@@ -361,9 +392,14 @@ class Receiver:
         if chunk.ndim != 1 or not np.iscomplexobj(chunk):
             raise ValueError(f"chunk must be a 1-D complex array, got {chunk.dtype} shape {chunk.shape}")
         t0 = time.perf_counter()
-        samples = self.resampler.process(chunk)
-        # The resampler's filter is real, so conjugating its output is conjugating its input.
-        samples = np.conj(samples) if self.conjugated else samples
+        if self.mixer is not None:
+            # A front end that swaps I and Q mirrors the spectrum: the channel sits at minus the offset, so the
+            # input is conjugated before the shift (never after it; the orientation is given, not detected).
+            samples = self.resampler.process(self.mixer.process(np.conj(chunk) if self.conjugated else chunk))
+        else:
+            samples = self.resampler.process(chunk)
+            # The resampler's filter is real, so conjugating its output is conjugating its input.
+            samples = np.conj(samples) if self.conjugated else samples
         self.stage_seconds["resample"] += time.perf_counter() - t0
         self._queue.append(samples)
         return self._run(final=False)
@@ -409,6 +445,9 @@ class Receiver:
         if self.config.iq_orientation == "auto" and self.conjugated:
             out.append("I and Q are swapped in this capture (its SI word decodes only conjugated): "
                        "received conjugated, as --conjugate would")
+        if self.config.iq_orientation == "auto" and self.mixer is not None:
+            out.append("off-centre capture: its I/Q orientation is taken as normal, not detected (a front end "
+                       "that swaps I and Q also mirrors where the channel lies; say so with --conjugate)")
         if not self.acquisitions and self.search_outcomes.get(CFO_OUTSIDE_SEARCH):
             out.append(f"a DTMB frame grid was found but its headers show at no carrier offset within "
                        f"+-{self.config.cfo_search_hz / 1e3:g} kHz: the offset lies outside the search "
@@ -442,6 +481,9 @@ class Receiver:
             "path_tracking": self._path_tracker is not None,
             "first_path_clock_offset_hz": (np.nan if self.first_path_ranging.clock_offset_hz is None
                                            else self.first_path_ranging.clock_offset_hz),
+            # Only for a capture tuned beside the channel (a file tuned on it stays as it was).
+            **({"channel_offset_hz": self.mixer.channel_offset_hz, "channel_hz": self.carrier_hz}
+               if self.mixer is not None else {}),
         }
 
     def path_attributes(self) -> dict[str, Any]:
@@ -732,7 +774,8 @@ def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, con
         HDF5 file to write (None: do not write).
     config : ReceiverConfig, optional
     carrier_hz : float, optional
-        RF carrier; defaults to the capture's centre frequency.
+        RF carrier of the channel; defaults to the capture's centre frequency
+        plus ``config.channel_offset_hz``.
     csv_path : path, optional
         Also write the rows as CSV (``"-"`` for stdout).
     chunk_samples : int
@@ -749,7 +792,10 @@ def receive_file(capture: CaptureSource, out_path: str | os.PathLike | None, con
     """
     from dtmbnav_core import schema
 
+    offset = config.channel_offset_hz if config is not None else 0.0
     carrier = carrier_hz if carrier_hz is not None else capture.center_hz
+    if carrier_hz is None and carrier is not None and offset != 0.0:
+        carrier = carrier + offset
     if carrier is None:
         raise ValueError(f"{capture.path}: the capture has no centre frequency; give carrier_hz")
     identity: dict[str, Any] = {}

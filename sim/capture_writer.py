@@ -9,10 +9,15 @@ interrupted simulation never leaves a capture that looks complete.
   ``core:sample_rate``, author, description, one capture segment with
   ``core:frequency`` and ``core:datetime``, plus the project keys in the
   ``dtmbnav:`` namespace, e.g. ``dtmbnav:scenario`` and ``dtmbnav:seed``).
+  A capture tuned beside the DTMB channel (``channel_hz`` given) records the
+  channel too: ``dtmbnav:channel_hz`` and an annotation over the whole
+  capture with the channel's ``core:freq_lower_edge``/``core:freq_upper_edge``
+  (its 7.56 MHz band); ``core:frequency`` is the tuned centre.
 - ``container="raw"``: ``<stem>.<format>`` and the sidecar
   ``<stem>.<format>.json`` with ``sample_rate_hz``, ``center_hz``,
   ``sample_format``, ``start_utc_unix_ns``, ``num_samples``, ``description``
-  and the project keys under ``"dtmbnav"``.
+  and the project keys under ``"dtmbnav"`` (with ``channel_hz`` for a capture
+  tuned beside the channel).
 
 ``receiver.capture.open_capture`` reads both back.
 """
@@ -28,6 +33,7 @@ from typing import Any
 import numpy as np
 from sigmf import SigMFFile
 
+from dtmbnav_core import gb20600
 from dtmbnav_core.iqformat import get_format
 
 CONTAINERS = ("sigmf", "raw")
@@ -72,11 +78,14 @@ class CaptureWriter:
     project : dict, optional
         Project keys (scenario name, seed, ...): ``dtmbnav:<key>`` in SigMF,
         ``"dtmbnav": {...}`` in the sidecar.
+    channel_hz : float, optional
+        Centre of the DTMB channel, Hz, for a capture tuned beside it
+        (``center_hz`` is then the tuned centre); None writes nothing of it.
     """
 
     def __init__(self, stem: str | os.PathLike, container: str, sample_format: str, sample_rate_hz: float,
                  center_hz: float, *, start_utc_unix_ns: int | None = None, description: str = "",
-                 project: dict[str, Any] | None = None) -> None:
+                 project: dict[str, Any] | None = None, channel_hz: float | None = None) -> None:
         self.format = get_format(sample_format)
         stem = Path(stem)
         self.data_path, self.meta_path = capture_paths(stem, container, sample_format)
@@ -86,6 +95,9 @@ class CaptureWriter:
         self.start_utc_unix_ns = start_utc_unix_ns
         self.description = description
         self.project = dict(project or {})
+        self.channel_hz = None if channel_hz is None else float(channel_hz)
+        if self.channel_hz is not None:
+            self.project["channel_hz"] = self.channel_hz
         self.num_samples = 0
         self._tmp_data = self.data_path.with_name(f".{self.data_path.name}.partial-{os.getpid()}")
         # The sigmf package appends ".sigmf-meta" to names without it, so the suffix stays last.
@@ -118,6 +130,11 @@ class CaptureWriter:
             if self.start_utc_unix_ns is not None:
                 capture["core:datetime"] = _iso_utc(self.start_utc_unix_ns)
             meta.add_capture(0, metadata=capture)
+            if self.channel_hz is not None:
+                half = 0.5 * gb20600.SYMBOL_RATE_HZ
+                meta.add_annotation(0, self.num_samples, metadata={
+                    "core:freq_lower_edge": self.channel_hz - half, "core:freq_upper_edge": self.channel_hz + half,
+                    "core:label": "DTMB channel"})
             meta.tofile(self._tmp_meta, overwrite=True)
         else:
             sidecar = {"sample_rate_hz": self.sample_rate_hz, "center_hz": self.center_hz,

@@ -58,6 +58,12 @@ walking, multipath, free-running-clock capture). Everything is a pure
 function of absolute indices, so the output does not depend on the chunking
 (nor on how many threads generate it, ``jobs``).
 
+Off-centre tuning (``receiver.tuning_offset_hz``, :mod:`sim.frontend` step
+0a): the samples above are synthesised on the channel at ``factor * fs`` by a
+second generator of the same scenario, seed and segment, then shifted,
+filtered and decimated to ``fs`` by :meth:`sim.frontend.FrontEnd.tune`; the
+truth (carrier, Doppler, clock offset) is the channel's.
+
 Random streams: ``default_rng([seed, STREAM_*, index, 1])``; the symbol data
 uses :class:`sim.frames.FrameSource` with the same seed.
 """
@@ -182,6 +188,8 @@ class CaptureGenerator:
         self.sample_rate_hz = float(sample_rate_hz or scenario.receiver.sample_rate_hz)
         self.sample_format = sample_format or scenario.receiver.sample_format
         self.carrier_hz = scenario.tower.carrier_hz
+        #: Capture centre minus channel centre, Hz (sim.frontend step 0a).
+        self.tuning_offset_hz = float(scenario.receiver.tuning_offset_hz)
         if self.sample_rate_hz <= 0:
             raise ValueError(f"sample rate must be positive, got {self.sample_rate_hz}")
         if start_s < 0:
@@ -221,6 +229,13 @@ class CaptureGenerator:
             grid_step_s = self.layout.block_samples / self.sample_rate_hz
         self.grid_step_s = float(grid_step_s)
         self.frames = FrameSource(self.frame_config)
+        #: The on-channel generator at ``tuning_factor * fs`` of an off-centre capture (None on the channel).
+        self.wide: CaptureGenerator | None = None
+        if self.tuning_offset_hz != 0.0:
+            self.wide = CaptureGenerator(
+                scenario.replace(receiver={"tuning_offset_hz": 0.0}), track, seconds=seconds, start_s=start_s,
+                sample_rate_hz=self.frontend.tuning_factor * self.sample_rate_hz, sample_format="cf32",
+                pn_mode=self.frame_config.pn_mode, seed=self.seed, pulse_span=pulse_span, synthesis=synthesis)
         self._grid_block = lru_cache(maxsize=8)(self._build_grid_block)
         self._local = threading.local()
 
@@ -269,6 +284,11 @@ class CaptureGenerator:
                                reference=(*common, self.pulse))
 
     @property
+    def center_hz(self) -> float:
+        """Centre frequency of the capture, Hz: the channel's plus ``tuning_offset_hz``."""
+        return self.carrier_hz if self.tuning_offset_hz == 0.0 else self.carrier_hz + self.tuning_offset_hz
+
+    @property
     def num_paths(self) -> int:
         """Number of propagation paths the channel kernel sums."""
         return self.channel.num_paths
@@ -296,6 +316,8 @@ class CaptureGenerator:
 
     def clean_samples(self, first_sample: int, count: int) -> np.ndarray:
         """Noise-free received samples (complex128, before AGC) for absolute sample indices."""
+        if self.wide is not None:
+            return self.frontend.tune(self.wide.clean_samples, first_sample, count)
         if self.layout is None:
             return multipath_kernel(*self.kernel_arguments(first_sample, count).kernel)
         state = self._thread_state()

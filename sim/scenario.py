@@ -214,6 +214,11 @@ class FrontEndConfig:
         Transmitter time at the first sample, s (where in a superframe the
         recording starts).
     clock : ClockConfig
+    tuning_offset_hz : float
+        Capture centre minus the DTMB channel's centre, Hz: a zero-IF SDR
+        tuned beside the channel to keep its DC spike out of it; the channel
+        then lies at ``-tuning_offset_hz`` from DC in the capture
+        (:mod:`sim.frontend`). 0 tunes on the channel.
     """
 
     sample_rate_hz: float = 7.56e6
@@ -224,6 +229,12 @@ class FrontEndConfig:
     agc_backoff_db: float = 12.0
     start_offset_s: float = 0.0371
     clock: ClockConfig = field(default_factory=ClockConfig)
+    tuning_offset_hz: float = 0.0
+
+
+#: Keys written to TOML only when they differ from their default (so scenarios without them serialise as
+#: they did before the key existed).
+_OMIT_DEFAULT = {("receiver", "tuning_offset_hz"): 0.0}
 
 
 @dataclass(frozen=True)
@@ -602,6 +613,8 @@ def scenario_to_toml(scn: Scenario) -> str:
     for section in _SECTIONS:
         lines.append(f"\n[{section}]")
         for key, value in _to_dict(getattr(scn, section)).items():
+            if (section, key) in _OMIT_DEFAULT and value == _OMIT_DEFAULT[(section, key)]:
+                continue
             if value is not None and not (section == "tower" and scn.towers and key in SITE_KEYS):
                 lines.append(f"{key} = {_toml_value(value)}")
     for site in scn.towers:

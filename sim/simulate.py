@@ -111,8 +111,9 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, seconds: float | None =
     if with_iq:
         writer = CaptureWriter(
             out_dir / scenario.name, container, generator.sample_format, generator.sample_rate_hz,
-            generator.carrier_hz, start_utc_unix_ns=SIM_START_UTC_NS + round(capture_start_s * 1e9),
+            generator.center_hz, start_utc_unix_ns=SIM_START_UTC_NS + round(capture_start_s * 1e9),
             description=scenario.description,
+            channel_hz=generator.carrier_hz if generator.tuning_offset_hz != 0.0 else None,
             project={"scenario": scenario.name, "seed": generator.seed, "pn_mode": generator.frame_config.pn_mode.name,
                      "capture_start_s": capture_start_s})
         with writer, tqdm(total=generator.num_samples, unit="S", unit_scale=True, disable=not progress,

@@ -329,6 +329,30 @@ def receive_rate_disagrees_with_metadata(ctx):
 
 
 @case(EXIT_USAGE)
+def receive_channel_nan(ctx):
+    meta = str(ctx.capture().meta)
+    return ["-q", "receive", meta, "--channel", "nan", "-o", ctx.o()], ["--channel", "nan"]
+
+
+@case(EXIT_USAGE)
+def receive_channel_outside_the_recorded_band(ctx):
+    meta = str(ctx.capture().meta)
+    return ["-q", "receive", meta, "--channel", "700e6", "-o", ctx.o()], ["--channel", "outside the recorded band"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sigmf_channel_not_a_number(ctx):
+    meta = ctx.sigmf_meta(lambda d: d["global"].update({"dtmbnav:channel_hz": "666 MHz"}))
+    return ["-q", "receive", meta, "-o", ctx.o()], [meta, "dtmbnav:channel_hz"]
+
+
+@case(EXIT_BAD_INPUT)
+def receive_sigmf_channel_outside_the_recorded_band(ctx):
+    meta = ctx.sigmf_meta(lambda d: d["global"].update({"dtmbnav:channel_hz": 700e6}))
+    return ["-q", "receive", meta, "-o", ctx.o()], [meta, "outside the recorded band"]
+
+
+@case(EXIT_USAGE)
 def receive_raw_without_format_and_rate(ctx):
     cap = ctx.write("plain.ci8", bytes(64))
     return ["-q", "receive", cap, "-o", ctx.o()], [cap, "--format", "--rate"]
