@@ -109,11 +109,10 @@ def tower_in_sensors_frame(sensors_path: str | os.PathLike, tower: GeodeticPoint
     ValueError
         The file has no geodetic origin (not an imported phone log).
     """
-    origin = read_geodetic_origin(sensors_path)
+    origin = read_origin(sensors_path)
     if origin is None:
         raise ValueError(f"{sensors_path}: no geodetic origin (/gnss attributes origin_lat_deg, origin_lon_deg, "
                          "origin_height_m, written by 'dtmbnav sensors'); give the tower in its frame with --tower X,Y")
-    origin_point = GeodeticPoint(*origin)
-    height = tower.height_m if tower.height_m is not None else origin_point.height_m
-    east, north, up = to_enu(np.array([tower.lat_deg]), np.array([tower.lon_deg]), np.array([height]), origin_point)
+    height = tower.height_m if tower.height_m is not None else origin.height_m
+    east, north, up = to_enu(np.array([tower.lat_deg]), np.array([tower.lon_deg]), np.array([height]), origin)
     return float(east[0]), float(north[0]), float(up[0]) if tower.height_m is not None else 0.0
