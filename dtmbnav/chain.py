@@ -303,7 +303,7 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
     geometry = Geometry(start_xy_m[0], start_xy_m[1], tower_xy_m[0], tower_xy_m[1], height_m, other_towers)
     observed = observations_from_receiver(
         frames, read_receiver_paths(receiver_path), rx_attrs, geometry.n_towers, capture_start_s, transmit_delays_s,
-        [geometry.start_range_m(k) for k in range(geometry.n_towers)])
+        geometry.start_ranges_m())
     pdr = run_pdr(imu, pdr_config)
     if len(pdr.steps) == 0:
         raise NoResult(f"{sensors_path}: /{schema.IMU}: the PDR found no steps; nothing to fuse")

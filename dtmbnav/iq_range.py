@@ -131,7 +131,7 @@ def iq_observations(scenario: Scenario, track: Track, seconds: float | None = No
     transmit_delays = [site.transmit_delay_s for site in scenario.sites]
     return observations_from_receiver(columns, path_rows, receiver.attributes(), len(scenario.sites),
                                       transmit_delays_s=transmit_delays,
-                                      start_ranges_m=[geometry.start_range_m(k) for k in range(geometry.n_towers)])
+                                      start_ranges_m=geometry.start_ranges_m())
 
 
 def iq_range_source(scenario: Scenario, truth: Track) -> Observations:

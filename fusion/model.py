@@ -121,6 +121,10 @@ class Geometry:
         """Range from P0 to a tower, m."""
         return float(self.range_m(np.float64(self.start_x_m), np.float64(self.start_y_m), tower))
 
+    def start_ranges_m(self) -> np.ndarray:
+        """Range from P0 to every tower, in the tower table's order, m."""
+        return np.array([self.start_range_m(k) for k in range(self.n_towers)])
+
 
 @dataclass(frozen=True)
 class ObservationLayout:
@@ -168,7 +172,7 @@ class ObservationLayout:
 
     def start_values_m(self, geometry: Geometry) -> np.ndarray:
         """Each channel's geometric value at P0 (its origin when the walk starts at the fix), m."""
-        ranges = np.array([geometry.start_range_m(k) for k in range(self.n_towers)])
+        ranges = geometry.start_ranges_m()
         return np.concatenate([[ranges[0]], ranges, ranges[1:] - ranges[0]])
 
     def geometric_m(self, geometry: Geometry, x_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:

@@ -327,7 +327,7 @@ def test_receiver_towers_are_put_in_the_tower_tables_order_by_their_delays():
 
     towers = Geometry(1.0, -2.0, 2000.0, 2200.0, 148.5,
                       other_towers=((-1372.0, -3771.0, 118.5), (-3574.0, 3969.0, 98.5)))
-    expected = expected_tower_delays_s([towers.start_range_m(k) for k in range(towers.n_towers)], (0.0, 0.5e-6, 0.3e-6))
+    expected = expected_tower_delays_s(towers.start_ranges_m(), (0.0, 0.5e-6, 0.3e-6))
     chip_s = 1.0 / 7.56e6
     assert expected[1] / chip_s == pytest.approx(30.0, abs=0.5) and expected[2] / chip_s == pytest.approx(62.0, abs=0.5)
     rng = np.random.default_rng(0)
