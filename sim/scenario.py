@@ -219,6 +219,38 @@ class FrontEndConfig:
         tuned beside the channel to keep its DC spike out of it; the channel
         then lies at ``-tuning_offset_hz`` from DC in the capture
         (:mod:`sim.frontend`). 0 tunes on the channel.
+    lo_leakage_dbc : float or None
+        Power of the LO leakage tone (at the capture's DC) relative to the
+        signal power of the capture (direct path, after the anti-alias
+        filter), dBc; None: no leakage.
+    lo_leakage_phase_deg : float
+        Phase of the leakage tone, degrees.
+    iq_gain_db : float
+        Gain of the Q rail relative to the I rail, dB (IQ amplitude imbalance).
+    iq_phase_deg : float
+        Quadrature error of the Q rail, degrees: the front end records
+        ``I + j g (Q cos(phi) - I sin(phi))`` for the ideal ``I + j Q``,
+        ``g = 10 ** (iq_gain_db / 20)`` (:mod:`sim.frontend`).
+    adc_bits : int or None
+        ADC resolution, bits: the rails are quantised to ``2 ** adc_bits``
+        levels across the format's full scale; None: the format's own width.
+    adc_dc_lsb : list of float
+        DC of the I and Q rails after the ADC, in ADC LSB (an RTL2832U centres
+        its bytes about 0.5 LSB below 128: ``[-0.5, -0.5]``).
+    agc_step_db : float
+        Size of the AGC's gain steps, dB (0: a fixed gain).
+    agc_steps_per_minute : float
+        Mean rate of the AGC's gain steps (Poisson times, up or down, drawn
+        from the seed).
+    drops_per_minute : float
+        Mean rate of dropped-sample runs (USB overflows; Poisson times drawn
+        from the seed); the samples are missing from the capture, the truth
+        keeps the receiver's clock.
+    drop_samples : list of int
+        Smallest and largest run of dropped samples (log-uniform between).
+    phase_noise_dbc_hz : list of list of float or None
+        The LO's single-sideband phase noise profile, ``[[offset_hz, dBc/Hz],
+        ...]`` (log-log interpolated between the points); None: none.
     """
 
     sample_rate_hz: float = 7.56e6
@@ -230,11 +262,26 @@ class FrontEndConfig:
     start_offset_s: float = 0.0371
     clock: ClockConfig = field(default_factory=ClockConfig)
     tuning_offset_hz: float = 0.0
+    lo_leakage_dbc: float | None = None
+    lo_leakage_phase_deg: float = 0.0
+    iq_gain_db: float = 0.0
+    iq_phase_deg: float = 0.0
+    adc_bits: int | None = None
+    adc_dc_lsb: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    agc_step_db: float = 0.0
+    agc_steps_per_minute: float = 0.0
+    drops_per_minute: float = 0.0
+    drop_samples: list[int] = field(default_factory=lambda: [1, 100000])
+    phase_noise_dbc_hz: list[list[float]] | None = None
 
 
 #: Keys written to TOML only when they differ from their default (so scenarios without them serialise as
 #: they did before the key existed).
-_OMIT_DEFAULT = {("receiver", "tuning_offset_hz"): 0.0}
+_OMIT_DEFAULT = {("receiver", "tuning_offset_hz"): 0.0, ("receiver", "lo_leakage_phase_deg"): 0.0,
+                 ("receiver", "iq_gain_db"): 0.0, ("receiver", "iq_phase_deg"): 0.0,
+                 ("receiver", "adc_dc_lsb"): [0.0, 0.0], ("receiver", "agc_step_db"): 0.0,
+                 ("receiver", "agc_steps_per_minute"): 0.0, ("receiver", "drops_per_minute"): 0.0,
+                 ("receiver", "drop_samples"): [1, 100000]}
 
 
 @dataclass(frozen=True)
