@@ -23,6 +23,8 @@ TRUTH_TRAJECTORY = "truth/trajectory"
 TRUTH_FRAMES = "truth/frames"
 TRUTH_STEPS = "truth/steps"
 TRUTH_PATHS = "truth/paths"
+#: Runs of samples a simulated front end dropped from the capture (written when the scenario drops any).
+TRUTH_DROPS = "truth/drops"
 IMU = "imu"
 GNSS = "gnss"
 RECEIVER_FRAMES = "receiver/frames"
@@ -42,6 +44,9 @@ TRACK_COLUMNS = ("t_s", "x_m", "y_m", "heading_rad", "speed_mps")
 STEP_COLUMNS = ("t_s", "step_length_m")
 IMU_COLUMNS = ("t_s", "acc_mps2", "gyro_radps", "mag_ut")
 GNSS_COLUMNS = ("t_s", "x_m", "y_m", "cn0_dbhz")
+#: /truth/drops (int64): the first lost sample on the receiver's clock and the file index of the first sample
+#: after the gap (both samples since the capture's first), and the samples lost.
+DROP_COLUMNS = ("receiver_sample", "capture_sample", "samples")
 #: Further /gnss columns of an imported phone log: up (m) in the ENU frame, the stated horizontal accuracy
 #: (m), and the fix as logged (WGS84 latitude and longitude, deg; height above the ellipsoid, m).
 GNSS_GEODETIC_COLUMNS = ("z_m", "accuracy_m", "lat_deg", "lon_deg", "height_m")

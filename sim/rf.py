@@ -66,6 +66,15 @@ truth (carrier, Doppler, clock offset) is the channel's.
 
 Random streams: ``default_rng([seed, STREAM_*, index, 1])``; the symbol data
 uses :class:`sim.frames.FrameSource` with the same seed.
+
+The front end's impairments (:mod:`sim.frontend` steps 2 to 9: LO phase
+noise, IQ imbalance, LO leakage, AGC steps, the ADC, dropped samples) are
+functions of absolute sample indices on the receiver's clock too, drawn from
+the ``STREAM_NOISE`` stream. Dropped runs (:meth:`CaptureGenerator.drops`)
+are not rendered: the chunks of :meth:`CaptureGenerator.chunks` and
+:meth:`CaptureGenerator.quantised_chunks` skip them, so the written capture
+holds ``capture_samples`` samples, while ``num_samples``, the frame truth and
+``FrameTruth.t_s`` stay on the receiver's clock.
 """
 
 from __future__ import annotations
@@ -87,7 +96,7 @@ from dtmbnav_core.records import ColumnRecord, Track
 from sim.block_synthesis import BlockSynthesizer, choose_layout
 from sim.channel import Channel
 from sim.frames import FrameConfig, FrameSource
-from sim.frontend import FrontEnd, mean_signal_power
+from sim.frontend import IMPAIRMENT_DEFAULTS, FrontEnd, mean_signal_power
 from sim.oscillator import scenario_oscillator
 from sim.scenario import Scenario
 from sim.transmitter import PULSE_SPAN, multipath_kernel, symbol_range
@@ -150,6 +159,30 @@ class FrameTruth(ColumnRecord):
     los: np.ndarray
     clock_offset_hz: np.ndarray
     frame_number: np.ndarray
+
+
+@dataclass
+class DropTruth(ColumnRecord):
+    """Runs of samples missing from the written capture (:mod:`sim.frontend` step 9), one row per run.
+
+    Column names are ``dtmbnav_core.schema.DROP_COLUMNS``, all int64.
+
+    Attributes
+    ----------
+    receiver_sample : ndarray
+        Index of the run's first lost sample on the receiver's clock, samples
+        since the capture's first sample (``receiver_sample / fs`` is on the
+        time base of ``FrameTruth.t_s``).
+    capture_sample : ndarray
+        Index in the written file of the first sample after the gap (the
+        file's length for a run that reaches its end).
+    samples : ndarray
+        Samples lost (within the capture).
+    """
+
+    receiver_sample: np.ndarray
+    capture_sample: np.ndarray
+    samples: np.ndarray
 
 
 class CaptureGenerator:
@@ -219,7 +252,7 @@ class CaptureGenerator:
                 grid_step_s = min(grid_step_s, MAX_GRID_PHASE_STEP_RAD / (2.0 * np.pi * max_doppler_hz))
         self.signal_power = mean_signal_power(self.frame_config)
         self.frontend = FrontEnd(scenario.receiver, self.signal_power, self.sample_rate_hz, self.sample_format,
-                                 self.seed, STREAM_NOISE, pulse_span)
+                                 self.seed, STREAM_NOISE, pulse_span, stop_sample=self.first_sample + self.num_samples)
         # The transmit pulse through the front end's anti-alias filter: both syntheses shape with it.
         self.pulse = self.frontend.pulse
         self.layout = None
@@ -232,8 +265,10 @@ class CaptureGenerator:
         #: The on-channel generator at ``tuning_factor * fs`` of an off-centre capture (None on the channel).
         self.wide: CaptureGenerator | None = None
         if self.tuning_offset_hz != 0.0:
+            # Only its noise-free samples are used: its front end needs none of the impairments.
+            on_channel = scenario.replace(receiver={"tuning_offset_hz": 0.0, **IMPAIRMENT_DEFAULTS})
             self.wide = CaptureGenerator(
-                scenario.replace(receiver={"tuning_offset_hz": 0.0}), track, seconds=seconds, start_s=start_s,
+                on_channel, track, seconds=seconds, start_s=start_s,
                 sample_rate_hz=self.frontend.tuning_factor * self.sample_rate_hz, sample_format="cf32",
                 pn_mode=self.frame_config.pn_mode, seed=self.seed, pulse_span=pulse_span, synthesis=synthesis)
         self._grid_block = lru_cache(maxsize=8)(self._build_grid_block)
@@ -337,6 +372,50 @@ class CaptureGenerator:
         samples = frontend.apply(self.clean_samples(first_sample, count), first_sample)
         return frontend.quantise(samples) if quantise else samples
 
+    def drops(self) -> DropTruth:
+        """The runs of samples missing from the written capture (:class:`DropTruth`; empty without drops).
+
+        A run that starts before the segment or ends after it counts only its
+        samples within the segment.
+        """
+        first, count = self.frontend.drop_runs
+        start, stop = self.first_sample, self.first_sample + self.num_samples
+        lo = np.clip(first, start, stop)
+        hi = np.clip(first + count, start, stop)
+        keep = hi > lo
+        lo, lost = lo[keep], (hi - lo)[keep]
+        # Samples kept before each run: the receiver-clock offset less the runs before it.
+        before = np.cumsum(lost) - lost
+        return DropTruth(receiver_sample=(lo - start).astype(np.int64),
+                         capture_sample=(lo - start - before).astype(np.int64), samples=lost.astype(np.int64))
+
+    @property
+    def capture_samples(self) -> int:
+        """Samples in the written capture: ``num_samples`` (receiver clock) less the dropped ones."""
+        return self.num_samples - int(np.sum(self.drops().samples))
+
+    def _kept(self, ranges: list[tuple[int, int]]) -> list[tuple[int, int]]:
+        """``(first, count)`` ranges less the dropped runs (module docstring of :mod:`sim.frontend`, step 9)."""
+        drops = self.drops()
+        if len(drops) == 0:
+            return ranges
+        gaps = [(int(a), int(a + n)) for a, n in zip(drops.receiver_sample + self.first_sample, drops.samples)]
+        kept, g = [], 0
+        for first, count in ranges:  # both ascending, the gaps apart: one pass
+            pos, end = first, first + count
+            while g < len(gaps) and gaps[g][1] <= pos:
+                g += 1
+            while pos < end:
+                if g == len(gaps) or gaps[g][0] >= end:
+                    kept.append((pos, end - pos))
+                    break
+                if gaps[g][0] > pos:
+                    kept.append((pos, gaps[g][0] - pos))
+                pos = min(gaps[g][1], end)
+                if gaps[g][1] <= end:
+                    g += 1
+        return kept
+
     def _stream(self, chunk_samples: int, quantise: bool, jobs: int) -> Iterator[np.ndarray]:
         if chunk_samples <= 0:
             raise ValueError(f"chunk_samples must be positive, got {chunk_samples}")
@@ -353,6 +432,8 @@ class CaptureGenerator:
             end = min(-(-(pos + chunk_samples) // align) * align, stop)
             ranges.append((pos, end - pos))
             pos = end
+        # Dropped runs are never rendered: their chunks are shorter, or split around the gap.
+        ranges = self._kept(ranges)
         if jobs == 1:
             for first, count in ranges:
                 yield self._render(first, count, quantise)
@@ -372,7 +453,9 @@ class CaptureGenerator:
 
         ``jobs`` threads compute chunks ahead with block synthesis (the stream
         is the same for any ``jobs``); the exact twin's kernel runs on numba's
-        own threads instead.
+        own threads instead. Dropped runs (:meth:`drops`) are left out: a
+        chunk ends at a gap and the next begins after it, so the stream holds
+        ``capture_samples`` samples.
         """
         return self._stream(chunk_samples, False, jobs)
 

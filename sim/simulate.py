@@ -12,7 +12,12 @@
   ``sample_rate_hz``, ``carrier_hz``, ``seed``, ``sample_format``,
   ``capture_start_s``, ``num_samples`` and ``scenario`` (TOML text), and
   ``/truth/paths`` (:func:`sim.path_truth.path_truth`: every tower's every
-  path at 100 Hz).
+  path at 100 Hz). A scenario whose front end drops samples
+  (``receiver.drops_per_minute`` > 0) also gets ``/truth/drops``
+  (:meth:`sim.rf.CaptureGenerator.drops`, columns
+  ``dtmbnav_core.schema.DROP_COLUMNS``, no rows when none fell in the
+  segment); ``num_samples`` is then the samples in the file and
+  ``receiver_num_samples`` those the receiver's clock spans.
 
 Segments: ``start_s``/``seconds`` select a window of the scenario. The
 capture's first sample is sample ``round(start_s * fs)`` of the full
@@ -116,7 +121,7 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, seconds: float | None =
             channel_hz=generator.carrier_hz if generator.tuning_offset_hz != 0.0 else None,
             project={"scenario": scenario.name, "seed": generator.seed, "pn_mode": generator.frame_config.pn_mode.name,
                      "capture_start_s": capture_start_s})
-        with writer, tqdm(total=generator.num_samples, unit="S", unit_scale=True, disable=not progress,
+        with writer, tqdm(total=generator.capture_samples, unit="S", unit_scale=True, disable=not progress,
                           file=sys.stderr) as bar:
             for rails in generator.quantised_chunks(chunk_samples, jobs=jobs):
                 writer.write(rails)
@@ -124,13 +129,19 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, seconds: float | None =
         capture_path = writer.capture_path
 
     truth_path = out_dir / "truth.h5"
+    frames_attrs = {
+        "pn_mode": generator.frame_config.pn_mode.name, "si_index": scenario.tower.si_index,
+        "sample_rate_hz": generator.sample_rate_hz, "carrier_hz": generator.carrier_hz,
+        "seed": generator.seed, "sample_format": generator.sample_format,
+        schema.CAPTURE_START_ATTR: capture_start_s, "num_samples": generator.capture_samples,
+        "scenario": scenario_to_toml(scenario)}
+    if generator.capture_samples != generator.num_samples:
+        frames_attrs["receiver_num_samples"] = generator.num_samples
     with atomic_h5(truth_path) as h5:
         write_walk_groups(h5, scenario, walk, imu, gnss, weinberg_k_m)
-        write_columns(h5, schema.TRUTH_FRAMES, generator.frame_truth(), attrs={
-            "pn_mode": generator.frame_config.pn_mode.name, "si_index": scenario.tower.si_index,
-            "sample_rate_hz": generator.sample_rate_hz, "carrier_hz": generator.carrier_hz,
-            "seed": generator.seed, "sample_format": generator.sample_format,
-            schema.CAPTURE_START_ATTR: capture_start_s, "num_samples": generator.num_samples,
-            "scenario": scenario_to_toml(scenario)})
+        write_columns(h5, schema.TRUTH_FRAMES, generator.frame_truth(), attrs=frames_attrs)
         write_columns(h5, schema.TRUTH_PATHS, path_truth(generator), attrs=path_truth_attributes(generator))
+        # Only a scenario that drops samples gets the table (its other truth files keep their layout).
+        if scenario.receiver.drops_per_minute > 0:
+            write_columns(h5, schema.TRUTH_DROPS, generator.drops())
     return SimulationResult(capture_path, truth_path)
