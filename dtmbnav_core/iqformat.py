@@ -3,9 +3,14 @@
 Four formats (``docs/conventions.md``): ``cu8`` (unsigned bytes, offset 128),
 ``ci8`` (signed bytes), ``ci16`` (little-endian int16) and ``cf32``
 (little-endian float32), each an interleaved I, Q pair per sample. Decoding
-normalises to complex64 with full scale at +-1: cu8 ``(v - 128) / 128``, ci8
-``v / 128``, ci16 ``v / 32768``, cf32 as is. Encoding is the inverse with
-rounding to the nearest level and clipping to the format's range.
+normalises to complex64 with full scale at +-1: cu8 ``(v - 127.4) / 128``, ci8
+``v / 128``, ci16 ``v / 32768``, cf32 as is. The cu8 centre is the RTL-SDR
+drivers' (gr-osmosdr's ``rtl_source_c`` and SoapyRTLSDR convert with
+``(v - 127.4) / 128``: an RTL2832U's bytes centre there, not at 128;
+``docs/devices.md``); whatever DC a device leaves, the receiver measures and
+removes. Encoding is the inverse of a quantiser centred on the format's
+midpoint (128 for cu8), with rounding to the nearest level and clipping to the
+format's range; a simulated device's own centre is its ADC DC.
 """
 
 from __future__ import annotations
@@ -30,7 +35,9 @@ class IqFormat:
     scale : float
         Integer value of full scale (1.0 after decoding); 1 for cf32.
     offset : float
-        Integer value of zero (128 for cu8).
+        Integer value of zero when encoding (128 for cu8).
+    decode_offset : float
+        Value subtracted when decoding: the drivers' zero (127.4 for cu8).
     """
 
     name: str
@@ -38,6 +45,7 @@ class IqFormat:
     dtype: np.dtype
     scale: float
     offset: float
+    decode_offset: float
 
     @property
     def bytes_per_sample(self) -> int:
@@ -51,10 +59,10 @@ class IqFormat:
 
 
 FORMATS: dict[str, IqFormat] = {
-    "cu8": IqFormat("cu8", "cu8", np.dtype(np.uint8), 128.0, 128.0),
-    "ci8": IqFormat("ci8", "ci8", np.dtype(np.int8), 128.0, 0.0),
-    "ci16": IqFormat("ci16", "ci16_le", np.dtype("<i2"), 32768.0, 0.0),
-    "cf32": IqFormat("cf32", "cf32_le", np.dtype("<f4"), 1.0, 0.0),
+    "cu8": IqFormat("cu8", "cu8", np.dtype(np.uint8), 128.0, 128.0, 127.4),
+    "ci8": IqFormat("ci8", "ci8", np.dtype(np.int8), 128.0, 0.0, 0.0),
+    "ci16": IqFormat("ci16", "ci16_le", np.dtype("<i2"), 32768.0, 0.0, 0.0),
+    "cf32": IqFormat("cf32", "cf32_le", np.dtype("<f4"), 1.0, 0.0, 0.0),
 }
 
 _BY_SIGMF = {fmt.sigmf_datatype: fmt for fmt in FORMATS.values()}
@@ -133,8 +141,8 @@ def decode(data: bytes | bytearray | memoryview | np.ndarray, fmt: str | IqForma
     values = out.view(np.float32)
     if fmt.is_integer:
         # The full scales are powers of two, so multiplying by the reciprocal is exact (= dividing).
-        if fmt.offset:
-            np.subtract(rails, np.float32(fmt.offset), out=values)
+        if fmt.decode_offset:
+            np.subtract(rails, np.float32(fmt.decode_offset), out=values)
             np.multiply(values, np.float32(1.0 / fmt.scale), out=values)
         else:
             np.multiply(rails, np.float32(1.0 / fmt.scale), out=values)

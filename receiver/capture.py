@@ -217,7 +217,7 @@ def _decode_block(raw: np.ndarray, fmt: IqFormat, blocks: _BlockPool, where: str
     if not fmt.is_integer:
         return decode(raw, fmt, where=where, out=blocks.take(len(raw) // fmt.bytes_per_sample))
     out = blocks.take(len(raw) // fmt.bytes_per_sample)
-    rails_to_samples(raw.view(fmt.dtype), np.float32(fmt.offset), np.float32(1.0 / fmt.scale), out.view(np.float32))
+    rails_to_samples(raw.view(fmt.dtype), np.float32(fmt.decode_offset), np.float32(1.0 / fmt.scale), out.view(np.float32))
     return out
 
 

@@ -41,7 +41,10 @@ def test_encode_decode_round_trip_within_half_lsb(fmt, seed, n):
     rng = np.random.default_rng(seed)
     z = (rng.uniform(-0.99, 0.99, n) + 1j * rng.uniform(-0.99, 0.99, n)).astype(np.complex64)
     back = iqformat.decode(iqformat.encode(z, fmt).tobytes(), fmt)
-    lsb = 1.0 / iqformat.get_format(fmt).scale
+    spec = iqformat.get_format(fmt)
+    lsb = 1.0 / spec.scale
+    # cu8 is encoded about 128 and decoded about the drivers' 127.4: a constant the receiver removes as DC.
+    back = back - np.complex64((spec.offset - spec.decode_offset) * lsb * (1 + 1j))
     tol = 0.5 * lsb + 1e-6 if fmt != "cf32" else 0.0
     assert back.dtype == np.complex64
     assert np.max(np.abs(back.real - z.real)) <= tol
@@ -49,7 +52,9 @@ def test_encode_decode_round_trip_within_half_lsb(fmt, seed, n):
 
 
 def test_normalisation_matches_conventions():
-    assert iqformat.decode(bytes([128, 0, 255, 192]), "cu8").tolist() == [complex(0, -1), complex(127 / 128, 0.5)]
+    # cu8 decodes about the RTL-SDR drivers' centre, 127.4 (docs/devices.md).
+    expected = [complex(0.6 / 128, -127.4 / 128), complex(127.6 / 128, 64.6 / 128)]
+    assert np.allclose(iqformat.decode(bytes([128, 0, 255, 192]), "cu8"), expected, atol=1e-7)
     assert iqformat.decode(np.array([-128, 64], np.int8).tobytes(), "ci8")[0] == complex(-1, 0.5)
     assert iqformat.decode(np.array([-32768, 16384], "<i2").tobytes(), "ci16")[0] == complex(-1, 0.5)
     assert iqformat.decode(np.array([0.25, -3.0], "<f4").tobytes(), "cf32")[0] == complex(0.25, -3.0)
@@ -98,6 +103,7 @@ def test_capture_round_trip(tmp_path, float_stream, container, fmt):
         return
     top = (np.iinfo(info.dtype).max - info.offset) / info.scale
     expect = np.clip(z.real, -1.0, top) + 1j * np.clip(z.imag, -1.0, top)
+    expect += (info.offset - info.decode_offset) / info.scale * (1 + 1j)   # cu8: decoded about 127.4
     assert np.max(np.abs(back.real - expect.real)) <= 0.5 / info.scale + 1e-6
     assert np.max(np.abs(back.imag - expect.imag)) <= 0.5 / info.scale + 1e-6
 
