@@ -330,6 +330,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         from dtmbnav.evaluate import seed_scenario
 
         scenario = seed_scenario(scenario, args.walk, first_seed=0)  # Monte Carlo index 0 + K
+    if args.device is not None:
+        from sim.devices import apply_device
+
+        scenario = apply_device(scenario, args.device)
     result = simulate_capture_set(scenario, args.output, seconds=args.seconds, start_s=args.start,
                                   sample_rate_hz=args.rate, sample_format=args.format, pn_mode=args.pn_mode,
                                   seed=args.seed, container=args.container, with_iq=not args.no_iq,
@@ -349,7 +353,8 @@ def _receiver_config(args: argparse.Namespace):
     return ReceiverConfig(pn_mode=args.pn_mode, static_window_s=args.static_window,
                           clock_offset_hz=args.clock_offset,
                           iq_orientation="conjugate" if args.conjugate else "auto", jobs=args.jobs,
-                          track_paths=not args.no_paths, paths=PathConfig(doppler=doppler, clock_path=args.clock_path))
+                          track_paths=not args.no_paths, paths=PathConfig(doppler=doppler, clock_path=args.clock_path),
+                          remove_dc=not args.keep_dc, correct_iq=args.correct_iq)
 
 
 def _pdr_config(args: argparse.Namespace):
@@ -654,6 +659,12 @@ def _add_receiver_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--conjugate", action="store_true", help="the front end swaps I and Q")
     g.add_argument("--no-paths", action="store_true",
                    help="skip the path tracker (/receiver/paths, first-path and range-difference columns)")
+    g.add_argument("--keep-dc", action="store_true",
+                   help="do not remove the DC offset / LO leakage at the capture's centre (removed by default)")
+    g.add_argument("--correct-iq", action="store_true",
+                   help="correct the I/Q gain and phase imbalance the receiver estimates from the signal's "
+                        "circularity (reported either way; off by default: the PN headers bias the estimate while "
+                        "the carrier offset is near zero)")
 
 
 def _add_range_use_options(p: argparse.ArgumentParser) -> None:
@@ -726,6 +737,9 @@ def _add_simulate_command(subparsers: argparse._SubParsersAction, common: argpar
                       help="the walk of Monte Carlo index K as dtmbnav evaluate draws it: its seed and its own "
                            f"layout (e.g. {REPORTING_SEEDS.start}: the first reporting walk)")
     p.add_argument("--container", choices=["sigmf", "raw"], default="sigmf", help="raw = raw file + JSON sidecar")
+    p.add_argument("--device", metavar="NAME",
+                   help="record with this SDR's front end: its rate, format, oscillator and impairments "
+                        "(rtl-sdr, hackrf-one, plutosdr, ...: docs/devices.md); --rate and --format still override")
     p.add_argument("--no-iq", action="store_true", help="write IMU, GNSS and truth only")
     p.add_argument("--jobs", type=_positive_int, default=1, help="threads generating the IQ (same bytes for any N)")
     p.set_defaults(handler=cmd_simulate)

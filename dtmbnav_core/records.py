@@ -332,6 +332,9 @@ class FrameFlag(IntFlag):
     LOW_QUALITY = 4
     #: Frame inside the static window used to estimate the clock offset f_s.
     CALIBRATION = 8
+    #: First frame after samples the front end dropped (``receiver.drops``): no CFO pair; ``t_s`` counts the lost
+    #: samples, and the range bridges the drop with the last Doppler.
+    DROP = 16
 
 
 #: Storage type of each ``/receiver/frames`` column.

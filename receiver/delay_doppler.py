@@ -315,6 +315,10 @@ class FirstPathDoppler:
             self.correction_hz = self._resolve(first_lag)
         return self.correction_hz
 
+    def restart(self) -> None:
+        """Forget the kept CIRs (their phases no longer continue into the next frame's)."""
+        self._batches.clear()
+
     def _held(self) -> int:
         """Frames kept."""
         return sum(len(batch[2]) for batch in self._batches)

@@ -50,6 +50,16 @@ acquisition window, so the output is what ``"conjugate"`` gives.
 **Segments.** Each lock is a segment (``segment_id``: 0 for the first lock,
 +1 at each re-acquisition); the range is held flat across the gap between
 segments (:mod:`receiver.ranging`).
+
+**Dropped samples** (:mod:`receiver.drops`). A frame timing that jumps by
+other than whole frames is a drop. Inside a lock the batch ends before the
+drop and the timing loop's grid moves by it, so the next batch's windows are
+aligned; a drop too long for the channel window ends the lock, and the
+re-acquisition is measured against the grid the lost lock coasted on. The
+lost input samples are added to ``t_s`` from then on (the real clock), the
+frame after the drop is flagged DROP (no CFO pair), the ranges bridge the
+drop with the last Doppler, and a re-acquisition that only skipped a short
+drop continues the segment and its paths.
 """
 
 from __future__ import annotations
@@ -58,7 +68,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass, field, is_dataclass, replace
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -73,6 +83,8 @@ from receiver.capture import CaptureSource
 from receiver.cfo import SiWordDetector, cfo_from_theta, expected_phase_variance, pn_theta_kernel, si_theta_kernel
 from receiver.channel_estimate import TAP_THRESHOLD, TAPS_AFTER, TAPS_BEFORE, ChannelEstimates
 from receiver.derotate import rotation_table
+from receiver.frontend_correction import FrontEndCorrector, frontend_warnings
+from receiver.drops import MAX_BRIDGE_S, MAX_IN_LOCK_STEP, MIN_STEP, DropLog, find_in_lock_drop, lost_input_samples
 from receiver.mixer import StreamMixer
 from receiver.ofdm import si_carrier_numbers, si_snr_db
 from receiver.parallel import BatchWindows, FrameWorkers
@@ -88,10 +100,10 @@ INSPECT_STAGES = ("channel", "tracking", "body", "ofdm", "paths")
 
 #: Search position after the end of the stream (no acquisition window can fit).
 END_OF_STREAM = np.iinfo(np.int64).max // 4
-#: Stage names of :attr:`Receiver.stage_seconds`: acquisition (searches and lock set-up, a one-off
+#: Stage names of :attr:`Receiver.stage_seconds`: front-end correction (DC and I/Q), resampling, acquisition (searches and lock set-up, a one-off
 #: cost per lock) and, per batch, sync (timing loop), channel estimate, body recovery, SI DFT, estimators,
 #: path tracking.
-STAGES = ("resample", "acquisition", "sync", "channel", "body", "fft", "estimators", "paths")
+STAGES = ("frontend", "resample", "acquisition", "sync", "channel", "body", "fft", "estimators", "paths")
 #: Lags on each side of the channel-estimate span kept out of the noise floor for a narrowband
 #: capture: its paths' spectrum ends at the capture's band edge, so each path rings for tens of
 #: samples, which would otherwise read as noise (and lower the SNRs).
@@ -147,6 +159,13 @@ class ReceiverConfig:
     channel_offset_hz : float
         Centre of the DTMB channel minus the capture's centre frequency, Hz
         (a capture tuned beside the channel); 0 runs no shift stage.
+    remove_dc, correct_iq : bool
+        Remove the front end's DC offset / LO leakage, and correct its I/Q
+        gain and phase imbalance, blindly from the input
+        (:mod:`receiver.frontend_correction`; the imbalance is estimated and
+        reported either way); both off runs no such stage. The correction is
+        off by default: the PN headers' own non-circularity biases the blind
+        estimate while the carrier offset is near zero.
     cfo_scatter_limit : float
         SI phase scatter over its thermal-noise expectation above which a
         frame is flagged LOW_QUALITY.
@@ -189,6 +208,8 @@ class ReceiverConfig:
     iq_orientation: str = "auto"
     cfo_search_hz: float = DEFAULT_CFO_SEARCH_HZ
     channel_offset_hz: float = 0.0
+    remove_dc: bool = True
+    correct_iq: bool = False
     cfo_scatter_limit: float = CFO_SCATTER_LIMIT
     si_polarity: int = 1
     si_frames: int = 256
@@ -277,6 +298,12 @@ class SampleQueue:
             self._segments.pop(0)
 
 
+def _head(record: Any, count: int) -> Any:
+    """A dataclass of per-frame arrays cut to its first ``count`` frames."""
+    return replace(record, **{f.name: getattr(record, f.name)[:count] for f in fields(record)
+                              if isinstance(getattr(record, f.name), np.ndarray)})
+
+
 class _Lock:
     """Everything that holds while one acquisition stays locked."""
 
@@ -300,6 +327,12 @@ class _Lock:
         self.prev_taps: np.ndarray | None = None
         self.prev_start = 0
         self.prev_delta = 0.0
+        #: Measured timing of the last processed frame (for the drop detector, receiver.drops).
+        self.prev_measured: float | None = None
+        #: The next frame follows samples the front end dropped: it has no CFO pair.
+        self.drop_pending = False
+        #: This lock was acquired across a drop and continues the segment before it.
+        self.bridges_drop = False
 
     def phases(self, frame_index: np.ndarray) -> np.ndarray:
         """Header phase of each frame counter value."""
@@ -337,6 +370,10 @@ class Receiver:
         self.sample_rate_hz = float(sample_rate_hz)
         self.carrier_hz = float(carrier_hz)
         #: Shift onto the channel of a capture tuned beside it (None when tuned on it: no stage).
+        #: DC / LO-leakage removal and I/Q-imbalance correction of the raw input (None when both are off).
+        self.corrector = (FrontEndCorrector(self.sample_rate_hz, self.config.remove_dc, self.config.correct_iq,
+                                            keep_history=False)
+                          if self.config.remove_dc or self.config.correct_iq else None)
         self.mixer = (StreamMixer(self.config.channel_offset_hz, self.sample_rate_hz)
                       if self.config.channel_offset_hz != 0.0 else None)
         self.resampler = StreamResampler(sample_rate_hz)
@@ -369,6 +406,14 @@ class Receiver:
         self._frame_counter: int | None = None   # frame_index of the next frame, across locks
         self._last_start: int | None = None       # stream index of the last emitted frame
         self._lock_starts_gap = False               # the current lock follows a loss of lock
+        #: Samples the front end dropped (receiver.drops), and their count so far (input samples).
+        self.drops = DropLog()
+        self._lost_input = 0
+        self._segment = -1                          # segment_id of the current lock
+        # (timing, period, frame index) the lost lock was coasting on, and its last row's t_s: the grid a
+        # re-acquisition is measured against (receiver.drops).
+        self._coast: tuple[float, float, int, float] | None = None
+        self._last_row_t_s = np.nan                 # t_s of the last row out
         #: The input is conjugated (given, or decided by ``iq_orientation = "auto"``).
         self.conjugated = self.config.iq_orientation == "conjugate"
         # An off-centre capture is shifted before anything can tell its orientation, and a front end that swaps
@@ -391,7 +436,15 @@ class Receiver:
         chunk = np.asarray(chunk)
         if chunk.ndim != 1 or not np.iscomplexobj(chunk):
             raise ValueError(f"chunk must be a 1-D complex array, got {chunk.dtype} shape {chunk.shape}")
+        self._take(chunk)
+        return self._run(final=False)
+
+    def _take(self, chunk: np.ndarray, corrected: bool = False) -> None:
+        """Front-end correction (unless ``corrected``), shift onto the channel and resampling, into the queue."""
         t0 = time.perf_counter()
+        if self.corrector is not None and not corrected:
+            chunk = self.corrector.process(chunk)
+        t1 = time.perf_counter()
         if self.mixer is not None:
             # A front end that swaps I and Q mirrors the spectrum: the channel sits at minus the offset, so the
             # input is conjugated before the shift (never after it; the orientation is given, not detected).
@@ -400,12 +453,17 @@ class Receiver:
             samples = self.resampler.process(chunk)
             # The resampler's filter is real, so conjugating its output is conjugating its input.
             samples = np.conj(samples) if self.conjugated else samples
-        self.stage_seconds["resample"] += time.perf_counter() - t0
+        t2 = time.perf_counter()
+        self.stage_seconds["frontend"] += t1 - t0
+        self.stage_seconds["resample"] += t2 - t1
         self._queue.append(samples)
-        return self._run(final=False)
 
     def finish(self) -> list[FrameBatch]:
         """End of stream: process the frames still complete, release the rest."""
+        if self.corrector is not None:   # the corrector holds back the last partial block
+            tail = self.corrector.flush()
+            if len(tail):
+                self._take(tail, corrected=True)
         out = self._run(final=True)
         if self._orientation_pending and self._held:   # the stream ended before the orientation was decided
             out.extend(self._decide_orientation())
@@ -452,6 +510,11 @@ class Receiver:
             out.append(f"a DTMB frame grid was found but its headers show at no carrier offset within "
                        f"+-{self.config.cfo_search_hz / 1e3:g} kHz: the offset lies outside the search "
                        f"(ReceiverConfig.cfo_search_hz)")
+        if self.corrector is not None and self.corrector.emitted:
+            out.extend(frontend_warnings(self.corrector.estimate()))
+        if self.drops.samples:
+            out.append(f"{len(self.drops.samples)} drop(s) in the capture, {self.drops.total} samples lost in all "
+                       f"(found in the frame timing): t_s counts them, the frames after each are flagged DROP")
         if self.frames_out and self.scatter_flagged > 0.01 * self.frames_out:
             out.append(f"{self.scatter_flagged} of {self.frames_out} frames flagged LOW_QUALITY: their CFO "
                        f"scatters more than their SI SNR explains (interference or aliasing in the front end)")
@@ -481,10 +544,21 @@ class Receiver:
             "path_tracking": self._path_tracker is not None,
             "first_path_clock_offset_hz": (np.nan if self.first_path_ranging.clock_offset_hz is None
                                            else self.first_path_ranging.clock_offset_hz),
+            **self.drops.attributes(),
+            **self._frontend_attributes(),
             # Only for a capture tuned beside the channel (a file tuned on it stays as it was).
             **({"channel_offset_hz": self.mixer.channel_offset_hz, "channel_hz": self.carrier_hz}
                if self.mixer is not None else {}),
         }
+
+    def _frontend_attributes(self) -> dict[str, Any]:
+        """What the front-end corrector measured on the input (its estimate at the end of the stream)."""
+        if self.corrector is None or not self.corrector.emitted:
+            return {}
+        est = self.corrector.estimate()
+        return {"dc_offset": est.dc_offset, "dc_offset_dbc": est.dc_offset_dbc, "iq_gain_db": est.iq_gain_db,
+                "iq_phase_deg": est.iq_phase_deg, "image_rejection_db": est.image_rejection_db,
+                "dc_removed": est.dc_removed, "iq_corrected": est.iq_corrected}
 
     def path_attributes(self) -> dict[str, Any]:
         """Parameters for the ``/receiver/paths`` attributes (the tracker's settings and span)."""
@@ -540,8 +614,11 @@ class Receiver:
         self.conjugated = not self.conjugated
         self._queue.conjugate()
         (self._search_from, self._frame_counter, self._last_start, self._lock_starts_gap,
-         acquisitions, self.search_outcomes, self.scatter_flagged) = self._restart
+         acquisitions, self.search_outcomes, self.scatter_flagged, self._segment, self._coast, self._lost_input,
+         drops) = self._restart
         del self.acquisitions[acquisitions:]
+        for column in (self.drops.t_s, self.drops.sample_index, self.drops.samples):
+            del column[drops:]
         self._lock = None
         self._si_detector = None
         return []
@@ -576,7 +653,8 @@ class Receiver:
             return True
         if self._orientation_pending:
             self._restart = (start, self._frame_counter, self._last_start, self._lock_starts_gap,
-                             len(self.acquisitions), dict(self.search_outcomes), self.scatter_flagged)
+                             len(self.acquisitions), dict(self.search_outcomes), self.scatter_flagged,
+                             self._segment, self._coast, self._lost_input, len(self.drops.samples))
         self.search_outcomes[result.outcome] = self.search_outcomes.get(result.outcome, 0) + 1
         self.acquisitions.append(acq)
         m = acq.mode.value
@@ -590,12 +668,15 @@ class Receiver:
                 index += (acq.frame_in_superframe - index + f // 2) % f - f // 2
         self._lock = _Lock(acq, self.config, index, start)
         self._lock_starts_gap = self._frame_counter is not None
+        if self._frame_counter is None:
+            self._segment = 0
         if self.config.track_paths and acq.mode.value.cyclic_length > 0:
             if self._path_tracker is None:
                 self._path_tracker = PathTracker(acq.mode, self.carrier_hz, self.config.paths,
                                                  (self.resampler.up, self.resampler.down))
-            else:
+            elif self._coast is None or acq.mode != self._path_tracker.mode:
                 self._path_tracker.new_lock(acq.mode)
+            # else the lock's first batch decides: the paths go on across a drop (_after_loss)
         if self._si_detector is None:
             self._si_detector = SiWordDetector(self.config.taps_before, self.config.taps_before + self.config.taps_after,
                                                self.config.si_polarity)
@@ -641,8 +722,46 @@ class Receiver:
         t1 = time.perf_counter()
         measured = starts + ch.centroid
         strong = ch.peak_metric >= cfg.track_threshold
+        if lock.prev_measured is None and self._coast is not None:
+            self._after_loss(lock, measured[0], int(frame_index[0]))
+        # The previous batch ended at a drop: this batch's first frame pairs across it.
+        after_drop, lock.drop_pending = lock.drop_pending, False
+        # A drop inside the batch (receiver.drops): the batch ends before it, the loop's grid moves by it, and
+        # the next batch starts on the frame after it with aligned windows.
+        drop = find_in_lock_drop(measured, strong, lock.tracker.period, lock.prev_measured, ch.raw_taps,
+                                 lock.prev_taps, starts, lock.prev_start)
+        shift = 0.0
+        lost = 0
+        resume_at = None
+        if drop is not None:
+            cut, step = drop
+            lost = lost_input_samples(step, self.sample_rate_hz)
+            resume_at = int(starts[cut])
+            if step <= MAX_IN_LOCK_STEP and lost >= 1:
+                # The frames before the drop keep the time base they had; the batch after it counts the drop.
+                shift = lost * SYMBOL_RATE_HZ / self.sample_rate_hz
+                self.drops.add(float(measured[cut]) / SYMBOL_RATE_HZ + (self._lost_input + lost) / self.sample_rate_hz,
+                               int(self.resampler.input_index(np.array([int(measured[cut])]))[0]), lost)
+                resume_at = None
+            count = cut
+            starts, frame_index, measured, strong, si = (starts[:cut], frame_index[:cut], measured[:cut],
+                                                         strong[:cut], si[:cut])
+            phases = phases[:cut + 1]
+            ch = _head(ch, cut)
+            frames = replace(frames, channel=ch, si=si, bodies=None if frames.bodies is None else frames.bodies[:cut],
+                             span=None if frames.span is None else _head(frames.span, cut))
+            if cut == 0:
+                if shift:
+                    self._lost_input += lost
+                return self._cut_before_batch(lock, shift, resume_at)
         smoothed, periods = lock.tracker.update(measured, strong)
         lost_at = lock.monitor.check(ch.peak_metric)
+        if resume_at is not None and lost_at is None:   # a drop too long to follow: the lock ends before it
+            lost_at = count
+        lock.prev_measured = float(measured[-1]) - shift
+        if shift:
+            lock.tracker.tau -= shift
+            lock.drop_pending = True
         t2 = time.perf_counter()
         self.stage_seconds["sync"] += t2 - t1
         for stage, arrays in (("channel", {"taps": ch.taps, "snr_db": ch.snr_db, "peak_metric": ch.peak_metric}),
@@ -652,6 +771,9 @@ class Receiver:
                 cfg.inspect(stage, {"window_start": starts, "frame_index": frame_index, **arrays})
         t3 = time.perf_counter()
         rows, scattered = self._estimate(lock, starts, smoothed, periods, si, ch, frame_index, phases[:-1])
+        if after_drop:   # the frame pair straddles the drop: no CFO from it
+            rows.cfo_hz[0] = rows.cfo_pn_hz[0] = np.nan
+            rows.flags[0] |= FrameFlag.DROP
         t4 = time.perf_counter()
         self.stage_seconds["estimators"] += t4 - t3
         if tracker is not None:  # sequential (its loops link the frames): on this thread, in frame order
@@ -659,9 +781,16 @@ class Receiver:
             if cfg.inspects("paths"):
                 cfg.inspect("paths", {"window_start": starts, "frame_index": frame_index, "taps": frames.span.raw_taps,
                                       "noise_tap": frames.span.noise_tap, "lag0": np.int64(tracker.lag0)})
-            found = tracker.update(frames.span.raw_taps, frames.span.noise_tap, starts, frame_index,
+            if rows.flags[0] & FrameFlag.DROP:
+                tracker.break_phase()
+            # The paths' delays are kept on the real clock: the window starts plus the samples dropped so far.
+            real_starts = starts if not self._lost_input else starts + self._lost_input * (
+                SYMBOL_RATE_HZ / self.sample_rate_hz)
+            found = tracker.update(frames.span.raw_taps, frames.span.noise_tap, real_starts, frame_index,
                                    periods / lock.tracker.nominal_period - 1.0, rows.t_s, lock.acq.coarse_cfo_hz)
             rows = replace(rows, **found.first_path)
+            # A frame without a header (a fade, the frames before a loss of lock) has no path phase to trust.
+            rows.first_path_cfo_hz[~strong] = np.nan
             keep = len(rows) if lost_at is None else lost_at
             self.path_ranging.push(found.rows.select(found.rows.frame_index < frame_index[0] + keep))
             self.stage_seconds["paths"] += time.perf_counter() - t4
@@ -672,13 +801,63 @@ class Receiver:
             rows, scattered = rows.select(slice(0, lost_at)), scattered[:lost_at]
             # Search again from the first weak frame, but always past this lock's acquisition window
             # (a signal that acquires but cannot be tracked must not be re-acquired forever).
-            self._search_from = max(int(starts[lost_at]), lock.acquired_from + self._acq_window // 2)
-            self._lock = None
-        elif count < size:  # end of stream: the partial batch was the last one; nothing more to search
+            first_weak = resume_at if lost_at == count else int(starts[lost_at])
+            self._search_from = max(first_weak, lock.acquired_from + self._acq_window // 2)
+            self._lose_lock(lock, rows)
+        elif count < size and drop is None:  # end of stream: the partial batch was the last one; nothing more to search
             self._lock = None
             self._search_from = END_OF_STREAM
         self.scatter_flagged += int(np.count_nonzero(scattered))
+        if len(rows):
+            self._last_row_t_s = float(rows.t_s[-1])
+        if shift:
+            self._lost_input += lost
         return rows
+
+    def _cut_before_batch(self, lock: _Lock, shift: float, resume_at: int | None) -> FrameBatch:
+        """A drop right before the batch's first frame: move the grid (or end the lock) and process nothing yet."""
+        if resume_at is not None:
+            self._search_from = max(resume_at, lock.acquired_from + self._acq_window // 2)
+            self._lose_lock(lock, FrameBatch.empty())
+        else:
+            lock.tracker.tau -= shift
+            assert lock.prev_measured is not None
+            lock.prev_measured -= shift
+            lock.drop_pending = True
+        return FrameBatch.empty()
+
+    def _lose_lock(self, lock: _Lock, rows: FrameBatch) -> None:
+        """End the lock; keep the grid it was coasting on for the next lock to be measured against."""
+        last_t = float(rows.t_s[-1]) if len(rows) else self._last_row_t_s
+        self._coast = (float(lock.tracker.tau), float(lock.tracker.period), lock.next_frame_index, last_t)
+        self._lock = None
+
+    def _after_loss(self, lock: _Lock, measured: float, frame_index: int) -> None:
+        """First batch of a re-acquisition: samples dropped during the loss, a bridged drop or a gap (receiver.drops)."""
+        assert self._coast is not None
+        tau, period, next_index, last_t = self._coast
+        self._coast = None
+        # Where the lost lock's grid puts this frame, minus where it is: positive when samples were lost.
+        early = tau + (frame_index - next_index) * period - measured
+        if not lock.acq.rotating and early < -MIN_STEP:
+            early += lock.mode.value.frame_length   # a constant header phase leaves whole frames unknown
+        lost = lost_input_samples(early, self.sample_rate_hz) if early > MIN_STEP else 0
+        bridged = False
+        if lost >= 1:
+            self._lost_input += lost
+            t_first = measured / SYMBOL_RATE_HZ + self._lost_input / self.sample_rate_hz
+            self.drops.add(t_first, int(self.resampler.input_index(np.array([int(measured)]))[0]), lost)
+            bridged = np.isfinite(last_t) and t_first - last_t <= MAX_BRIDGE_S
+        tracker = self._path_tracker
+        if bridged:
+            self._lock_starts_gap = False
+            lock.bridges_drop = True
+            if tracker is not None and tracker.mode == lock.mode:
+                tracker.resume()
+        else:
+            self._segment += 1
+            if tracker is not None and tracker.mode == lock.mode:
+                tracker.new_lock(lock.mode)
 
     def _estimate(self, lock: _Lock, starts: np.ndarray, smoothed: np.ndarray, periods: np.ndarray, si: np.ndarray,
                   ch: ChannelEstimates, frame_index: np.ndarray, phases: np.ndarray) -> tuple[FrameBatch, np.ndarray]:
@@ -712,6 +891,8 @@ class Receiver:
         if first_of_lock:
             cfo[0] = cfo_pn[0] = np.nan
             flags[0] |= FrameFlag.LOCK_START | (FrameFlag.GAP if self._lock_starts_gap else 0)
+            if lock.bridges_drop:   # a re-acquisition across a drop
+                flags[0] |= FrameFlag.DROP
         lock.prev_si, lock.prev_taps = si[-1].copy(), ch.raw_taps[-1].copy()
         lock.prev_start, lock.prev_delta = int(starts[-1]), float(delta[-1])
         assert self._si_detector is not None
@@ -721,10 +902,11 @@ class Receiver:
         self._last_start = int(starts[-1])
         nan = np.full(count, np.nan)
         return FrameBatch(
-            t_s=starts / SYMBOL_RATE_HZ, sample_index=self.resampler.input_index(starts), frame_index=frame_index,
+            t_s=starts / SYMBOL_RATE_HZ + self._lost_input / self.sample_rate_hz,
+            sample_index=self.resampler.input_index(starts), frame_index=frame_index,
             pn_phase=phases.astype(np.int32), cfo_hz=cfo, cfo_pn_hz=cfo_pn, doppler_hz=nan, velocity_mps=nan.copy(),
             range_change_m=nan.copy(), snr_db=ch.snr_db, si_snr_db=si_snr, peak_metric=ch.peak_metric, flags=flags,
-            segment_id=np.full(count, len(self.acquisitions) - 1, dtype=np.int32)), scattered
+            segment_id=np.full(count, self._segment, dtype=np.int32)), scattered
 
 
 def receive_stream(chunks: Iterable[np.ndarray], sample_rate_hz: float, carrier_hz: float,

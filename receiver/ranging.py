@@ -17,7 +17,10 @@ per-frame phase differences telescope). The sum is kept in float64 and is
 continuous across batches. The first frame of a lock has no CFO pair and
 adds nothing, so across a gap (a loss of lock and a re-acquisition) the range
 is held flat: nothing is known of the motion during the gap, and inventing
-some (the last velocity times the gap) would put a jump in the range. After a
+some (the last velocity times the gap) would put a jump in the range. A drop
+(samples the front end lost, flagged DROP) is different: its length is
+measured to a sample and is tens of milliseconds at most, so the median
+Doppler of the last trusted frames bridges it. After a
 gap ``range_change_m`` is therefore the range change since the first frame of
 the new segment (``segment_id``) plus the last value of the segment before
 it; the receiver flags that frame GAP, and the fusion takes the new segment as
@@ -53,6 +56,10 @@ import numpy as np
 from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
 from dtmbnav_core.records import FrameBatch, FrameFlag, PathBatch, PathFlag
 from receiver import DEFAULT_STATIC_WINDOW_S
+
+
+#: Trusted frames whose median Doppler bridges a drop (a few tens of milliseconds of PN420 frames).
+BRIDGE_FRAMES = 32
 
 
 @dataclass(frozen=True)
@@ -130,6 +137,7 @@ class RangeIntegrator:
         self._t_first: float | None = None
         self._range_m = 0.0
         self._last_t_s: float | None = None
+        self._recent_doppler_hz = np.zeros(0)     # the last trusted Dopplers, for bridging a drop
 
     def push(self, batch: FrameBatch) -> list[FrameBatch]:
         """Add receiver rows; return the rows whose range is now known."""
@@ -169,12 +177,29 @@ class RangeIntegrator:
         rows.flags[in_window] |= np.uint8(FrameFlag.CALIBRATION)
         return [self._integrate(rows)]
 
+    def _remember(self, doppler: np.ndarray, flags: np.ndarray) -> None:
+        """Keep the last :data:`BRIDGE_FRAMES` trusted Dopplers (finite, not LOW_QUALITY)."""
+        trusted = doppler[np.isfinite(doppler) & ((flags & FrameFlag.LOW_QUALITY) == 0)]
+        if len(trusted):
+            self._recent_doppler_hz = np.concatenate([self._recent_doppler_hz, trusted[-BRIDGE_FRAMES:]])[
+                -BRIDGE_FRAMES:]
+
     def _integrate(self, batch: FrameBatch) -> FrameBatch:
         assert self.clock_offset_hz is not None
         doppler = getattr(batch, self.columns.cfo) - self.clock_offset_hz
         t_prev = np.concatenate([[self._last_t_s if self._last_t_s is not None else batch.t_s[0]], batch.t_s[:-1]])
-        # A frame without a CFO pair (a lock's first) adds nothing: the range is held across a gap.
-        cycles = np.cumsum(np.where(np.isfinite(doppler), doppler * (batch.t_s - t_prev), 0.0))
+        # A frame without a CFO pair (a lock's first) adds nothing: the range is held across a gap. Across a
+        # drop the time lost is known to a sample and short: the recent Doppler bridges it (the median of the
+        # last trusted frames: the frame the drop cut through carries a wild CFO).
+        bridge = ~np.isfinite(doppler) & ((batch.flags & FrameFlag.DROP) != 0)
+        rate = doppler
+        if bridge.any():
+            rate = doppler.copy()
+            for k in np.flatnonzero(bridge):
+                self._remember(doppler[:k], batch.flags[:k])
+                rate[k] = np.median(self._recent_doppler_hz) if len(self._recent_doppler_hz) else 0.0
+        self._remember(doppler, batch.flags)
+        cycles = np.cumsum(np.where(np.isfinite(rate), rate * (batch.t_s - t_prev), 0.0))
         range_m = self._range_m - self.wavelength_m * cycles
         self._range_m = float(range_m[-1])
         self._last_t_s = float(batch.t_s[-1])

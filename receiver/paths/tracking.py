@@ -366,6 +366,26 @@ class PathTracker:
         self._start_ref: int | None = None
         self._index_ref = 0
 
+    def break_phase(self) -> None:
+        """The next frame's phase does not follow from the last one (samples were dropped between them).
+
+        Every path's next phase step is left out (its frequency NaN for that
+        frame); delays, amplitudes and towers go on.
+        """
+        for p in self.paths:
+            p.prev_amplitude = complex(np.nan, np.nan)
+        if self._doppler is not None:
+            self._doppler.restart()
+
+    def resume(self) -> None:
+        """Go on with the paths across a re-acquisition that only skipped dropped samples.
+
+        The caller keeps the window starts on the real clock, so the paths'
+        delays continue; the new lock's coarse CFO changes every phase, so
+        the phase steps restart (:meth:`break_phase`).
+        """
+        self.break_phase()
+
     @property
     def lag0(self) -> int:
         """Lag of the CIR's first column."""
