@@ -155,6 +155,23 @@ def decode(data: bytes | bytearray | memoryview | np.ndarray, fmt: str | IqForma
     return out
 
 
+def interleave(samples: np.ndarray, fmt: IqFormat) -> np.ndarray:
+    """Complex samples as float64 rails (I, Q, I, Q, ...), checked finite, for an encoder of ``fmt``.
+
+    Raises
+    ------
+    ValueError
+        NaN or inf in the input (the message names the format).
+    """
+    z = np.asarray(samples)
+    rails = np.empty(2 * z.size, dtype=np.float64)
+    rails[0::2] = z.real.ravel()
+    rails[1::2] = z.imag.ravel()
+    if not np.isfinite(rails).all():
+        raise ValueError(f"cannot encode NaN or inf samples to {fmt.name}")
+    return rails
+
+
 def encode(samples: np.ndarray, fmt: str | IqFormat) -> np.ndarray:
     """Encode complex samples (full scale +-1) to the interleaved rails of a format.
 
@@ -173,12 +190,7 @@ def encode(samples: np.ndarray, fmt: str | IqFormat) -> np.ndarray:
         NaN or inf in the input.
     """
     fmt = fmt if isinstance(fmt, IqFormat) else get_format(fmt)
-    z = np.asarray(samples)
-    rails = np.empty(2 * z.size, dtype=np.float64)
-    rails[0::2] = z.real.ravel()
-    rails[1::2] = z.imag.ravel()
-    if not np.isfinite(rails).all():
-        raise ValueError(f"cannot encode NaN or inf samples to {fmt.name}")
+    rails = interleave(samples, fmt)
     if not fmt.is_integer:
         return rails.astype(fmt.dtype)
     info = np.iinfo(fmt.dtype)

@@ -116,7 +116,7 @@ from scipy import fft as sp_fft
 from scipy.signal import firwin, kaiserord
 
 from dtmbnav_core import gb20600
-from dtmbnav_core.iqformat import IqFormat, encode, get_format
+from dtmbnav_core.iqformat import IqFormat, encode, get_format, interleave
 from sim.frames import FrameConfig
 from sim.scenario import FrontEndConfig
 from sim.transmitter import PULSE_SPAN, PulseTable, pulse_table
@@ -488,12 +488,7 @@ def adc_quantise(samples: np.ndarray, fmt: str | IqFormat, bits: int | None, dc_
         NaN or inf in the input.
     """
     fmt = fmt if isinstance(fmt, IqFormat) else get_format(fmt)
-    z = np.asarray(samples)
-    rails = np.empty(2 * z.size, dtype=np.float64)
-    rails[0::2] = z.real.ravel()
-    rails[1::2] = z.imag.ravel()
-    if not np.isfinite(rails).all():
-        raise ValueError(f"cannot encode NaN or inf samples to {fmt.name}")
+    rails = interleave(samples, fmt)
     levels = 2.0 ** (FORMAT_BITS[fmt.name] if bits is None else int(bits))
     lsb = 2.0 / levels                                   # full scale per LSB
     rails *= 1.0 / lsb                                   # a power of two: exact
@@ -501,9 +496,8 @@ def adc_quantise(samples: np.ndarray, fmt: str | IqFormat, bits: int | None, dc_
     rails[1::2] += float(dc_lsb[1])
     if fmt.is_integer or bits is not None:
         np.clip(np.rint(rails, out=rails), -levels / 2.0, levels / 2.0 - 1.0, out=rails)
-    # The format's zero code as encode writes it (an integer in every integer format).
-    zero = float(encode(np.zeros(1, dtype=np.complex128), fmt)[0])
-    return (rails * (lsb * fmt.scale) + zero).astype(fmt.dtype)
+    # The format's zero code as encode writes it (its offset: an integer in every integer format).
+    return (rails * (lsb * fmt.scale) + fmt.offset).astype(fmt.dtype)
 
 
 # --------------------------------------------------------------------------------------- phase noise
