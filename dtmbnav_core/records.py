@@ -333,7 +333,7 @@ class FrameFlag(IntFlag):
     #: Frame inside the static window used to estimate the clock offset f_s.
     CALIBRATION = 8
     #: First frame after samples the front end dropped (``receiver.drops``): no CFO pair; ``t_s`` counts the lost
-    #: samples, and the range bridges the drop with the last Doppler.
+    #: samples, and the range bridges the drop with the recent Doppler.
     DROP = 16
 
 

@@ -58,7 +58,7 @@ aligned; a drop too long for the channel window ends the lock, and the
 re-acquisition is measured against the grid the lost lock coasted on. The
 lost input samples are added to ``t_s`` from then on (the real clock), the
 frame after the drop is flagged DROP (no CFO pair), the ranges bridge the
-drop with the last Doppler, and a re-acquisition that only skipped a short
+drop with the recent Doppler, and a re-acquisition that only skipped a short
 drop continues the segment and its paths.
 """
 
@@ -83,8 +83,8 @@ from receiver.capture import CaptureSource
 from receiver.cfo import SiWordDetector, cfo_from_theta, expected_phase_variance, pn_theta_kernel, si_theta_kernel
 from receiver.channel_estimate import TAP_THRESHOLD, TAPS_AFTER, TAPS_BEFORE, ChannelEstimates
 from receiver.derotate import rotation_table
-from receiver.frontend_correction import FrontEndCorrector, frontend_warnings
 from receiver.drops import MAX_BRIDGE_S, MAX_IN_LOCK_STEP, MIN_STEP, DropLog, find_in_lock_drop, lost_input_samples
+from receiver.frontend_correction import FrontEndCorrector, frontend_warnings
 from receiver.mixer import StreamMixer
 from receiver.ofdm import si_carrier_numbers, si_snr_db
 from receiver.parallel import BatchWindows, FrameWorkers
@@ -100,9 +100,9 @@ INSPECT_STAGES = ("channel", "tracking", "body", "ofdm", "paths")
 
 #: Search position after the end of the stream (no acquisition window can fit).
 END_OF_STREAM = np.iinfo(np.int64).max // 4
-#: Stage names of :attr:`Receiver.stage_seconds`: front-end correction (DC and I/Q), resampling, acquisition (searches and lock set-up, a one-off
-#: cost per lock) and, per batch, sync (timing loop), channel estimate, body recovery, SI DFT, estimators,
-#: path tracking.
+#: Stage names of :attr:`Receiver.stage_seconds`: front-end correction (DC and I/Q), resampling, acquisition
+#: (searches and lock set-up, a one-off cost per lock) and, per batch, sync (timing loop), channel estimate,
+#: body recovery, SI DFT, estimators, path tracking.
 STAGES = ("frontend", "resample", "acquisition", "sync", "channel", "body", "fft", "estimators", "paths")
 #: Lags on each side of the channel-estimate span kept out of the noise floor for a narrowband
 #: capture: its paths' spectrum ends at the capture's band edge, so each path rings for tens of
@@ -369,11 +369,11 @@ class Receiver:
         self.config = config or ReceiverConfig()
         self.sample_rate_hz = float(sample_rate_hz)
         self.carrier_hz = float(carrier_hz)
-        #: Shift onto the channel of a capture tuned beside it (None when tuned on it: no stage).
         #: DC / LO-leakage removal and I/Q-imbalance correction of the raw input (None when both are off).
         self.corrector = (FrontEndCorrector(self.sample_rate_hz, self.config.remove_dc, self.config.correct_iq,
                                             keep_history=False)
                           if self.config.remove_dc or self.config.correct_iq else None)
+        #: Shift onto the channel of a capture tuned beside it (None when tuned on it: no stage).
         self.mixer = (StreamMixer(self.config.channel_offset_hz, self.sample_rate_hz)
                       if self.config.channel_offset_hz != 0.0 else None)
         self.resampler = StreamResampler(sample_rate_hz)
@@ -739,9 +739,8 @@ class Receiver:
             resume_at = int(starts[cut])
             if step <= MAX_IN_LOCK_STEP and lost >= 1:
                 # The frames before the drop keep the time base they had; the batch after it counts the drop.
-                shift = lost * SYMBOL_RATE_HZ / self.sample_rate_hz
-                self.drops.add(float(measured[cut]) / SYMBOL_RATE_HZ + (self._lost_input + lost) / self.sample_rate_hz,
-                               int(self.resampler.input_index(np.array([int(measured[cut])]))[0]), lost)
+                shift = self._stream_samples(lost)
+                self._log_drop(float(measured[cut]), lost)
                 resume_at = None
             count = cut
             starts, frame_index, measured, strong, si = (starts[:cut], frame_index[:cut], measured[:cut],
@@ -784,8 +783,7 @@ class Receiver:
             if rows.flags[0] & FrameFlag.DROP:
                 tracker.break_phase()
             # The paths' delays are kept on the real clock: the window starts plus the samples dropped so far.
-            real_starts = starts if not self._lost_input else starts + self._lost_input * (
-                SYMBOL_RATE_HZ / self.sample_rate_hz)
+            real_starts = starts + self._stream_samples(self._lost_input) if self._lost_input else starts
             found = tracker.update(frames.span.raw_taps, frames.span.noise_tap, real_starts, frame_index,
                                    periods / lock.tracker.nominal_period - 1.0, rows.t_s, lock.acq.coarse_cfo_hz)
             rows = replace(rows, **found.first_path)
@@ -832,6 +830,19 @@ class Receiver:
         self._coast = (float(lock.tracker.tau), float(lock.tracker.period), lock.next_frame_index, last_t)
         self._lock = None
 
+    def _stream_samples(self, input_samples: int) -> float:
+        """Input samples as 7.56 Msps stream samples."""
+        return input_samples * SYMBOL_RATE_HZ / self.sample_rate_hz
+
+    def _log_drop(self, measured: float, lost: int) -> float:
+        """Record a drop of ``lost`` input samples before the frame measured at ``measured`` (stream samples).
+
+        Returns that frame's real-clock time, s (the drops before it and this one counted).
+        """
+        t_s = measured / SYMBOL_RATE_HZ + (self._lost_input + lost) / self.sample_rate_hz
+        self.drops.add(t_s, int(self.resampler.input_index(np.array([int(measured)]))[0]), lost)
+        return t_s
+
     def _after_loss(self, lock: _Lock, measured: float, frame_index: int) -> None:
         """First batch of a re-acquisition: samples dropped during the loss, a bridged drop or a gap (receiver.drops)."""
         assert self._coast is not None
@@ -844,16 +855,13 @@ class Receiver:
         lost = lost_input_samples(early, self.sample_rate_hz) if early > MIN_STEP else 0
         bridged = False
         if lost >= 1:
+            t_first = self._log_drop(measured, lost)
             self._lost_input += lost
-            t_first = measured / SYMBOL_RATE_HZ + self._lost_input / self.sample_rate_hz
-            self.drops.add(t_first, int(self.resampler.input_index(np.array([int(measured)]))[0]), lost)
             bridged = np.isfinite(last_t) and t_first - last_t <= MAX_BRIDGE_S
         tracker = self._path_tracker
-        if bridged:
+        if bridged:   # the paths go on: the lock's first frame is flagged DROP, which breaks their phases
             self._lock_starts_gap = False
             lock.bridges_drop = True
-            if tracker is not None and tracker.mode == lock.mode:
-                tracker.resume()
         else:
             self._segment += 1
             if tracker is not None and tracker.mode == lock.mode:

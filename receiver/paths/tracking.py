@@ -370,21 +370,16 @@ class PathTracker:
         """The next frame's phase does not follow from the last one (samples were dropped between them).
 
         Every path's next phase step is left out (its frequency NaN for that
-        frame); delays, amplitudes and towers go on.
+        frame); delays, amplitudes and towers go on. Across a re-acquisition
+        that only skipped dropped samples the caller keeps the window starts
+        on the real clock, so the paths' delays continue, and calls this
+        instead of :meth:`new_lock` (the new lock's coarse CFO changes every
+        phase).
         """
         for p in self.paths:
             p.prev_amplitude = complex(np.nan, np.nan)
         if self._doppler is not None:
             self._doppler.restart()
-
-    def resume(self) -> None:
-        """Go on with the paths across a re-acquisition that only skipped dropped samples.
-
-        The caller keeps the window starts on the real clock, so the paths'
-        delays continue; the new lock's coarse CFO changes every phase, so
-        the phase steps restart (:meth:`break_phase`).
-        """
-        self.break_phase()
 
     @property
     def lag0(self) -> int:
