@@ -193,12 +193,14 @@ class RangeIntegrator:
         # last trusted frames: the frame the drop cut through carries a wild CFO).
         bridge = ~np.isfinite(doppler) & ((batch.flags & FrameFlag.DROP) != 0)
         rate = doppler
+        done = 0   # frames of the batch remembered so far
         if bridge.any():
             rate = doppler.copy()
             for k in np.flatnonzero(bridge):
-                self._remember(doppler[:k], batch.flags[:k])
+                self._remember(doppler[done:k], batch.flags[done:k])
+                done = k
                 rate[k] = np.median(self._recent_doppler_hz) if len(self._recent_doppler_hz) else 0.0
-        self._remember(doppler, batch.flags)
+        self._remember(doppler[done:], batch.flags[done:])
         cycles = np.cumsum(np.where(np.isfinite(rate), rate * (batch.t_s - t_prev), 0.0))
         range_m = self._range_m - self.wavelength_m * cycles
         self._range_m = float(range_m[-1])

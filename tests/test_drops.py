@@ -51,3 +51,32 @@ def test_no_drop_is_found_in_an_uncut_stream():
     x = make_signal(int(0.3 * SYMBOL_RATE_HZ), cfo_hz=2500.0, snr_db=0, start_symbol=START, echo=(5.3, 0.5j))
     rows, rx = _receive(x)
     assert len(rows) > 400 and rx.drops.samples == [] and not np.any(rows.flags & FrameFlag.DROP)
+
+
+def _rows(cfo_hz: list[float], first_t_s: float, flags: dict[int, int]) -> FrameBatch:
+    n = len(cfo_hz)
+    nan = np.full(n, np.nan)
+    flag = np.zeros(n, np.uint8)
+    for k, bits in flags.items():
+        flag[k] = bits
+    return FrameBatch(t_s=first_t_s + np.arange(n) * 5.6e-4, sample_index=np.arange(n), frame_index=np.arange(n),
+                      pn_phase=np.zeros(n, np.int32), cfo_hz=np.asarray(cfo_hz, float), cfo_pn_hz=nan.copy(),
+                      doppler_hz=nan.copy(), velocity_mps=nan.copy(), range_change_m=nan.copy(),
+                      snr_db=np.zeros(n, np.float32), si_snr_db=np.zeros(n, np.float32),
+                      peak_metric=np.ones(n, np.float32), flags=flag, segment_id=np.zeros(n, np.int32))
+
+
+def test_a_drop_is_bridged_with_the_median_of_the_frames_before_it_each_counted_once():
+    """Two drops: the second is bridged with the median of the trusted frames since the stream began, once each."""
+    from receiver.ranging import RangeIntegrator
+
+    ranging = RangeIntegrator(666e6, clock_offset_hz=0.0)
+    first = _rows([0.0] * 5 + [np.nan] + [10.0] * 5, 0.0, {5: FrameFlag.DROP})
+    [out] = ranging.push(first)
+    # The first drop's frame moves the range by the median of the five frames before it (0 Hz): no change.
+    assert out.range_change_m[5] == out.range_change_m[4]
+    second = _rows([np.nan, 10.0], 0.1, {0: FrameFlag.DROP})
+    [out2] = ranging.push(second)
+    # Trusted before it: five frames at 0 Hz and five at 10 Hz, each once: a 5 Hz median over the 0.1 s gap.
+    gap_s = 0.1 - float(first.t_s[-1])
+    assert out2.range_change_m[0] - out.range_change_m[-1] == pytest.approx(-ranging.wavelength_m * 5.0 * gap_s)
