@@ -680,13 +680,15 @@ def _gnss_log(ctx, lines: list[str], end: str = "\n") -> str:
     return ctx.write("gnss_log.txt", "\n".join(lines) + end)
 
 
-def _edit_field(lines: list[str], prefix: str, field: int, value: str) -> int:
-    """Set one field of the first row starting with ``prefix``; its index."""
+def _log_with_field(ctx, prefix: str, field: int, value: str) -> tuple[str, str]:
+    """The static log with one field of its first row starting with ``prefix`` set: its path, and ``path:line``."""
+    lines = _static_lines()
     i = _first(lines, prefix)
     fields = lines[i].split(",")
     fields[field] = value
     lines[i] = ",".join(fields)
-    return i
+    log = _gnss_log(ctx, lines)
+    return log, f"{log}:{i + 1}"
 
 
 def _sensors(ctx, *logs: str, extra: tuple[str, ...] = ()) -> list[str]:
@@ -777,26 +779,20 @@ def sensors_time_going_back(ctx):
 
 @case(EXIT_BAD_INPUT)
 def sensors_nan_value(ctx):
-    lines = _static_lines()
-    i = _edit_field(lines, "UncalAccel,", 4, "NaN")
-    log = _gnss_log(ctx, lines)
-    return _sensors(ctx, log), [f"{log}:{i + 1}", "UncalAccelYMps2", "NaN"]
+    log, where = _log_with_field(ctx, "UncalAccel,", 4, "NaN")
+    return _sensors(ctx, log), [where, "UncalAccelYMps2", "NaN"]
 
 
 @case(EXIT_BAD_INPUT)
 def sensors_empty_value(ctx):
-    lines = _static_lines()
-    i = _edit_field(lines, "Gyro,", 3, "")
-    log = _gnss_log(ctx, lines)
-    return _sensors(ctx, log), [f"{log}:{i + 1}", "GyroXRadPerSec is empty"]
+    log, where = _log_with_field(ctx, "Gyro,", 3, "")
+    return _sensors(ctx, log), [where, "GyroXRadPerSec is empty"]
 
 
 @case(EXIT_BAD_INPUT)
 def sensors_text_timestamp(ctx):
-    lines = _static_lines()
-    i = _edit_field(lines, "UncalMag,", 2, "soon")
-    log = _gnss_log(ctx, lines)
-    return _sensors(ctx, log), [f"{log}:{i + 1}", "elapsedRealtimeNanos", "'soon'"]
+    log, where = _log_with_field(ctx, "UncalMag,", 2, "soon")
+    return _sensors(ctx, log), [where, "elapsedRealtimeNanos", "'soon'"]
 
 
 @case(EXIT_BAD_INPUT)
@@ -807,18 +803,14 @@ def sensors_log_without_fix_rows(ctx):
 
 @case(EXIT_BAD_INPUT)
 def sensors_latitude_out_of_range(ctx):
-    lines = _static_lines()
-    i = _edit_field(lines, "Fix,", 2, "91.5")
-    log = _gnss_log(ctx, lines)
-    return _sensors(ctx, log), [f"{log}:{i + 1}", "latitude 91.5", "out of range"]
+    log, where = _log_with_field(ctx, "Fix,", 2, "91.5")
+    return _sensors(ctx, log), [where, "latitude 91.5", "out of range"]
 
 
 @case(EXIT_BAD_INPUT)
 def sensors_longitude_out_of_range(ctx):
-    lines = _static_lines()
-    i = _edit_field(lines, "Fix,", 3, "-190.0")
-    log = _gnss_log(ctx, lines)
-    return _sensors(ctx, log), [f"{log}:{i + 1}", "longitude -190", "out of range"]
+    log, where = _log_with_field(ctx, "Fix,", 3, "-190.0")
+    return _sensors(ctx, log), [where, "longitude -190", "out of range"]
 
 
 @case(EXIT_BAD_INPUT)
