@@ -216,6 +216,15 @@ def _scenario(text: str) -> str:
     return text
 
 
+def _device(name: str) -> str:
+    """An argparse type: an SDR device preset's name (sim.devices; imported only when the option is given)."""
+    from sim.devices import DEVICES
+
+    if name not in DEVICES:
+        raise argparse.ArgumentTypeError(f"unknown SDR device {name!r}; known: {', '.join(DEVICES)}")
+    return name
+
+
 # --- paths: outputs never name an input (exit 2); inputs and output places exist (exit 3) ---------------
 
 def _same_path(a: str | os.PathLike, b: str | os.PathLike) -> bool:
@@ -737,7 +746,7 @@ def _add_simulate_command(subparsers: argparse._SubParsersAction, common: argpar
                       help="the walk of Monte Carlo index K as dtmbnav evaluate draws it: its seed and its own "
                            f"layout (e.g. {REPORTING_SEEDS.start}: the first reporting walk)")
     p.add_argument("--container", choices=["sigmf", "raw"], default="sigmf", help="raw = raw file + JSON sidecar")
-    p.add_argument("--device", metavar="NAME",
+    p.add_argument("--device", metavar="NAME", type=_device,
                    help="record with this SDR's front end: its rate, format, oscillator and impairments "
                         "(rtl-sdr, hackrf-one, plutosdr, ...: docs/devices.md); --rate and --format still override")
     p.add_argument("--no-iq", action="store_true", help="write IMU, GNSS and truth only")

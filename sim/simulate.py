@@ -103,13 +103,14 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, seconds: float | None =
     """
     if seed is not None:
         scenario = scenario.replace(seed=int(seed))
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     walk = simulate_walk(scenario)
     imu = simulate_imu(scenario, walk)
     gnss = simulate_gnss(scenario, walk)
     generator = CaptureGenerator(scenario, walk.track, seconds=seconds, start_s=start_s,
                                  sample_rate_hz=sample_rate_hz, sample_format=sample_format, pn_mode=pn_mode)
+    # Only now, with every value checked (the front end's keys by the generator), does anything get written.
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     capture_start_s = generator.first_sample / generator.sample_rate_hz
 
     capture_path = None

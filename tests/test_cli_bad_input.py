@@ -1209,6 +1209,26 @@ def simulate_unknown_scenario_name(ctx):
 
 
 @case(EXIT_USAGE)
+def simulate_unknown_device(ctx):
+    return ["-q", "simulate", str(TINY_WALK), "--device", "rtl", "-o", str(ctx.out / "sim")], [
+        "'rtl'", "unknown SDR device", "rtl-sdr"]
+
+
+@case(EXIT_BAD_INPUT)
+def simulate_toml_adc_bits_beyond_the_format(ctx):
+    path = ctx.write("walk.toml", '[receiver]\nsample_format = "ci16"\nadc_bits = 20\n')
+    return ["-q", "simulate", path, "--seconds", "0.01", "-o", str(ctx.out / "sim")], [
+        "receiver.adc_bits", "2..16 for ci16", "20"]
+
+
+@case(EXIT_BAD_INPUT)
+def simulate_toml_drop_samples_reversed(ctx):
+    path = ctx.write("walk.toml", "[receiver]\ndrops_per_minute = 10.0\ndrop_samples = [500, 5]\n")
+    return ["-q", "simulate", path, "--seconds", "0.01", "-o", str(ctx.out / "sim")], [
+        "receiver.drop_samples", "shortest first", "[500, 5]"]
+
+
+@case(EXIT_USAGE)
 def simulate_seconds_zero(ctx):
     return ["-q", "simulate", str(TINY_WALK), "--seconds", "0", "-o", str(ctx.out / "sim")], ["--seconds"]
 
