@@ -109,14 +109,31 @@ def test_fit_kernel_equals_its_numpy_reference():
     amps, lags, var = (np.zeros((len(taps), 3), complex), np.zeros((len(taps), 3)), np.zeros((len(taps), 3)))
     resid = np.zeros(taps.shape[1])
     steps = np.array([0.2, 0.2, 0.01])
-    fit_paths_kernel(taps, offsets, -83, d1, r1, steps, g, dg, PULSE_OVERSAMPLING, 16, 0.3, 0.02, amps, lags, var,
+    fit_paths_kernel(taps, offsets, -83, d1, r1, steps, g, dg, PULSE_OVERSAMPLING, 16, 0.3, 0.02, 0.05, amps, lags, var,
                      resid)
     d2, r2 = start_delay.copy(), rate.copy()
-    ref = fit_paths_reference(taps, offsets, -83, d2, r2, steps, g, dg, PULSE_OVERSAMPLING, 16, 0.3, 0.02)
+    ref = fit_paths_reference(taps, offsets, -83, d2, r2, steps, g, dg, PULSE_OVERSAMPLING, 16, 0.3, 0.02, 0.05)
     for got, want in zip((amps, lags, var, resid), ref):
         np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-8)
     np.testing.assert_allclose(d1, d2, rtol=0, atol=1e-9)
     np.testing.assert_allclose(r1, r2, rtol=0, atol=1e-12)
+
+
+def test_fit_kernel_equals_its_numpy_reference_when_the_paths_drift_fast():
+    """A crystal 10 ppm off moves every path 0.042 samples per frame: runs shorter than the update block."""
+    taps, offsets, g, dg, true_delay = fit_inputs()
+    rate = np.array([0.042, 0.041, 0.043])
+    d1, r1, d2, r2 = true_delay.copy(), rate.copy(), true_delay.copy(), rate.copy()
+    amps, lags, var = (np.zeros((len(taps), 3), complex), np.zeros((len(taps), 3)), np.zeros((len(taps), 3)))
+    resid = np.zeros(taps.shape[1])
+    steps = np.full(3, 0.2)
+    fit_paths_kernel(taps, offsets, -83, d1, r1, steps, g, dg, PULSE_OVERSAMPLING, 16, 0.3, 0.02, 0.05, amps, lags, var,
+                     resid)
+    ref = fit_paths_reference(taps, offsets, -83, d2, r2, steps, g, dg, PULSE_OVERSAMPLING, 16, 0.3, 0.02, 0.05)
+    for got, want in zip((amps, lags, var, resid), ref):
+        np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-8)
+    # Each frame is its own run: its lags move by the rate from frame to frame.
+    np.testing.assert_allclose(np.diff(lags[:16, 0]), 0.042, atol=1e-6)
 
 
 def test_fit_kernel_converges_on_paths_half_a_chip_apart():
@@ -124,7 +141,7 @@ def test_fit_kernel_converges_on_paths_half_a_chip_apart():
     delay = true_delay + np.array([0.15, -0.15])       # start 0.2 chip apart instead of 0.55
     rate = np.zeros(2)
     amps, lags, var = (np.zeros((400, 2), complex), np.zeros((400, 2)), np.zeros((400, 2)))
-    fit_paths_kernel(taps, offsets, -83, delay, rate, np.full(2, 0.2), g, dg, PULSE_OVERSAMPLING, 16, 0.3, 0.0, amps,
+    fit_paths_kernel(taps, offsets, -83, delay, rate, np.full(2, 0.2), g, dg, PULSE_OVERSAMPLING, 16, 0.3, 0.0, 0.05, amps,
                      lags, var, np.zeros(165))
     np.testing.assert_allclose(delay, true_delay, atol=0.01)
 

@@ -108,12 +108,15 @@ def _table_at(table: np.ndarray, x: float, period: int, oversampling: int) -> fl
 @njit(cache=True, fastmath=True)
 def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np.ndarray, rate: np.ndarray,
                      max_step: np.ndarray, table: np.ndarray, dtable: np.ndarray, oversampling: int,
-                     block_frames: int, gain: float, rate_gain: float, amplitudes: np.ndarray, lags: np.ndarray,
-                     variance: np.ndarray, residual_power: np.ndarray) -> None:
+                     block_frames: int, gain: float, rate_gain: float, max_run_move: float, amplitudes: np.ndarray,
+                     lags: np.ndarray, variance: np.ndarray, residual_power: np.ndarray) -> None:
     """Least-squares path amplitudes and delay-loop updates over a batch (module docstring).
 
-    The frames are fitted in runs with one window offset (the lags of a
-    path do not move inside a run); the delay loops are updated every
+    The frames are fitted in runs with one window offset, each run's pulses
+    at the paths' lags in its middle frame; a run ends before its fastest
+    path drifts by ``max_run_move`` (a receiver clock tens of ppm off moves
+    every path by hundredths of a sample per frame, and a pulse fitted half a
+    sample off bends the amplitude's phase). The delay loops are updated every
     ``block_frames`` frames whatever the runs, so their bandwidth per frame
     does not depend on how often the receiver's timing moves the window.
 
@@ -135,6 +138,8 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
         :func:`pulse_tables` (period ``(len - 1) / oversampling`` chips).
     block_frames, gain, rate_gain
         Frames per update and the loop gains.
+    max_run_move : float
+        Largest drift of a path's lag over one run of frames fitted with the same pulses, samples.
     amplitudes : (F, n) complex128, out
         Fitted amplitude of each path in each frame.
     lags : (F, n) float64, out
@@ -164,8 +169,13 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
     pending = 0
     start = 0
     while start < n_frames:
+        fastest = 0.0
+        for i in range(n):
+            fastest = max(fastest, abs(rate[i]))
+        run_cap = block_frames if fastest * block_frames <= max_run_move else max(1, int(max_run_move / fastest))
         stop = start + 1
-        while stop < n_frames and pending + stop - start < block_frames and offsets[stop] == offsets[start]:
+        while (stop < n_frames and pending + stop - start < block_frames and stop - start < run_cap
+               and offsets[stop] == offsets[start]):
             stop += 1
         count = stop - start
         mid = 0.5 * (count - 1)
@@ -254,8 +264,8 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
 
 def fit_paths_reference(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np.ndarray, rate: np.ndarray,
                         max_step: np.ndarray, table: np.ndarray, dtable: np.ndarray, oversampling: int,
-                        block_frames: int, gain: float,
-                        rate_gain: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                        block_frames: int, gain: float, rate_gain: float,
+                        max_run_move: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Plain-numpy :func:`fit_paths_kernel` (vectorised over the frames of each run).
 
     Returns ``amplitudes, lags, variance, residual_power``; ``delay`` and
@@ -273,7 +283,9 @@ def fit_paths_reference(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay:
     hess, grad, pending = np.zeros((n, n)), np.zeros(n), 0
     start = 0
     while start < n_frames:
-        limit = min(block_frames - pending, n_frames - start)
+        fastest = float(np.max(np.abs(rate), initial=0.0))
+        run_cap = block_frames if fastest * block_frames <= max_run_move else max(1, int(max_run_move / fastest))
+        limit = min(block_frames - pending, n_frames - start, run_cap)
         same = np.flatnonzero(offsets[start:start + limit] != offsets[start])
         stop = start + (same[0] if len(same) else limit)
         count, mid = stop - start, 0.5 * (stop - start - 1)

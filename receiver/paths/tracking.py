@@ -70,6 +70,9 @@ class PathConfig:
         Largest delay correction per block of a path not yet confirmed, samples.
     steady_delay_step : float
         Largest delay correction per block of a confirmed path, samples.
+    max_run_move : float
+        Largest drift of a path's lag over frames fitted with the same pulses, samples
+        (:func:`receiver.paths.fit.fit_paths_kernel`).
     false_alarm : float
         Probability that noise alone crosses the detection threshold, per lag and batch.
     relative_floor_db : float
@@ -123,6 +126,7 @@ class PathConfig:
     rate_gain: float = 0.02
     max_delay_step: float = 0.2
     steady_delay_step: float = 0.01
+    max_run_move: float = 0.05
     false_alarm: float = 1e-7
     relative_floor_db: float = -35.0
     survival_snr_db: float = 6.0
@@ -365,6 +369,7 @@ class PathTracker:
         self._towers: list[float] = []       # last first-path grid delay of each tower
         self._start_ref: int | None = None
         self._index_ref = 0
+        self._loop_batches = 0               # batches since the timing loop (re)started
 
     def break_phase(self) -> None:
         """The next frame's phase does not follow from the last one (samples were dropped between them).
@@ -378,6 +383,7 @@ class PathTracker:
         """
         for p in self.paths:
             p.prev_amplitude = complex(np.nan, np.nan)
+        self._loop_batches = 0
         if self._doppler is not None:
             self._doppler.restart()
 
@@ -425,8 +431,8 @@ class PathTracker:
         # second): a spurious neighbour cannot drag it away.
         max_step = np.array([cfg.steady_delay_step if p.confirmed else cfg.max_delay_step for p in paths])
         fit_paths_kernel(taps, offsets, self.lag0, delay, rate, max_step, self.table, self.dtable,
-                         PULSE_OVERSAMPLING, cfg.block_frames, cfg.delay_gain, cfg.rate_gain, amplitudes, lags,
-                         variance, residual)
+                         PULSE_OVERSAMPLING, cfg.block_frames, cfg.delay_gain, cfg.rate_gain, cfg.max_run_move,
+                         amplitudes, lags, variance, residual)
         noise = np.maximum(noise_tap.astype(np.float64), 1e-30)
         noise_floor = float(np.mean(noise))
         dt = np.diff(np.concatenate([[t_s[0] if self._last_t_s is None else self._last_t_s], t_s]))
@@ -470,7 +476,10 @@ class PathTracker:
                 taps, starts, frame_index, None if i is None else float(lags[-1, i]),
                 None if i is None else amplitudes[:, i])
         self._last_t_s = float(t_s[-1])
-        self._maintain(residual / (noise_floor * count), noise_floor, offsets, count)
+        # The timing loop's period settles during the first batch after an acquisition: no drift from it there.
+        loop_drift = float(np.mean(eta)) * nominal if self._loop_batches > 0 else 0.0
+        self._loop_batches += 1
+        self._maintain(residual / (noise_floor * count), noise_floor, offsets, count, loop_drift)
         return PathUpdate(rows, first)
 
     # ---- per-batch bookkeeping -------------------------------------------------------------
@@ -570,8 +579,14 @@ class PathTracker:
             out[f"range_difference_change_{tower}_m"] = column
         return out
 
-    def _maintain(self, residual: np.ndarray, noise_floor: float, offsets: np.ndarray, count: int) -> None:
-        """Ages, fading and merging of the paths (module docstring, step 1), then births (:func:`detect_paths`)."""
+    def _maintain(self, residual: np.ndarray, noise_floor: float, offsets: np.ndarray, count: int,
+                  loop_drift: float) -> None:
+        """Ages, fading and merging of the paths (module docstring, step 1), then births (:func:`detect_paths`).
+
+        ``loop_drift`` is the grid drift per frame the timing loop's period
+        gives over the batch (the sampling offset times the frame length),
+        samples per frame.
+        """
         cfg = self.config
         survival = 10.0 ** (cfg.survival_snr_db / 10.0)
         strongest = max((p.power for p in self.paths), default=0.0)
@@ -594,18 +609,23 @@ class PathTracker:
         self.paths = merged
         if len(self.paths) >= cfg.max_paths:
             return
+        # The residual is the batch's, about its middle frame; the delays are those of the frame after it.
         offset = float(np.mean(offsets))
-        existing = np.array([p.delay - offset for p in self.paths])
+        existing = np.array([p.delay - 0.5 * count * p.rate - offset for p in self.paths])
         settled = np.array([p.age >= cfg.settle_batches for p in self.paths], dtype=bool)
         limit = max(detection_threshold(count, cfg.false_alarm), relative * strongest / noise_floor)
         found = detect_paths(residual, self.lag0, limit, existing, settled, cfg.min_separation, cfg.settle_guard,
                              min(cfg.max_births, cfg.max_paths - len(self.paths)))
         # Every path's delay drifts with the receiver clock (the sampling offset): a new path starts with the
-        # drift the confirmed paths agree on (the timing loop's period is too noisy for it), else none.
+        # drift the confirmed paths agree on. Without them it starts still, unless the timing loop's drift is
+        # more than half what a path's delay loop can follow (max_delay_step per update): a crystal tens of ppm
+        # off moves the grid by hundredths of a sample per frame. Below that the loop's noise (about 1e-3
+        # samples per frame over a batch) would only disturb a path that can find its drift itself.
         rates = [p.rate for p in self.paths if p.confirmed]
-        drift = float(np.median(rates)) if rates else 0.0
+        followable = cfg.max_delay_step / cfg.block_frames
+        drift = float(np.median(rates)) if rates else (loop_drift if abs(loop_drift) > 0.5 * followable else 0.0)
         for lag in sorted(found):
-            delay = lag + offset
+            delay = lag + offset + 0.5 * count * drift
             self.paths.append(_Path(self._next_id, self._tower_of(delay), delay, drift))
             self._next_id += 1
         self.paths.sort(key=lambda p: p.delay)
