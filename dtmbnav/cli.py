@@ -670,10 +670,9 @@ def _add_receiver_options(p: argparse.ArgumentParser) -> None:
                    help="skip the path tracker (/receiver/paths, first-path and range-difference columns)")
     g.add_argument("--keep-dc", action="store_true",
                    help="do not remove the DC offset / LO leakage at the capture's centre (removed by default)")
-    g.add_argument("--correct-iq", action="store_true",
+    g.add_argument("--correct-iq", action=argparse.BooleanOptionalAction, default=True,
                    help="correct the I/Q gain and phase imbalance the receiver estimates from the signal's "
-                        "circularity (reported either way; off by default: the PN headers bias the estimate while "
-                        "the carrier offset is near zero)")
+                        "circularity, headers left out (reported either way; default: on)")
 
 
 def _add_range_use_options(p: argparse.ArgumentParser) -> None:

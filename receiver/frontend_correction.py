@@ -29,6 +29,23 @@ DC-free rails ``y_I = Re(y - d)``, ``y_Q = Im(y - d)``:
     (E3)  ``g = sqrt(P_Q / P_I)``,  ``sin(phi) = -C / sqrt(P_I P_Q)``
     (E4)  ``I' = y_I``,  ``Q' = (y_Q / g + y_I sin(phi)) / cos(phi)``
 
+**Headers left out** (E6). The DTMB signal is not quite circular: its PN
+headers are ``+-(1 + j)`` chips, so during a header ``y^2`` turns at twice
+the carrier offset with a header's whole power behind it, and wherever that
+turn stays slow over the estimate's time (an offset near zero, or near a
+multiple of half the frame rate) the headers read as an imbalance of
+degrees. Each block is therefore cut into segments of about a third of a
+PN420 header (:data:`SEGMENT_S`); a segment's normalised pseudo-covariance
+``rho = (sum (y_I^2 - y_Q^2) + 2 j sum y_I y_Q) / sum |y|^2`` (moments about
+the block's mean) scatters about the front end's own by ``2 / L`` in
+squared magnitude for ``L`` circular samples, and a segment further from the
+block's median ``rho`` than :data:`TRIM_LEVEL` times that is left out of
+``P_I``, ``P_Q`` and ``C``: a header's segments stand out by about the
+header's power share, a body segment almost never (``exp(-TRIM_LEVEL)``).
+The median, not the running estimate, centres the test, so a large or
+changing imbalance is kept in. The DC (E1) and the signal power take every
+sample.
+
 (E4) inverts (M1) exactly, and its output has ``E[I'^2] = E[Q'^2]`` and
 ``E[I' Q'] = 0`` for the estimated moments: it is the closed-form,
 frequency-independent case of the circularity-based compensation of
@@ -90,17 +107,25 @@ BLOCK = 1 << 16
 #: within a second; long enough that even at 1 Msps the estimate holds a few hundred thousand samples,
 #: which puts its noise (of the DC and of the image left after correction) far below the thermal noise.
 FORGET_TIME_S = 0.25
+#: Duration of a segment of (E6), s: a third of a PN420 header (55.6 us), so that most of a header's
+#: segments hold only header.
+SEGMENT_S = 18e-6
+#: Fewest samples in a segment of (E6) (its noise grows as the segment shortens).
+SEGMENT_MIN = 32
+#: A segment is left out of the I/Q moments (E6) when the squared distance of its normalised
+#: pseudo-covariance from the block's median exceeds this many times its noise variance ``2 / L``: for a
+#: circular segment of ``L`` Gaussian samples that distance is exponential, so ``exp(-TRIM_LEVEL)`` (about
+#: 1e-4) of the signal's own segments are lost.
+TRIM_LEVEL = 9.0
 #: Largest gain error the corrector applies a correction for, dB: beyond it (and beyond
 #: ``MAX_CORRECTABLE_PHASE_DEG``) the input is not a circular signal through an imbalanced front end (a dead
 #: rail, a real-valued or otherwise non-circular capture) and "correcting" it would only distort it; such a
 #: block's I/Q is passed as it is (the DC is still removed) and the estimate is reported.
 MAX_CORRECTABLE_GAIN_DB = 6.0
-#: The I/Q correction runs only where the estimated imbalance leaves an image above this rejection, dB. The
-#: DTMB signal is not quite circular: its PN headers are +-(1 + j), whose pseudo-covariance turns at twice
-#: the carrier offset and averages out only over many of its periods, so near a zero offset the headers
-#: read as an imbalance of up to about a degree; correcting that would add the image it claims to
-#: remove. An imbalance with a rejection above this (about 0.5 dB and 3 deg) changes the CFO by a tenth of a
-#: hertz or less, which the f_s calibration takes in while it is constant.
+#: The I/Q correction runs only where the estimated imbalance leaves an image above this rejection, dB:
+#: what (E6) leaves of the headers' pseudo-covariance must not be "corrected" into an image. An imbalance
+#: with a rejection above this (about 0.5 dB and 3 deg) changes the CFO by a tenth of a hertz or less, which
+#: the f_s calibration takes in while it is constant.
 CORRECT_BELOW_IRR_DB = 30.0
 #: Largest phase error the corrector applies a correction for, degrees (``MAX_CORRECTABLE_GAIN_DB``).
 MAX_CORRECTABLE_PHASE_DEG = 30.0
@@ -125,16 +150,23 @@ HISTORY_COLUMNS = ("dc_i", "dc_q", "iq_gain_db", "iq_phase_deg", "signal_rms")
 _FASTMATH = {"reassoc", "contract"}
 
 
+#: Running sums of the estimate (E5), in this order: the weight of the DC and of the signal power, W times
+#: the mean of I and of Q, W times the centred signal power, then the weight of the moments the headers'
+#: segments were left out of (E6) and W times ``P_I``, ``P_Q`` and ``C``.
+ACC_SIZE = 8
+
+
 @njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
 def _estimate_kernel(acc: np.ndarray, row: np.ndarray) -> None:
-    """(E1)-(E3) from the running sums ``acc`` into ``row`` (``HISTORY_COLUMNS``)."""
+    """(E1)-(E3) from the running sums ``acc`` (``ACC_SIZE``) into ``row`` (``HISTORY_COLUMNS``)."""
     w = acc[0]
-    p_i = acc[3] / w
-    p_q = acc[4] / w
-    c = acc[5] / w
     row[0] = acc[1] / w
     row[1] = acc[2] / w
-    row[4] = np.sqrt(max(p_i + p_q, 0.0))
+    row[4] = np.sqrt(max(acc[3] / w, 0.0))
+    w2 = acc[4]
+    p_i = acc[5] / w2 if w2 > 0.0 else 0.0
+    p_q = acc[6] / w2 if w2 > 0.0 else 0.0
+    c = acc[7] / w2 if w2 > 0.0 else 0.0
     if p_i > 0.0 and p_q > 0.0:
         row[2] = 10.0 * np.log10(p_q / p_i)
         s = min(max(-c / np.sqrt(p_i * p_q), -1.0), 1.0)   # rounding can push it past Cauchy-Schwarz
@@ -145,8 +177,8 @@ def _estimate_kernel(acc: np.ndarray, row: np.ndarray) -> None:
 
 
 @njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def correct_blocks(x: np.ndarray, out: np.ndarray, block: int, acc: np.ndarray, decay_per_sample: float,
-                   remove_dc: bool, correct_iq: bool, rows: np.ndarray) -> int:
+def correct_blocks(x: np.ndarray, out: np.ndarray, block: int, segment: int, acc: np.ndarray,
+                   decay_per_sample: float, remove_dc: bool, correct_iq: bool, rows: np.ndarray) -> int:
     """Fold each block's statistics into the running estimate and correct the block with it.
 
     The statistics pass is also the input check: a NaN or inf sample makes
@@ -163,9 +195,10 @@ def correct_blocks(x: np.ndarray, out: np.ndarray, block: int, acc: np.ndarray, 
         Corrected samples, same length as ``x``.
     block : int
         Samples per block.
-    acc : float64 ndarray, shape (6,)
-        Running sums (E5), updated in place: weight ``W``, then ``W`` times
-        the mean of I and Q, ``P_I``, ``P_Q`` and ``C``.
+    segment : int
+        Samples per segment of (E6) (:func:`segment_samples`).
+    acc : float64 ndarray, shape (ACC_SIZE,)
+        Running sums (E5), updated in place (``ACC_SIZE``).
     decay_per_sample : float
         ``1 / (FORGET_TIME_S * fs)``, 1/samples: a block of ``n`` samples
         multiplies the sums by ``exp(-n * decay_per_sample)`` first.
@@ -183,25 +216,44 @@ def correct_blocks(x: np.ndarray, out: np.ndarray, block: int, acc: np.ndarray, 
     """
     n_total = x.shape[0]
     use = np.empty(rows.shape[1])
+    sums = np.empty((-(-block // segment), 5))
+    centred = np.empty((sums.shape[0], 3))
+    rho = np.empty((2, sums.shape[0]))
     for k in range(-(-n_total // block)):
         start = k * block
         n = min(block, n_total - start)
         xb = x[start: start + n]
         ob = out[start: start + n]
+        n_seg = -(-n // segment)
+        for g in range(n_seg):
+            s_i = 0.0
+            s_q = 0.0
+            s_ii = 0.0
+            s_qq = 0.0
+            s_iq = 0.0
+            for j in range(g * segment, min((g + 1) * segment, n)):
+                v = xb[j]
+                re = np.float64(v.real)
+                im = np.float64(v.imag)
+                s_i += re
+                s_q += im
+                s_ii += re * re
+                s_qq += im * im
+                s_iq += re * im
+            sums[g, 0] = s_i
+            sums[g, 1] = s_q
+            sums[g, 2] = s_ii
+            sums[g, 3] = s_qq
+            sums[g, 4] = s_iq
         s_i = 0.0
         s_q = 0.0
         s_ii = 0.0
         s_qq = 0.0
-        s_iq = 0.0
-        for j in range(n):
-            v = xb[j]
-            re = np.float64(v.real)
-            im = np.float64(v.imag)
-            s_i += re
-            s_q += im
-            s_ii += re * re
-            s_qq += im * im
-            s_iq += re * im
+        for g in range(n_seg):
+            s_i += sums[g, 0]
+            s_q += sums[g, 1]
+            s_ii += sums[g, 2]
+            s_qq += sums[g, 3]
         if not np.isfinite(s_ii + s_qq):
             return k
         # Causal: the block is corrected with the estimate of the blocks before it (the stream's first block,
@@ -212,13 +264,47 @@ def correct_blocks(x: np.ndarray, out: np.ndarray, block: int, acc: np.ndarray, 
             _estimate_kernel(acc, use)
         m_i = s_i / n
         m_q = s_q / n
+        # (E6): each segment's moments about the block's mean; a segment whose normalised pseudo-covariance
+        # lies off the block's median by more than noise explains (a PN header's) is left out.
+        for g in range(n_seg):
+            length = min((g + 1) * segment, n) - g * segment
+            c_ii = sums[g, 2] - 2.0 * m_i * sums[g, 0] + length * m_i * m_i
+            c_qq = sums[g, 3] - 2.0 * m_q * sums[g, 1] + length * m_q * m_q
+            c_iq = sums[g, 4] - m_i * sums[g, 1] - m_q * sums[g, 0] + length * m_i * m_q
+            p = c_ii + c_qq
+            centred[g, 0] = c_ii
+            centred[g, 1] = c_qq
+            centred[g, 2] = c_iq
+            rho[0, g] = (c_ii - c_qq) / p if p > 0.0 else 0.0
+            rho[1, g] = 2.0 * c_iq / p if p > 0.0 else 0.0
+        ref_re = np.median(rho[0, :n_seg])
+        ref_im = np.median(rho[1, :n_seg])
+        k_n = 0.0
+        k_ii = 0.0
+        k_qq = 0.0
+        k_iq = 0.0
+        for g in range(n_seg):
+            length = min((g + 1) * segment, n) - g * segment
+            c_ii = centred[g, 0]
+            c_qq = centred[g, 1]
+            c_iq = centred[g, 2]
+            p = c_ii + c_qq
+            d_re = (c_ii - c_qq) - ref_re * p
+            d_im = 2.0 * c_iq - ref_im * p
+            if d_re * d_re + d_im * d_im <= TRIM_LEVEL * 2.0 / length * p * p:
+                k_n += length
+                k_ii += c_ii
+                k_qq += c_qq
+                k_iq += c_iq
         lam = np.exp(-n * decay_per_sample)
         acc[0] = lam * acc[0] + n
         acc[1] = lam * acc[1] + s_i
         acc[2] = lam * acc[2] + s_q
-        acc[3] = lam * acc[3] + (s_ii - s_i * m_i)
-        acc[4] = lam * acc[4] + (s_qq - s_q * m_q)
-        acc[5] = lam * acc[5] + (s_iq - s_i * m_q)
+        acc[3] = lam * acc[3] + (s_ii - s_i * m_i) + (s_qq - s_q * m_q)
+        acc[4] = lam * acc[4] + k_n
+        acc[5] = lam * acc[5] + k_ii
+        acc[6] = lam * acc[6] + k_qq
+        acc[7] = lam * acc[7] + k_iq
         row = rows[k]
         _estimate_kernel(acc, row)
         if first:
@@ -261,16 +347,17 @@ def _non_finite(f: np.ndarray) -> bool:
 def _estimate_reference(acc: np.ndarray) -> np.ndarray:
     """(E1)-(E3) from the running sums: DC I and Q, gain dB, phase deg, signal RMS (``HISTORY_COLUMNS``)."""
     dc = acc[1:3] / acc[0]
-    p_i, p_q, c = acc[3:6] / acc[0]
+    p_i, p_q, c = acc[5:8] / acc[4] if acc[4] > 0 else np.zeros(3)
     gain_db = phase_deg = np.nan
     if p_i > 0 and p_q > 0:
         gain_db = 10.0 * np.log10(p_q / p_i)                                          # (E3)
         phase_deg = np.degrees(np.arcsin(np.clip(-c / np.sqrt(p_i * p_q), -1.0, 1.0)))
-    return np.array([dc[0], dc[1], gain_db, phase_deg, np.sqrt(p_i + p_q)])
+    return np.array([dc[0], dc[1], gain_db, phase_deg, np.sqrt(max(acc[3] / acc[0], 0.0))])
 
 
 def correct_blocks_reference(x: np.ndarray, acc: np.ndarray, decay_per_sample: float, remove_dc: bool,
-                             correct_iq: bool, block: int = BLOCK) -> tuple[np.ndarray, np.ndarray]:
+                             correct_iq: bool, block: int = BLOCK,
+                             segment: int = SEGMENT_MIN) -> tuple[np.ndarray, np.ndarray]:
     """Plain-numpy :func:`correct_blocks` (tests and benchmark): returns ``(out, rows)``, updates ``acc``.
 
     Same arguments as :func:`correct_blocks`, without the output arrays.
@@ -284,11 +371,21 @@ def correct_blocks_reference(x: np.ndarray, acc: np.ndarray, decay_per_sample: f
         n = len(xb)
         re, im = xb.real.astype(np.float64), xb.imag.astype(np.float64)
         m_i, m_q = re.mean(), im.mean()
+        y_i, y_q = re - m_i, im - m_q
+        # (E6): segments whose normalised pseudo-covariance is off the block's median by more than noise.
+        edges = np.arange(0, n, segment)
+        lengths = np.diff(np.append(edges, n))
+        c_ii, c_qq, c_iq = (np.add.reduceat(v, edges) for v in (y_i * y_i, y_q * y_q, y_i * y_q))
+        p = c_ii + c_qq
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rho = np.where(p > 0, (c_ii - c_qq + 2j * c_iq) / p, 0j)
+        rho_ref = complex(np.median(rho.real), np.median(rho.imag))
+        keep = np.abs((c_ii - c_qq + 2j * c_iq) - rho_ref * p) ** 2 <= TRIM_LEVEL * 2.0 / lengths * p * p
         # (E5): the block's mean and its moments about its own mean, weighted by its length.
-        moments = np.array([1.0, m_i, m_q, np.mean((re - m_i) ** 2), np.mean((im - m_q) ** 2),
-                            np.mean((re - m_i) * (im - m_q))])
+        sums = np.array([n, n * m_i, n * m_q, np.sum(y_i * y_i) + np.sum(y_q * y_q), lengths[keep].sum(),
+                         c_ii[keep].sum(), c_qq[keep].sum(), c_iq[keep].sum()])
         before = _estimate_reference(acc) if acc[0] != 0.0 else None   # causal (see correct_blocks)
-        acc[:] = np.exp(-n * decay_per_sample) * acc + n * moments
+        acc[:] = np.exp(-n * decay_per_sample) * acc + sums
         rows[k] = _estimate_reference(acc)
         dc_i, dc_q, gain_db, phase_deg, _ = rows[k] if before is None else before
         d_i, d_q = (dc_i, dc_q) if remove_dc else (0.0, 0.0)
@@ -299,6 +396,11 @@ def correct_blocks_reference(x: np.ndarray, acc: np.ndarray, decay_per_sample: f
             y_q = (y_q / g + y_i * np.sin(phi)) / np.cos(phi)                               # (E4)
         out[k * block: k * block + n] = y_i + 1j * y_q
     return out, rows
+
+
+def segment_samples(sample_rate_hz: float) -> int:
+    """Samples per segment of (E6) at ``sample_rate_hz``: :data:`SEGMENT_S`, at least :data:`SEGMENT_MIN`."""
+    return max(SEGMENT_MIN, int(round(SEGMENT_S * sample_rate_hz)))
 
 
 def image_rejection_db(iq_gain_db: float, iq_phase_deg: float) -> float:
@@ -445,7 +547,8 @@ class FrontEndCorrector:
         self.decay_per_sample = 1.0 / (FORGET_TIME_S * self.sample_rate_hz)
         self.position = 0
         self.emitted = 0
-        self._acc = np.zeros(6)
+        self.segment = segment_samples(self.sample_rate_hz)
+        self._acc = np.zeros(ACC_SIZE)
         self._pending = np.empty(BLOCK, dtype=np.complex64)   # the block being filled (reused)
         self._fill = 0
         self._finished = False
@@ -527,8 +630,8 @@ class FrontEndCorrector:
         """Run the kernel on whole blocks (a partial one at the end of the stream); False on NaN or inf."""
         blocks = -(-len(x) // BLOCK)
         rows = np.empty((blocks, len(HISTORY_COLUMNS)))
-        if correct_blocks(x, out, BLOCK, self._acc, self.decay_per_sample, self.remove_dc, self.correct_iq,
-                          rows) >= 0:
+        if correct_blocks(x, out, BLOCK, self.segment, self._acc, self.decay_per_sample, self.remove_dc,
+                          self.correct_iq, rows) >= 0:
             return False
         if self.keep_history:
             self._rows.append(rows)

@@ -28,7 +28,9 @@ grid. The SI SNR is measured against the noise per carrier (the noise the
 resampler lets through, scaled by its noise bandwidth); what such a capture
 cannot give (the header SNR and the channel taps cover only the recorded
 band, so paths closer than a few chips merge) is stated in the attributes
-(``narrowband``, ``bandwidth_hz``) and in :meth:`Receiver.notes`.
+(``narrowband``, ``bandwidth_hz``) and in :meth:`Receiver.notes`. The path
+tracker is switched off there (``path_tracking`` false): its "first path"
+would be a blend of merged paths whose phase wanders.
 
 **Off-centre tuning.** With ``ReceiverConfig.channel_offset_hz`` (channel
 centre minus capture centre, Hz) non-zero, the input is first shifted by
@@ -163,9 +165,8 @@ class ReceiverConfig:
         Remove the front end's DC offset / LO leakage, and correct its I/Q
         gain and phase imbalance, blindly from the input
         (:mod:`receiver.frontend_correction`; the imbalance is estimated and
-        reported either way); both off runs no such stage. The correction is
-        off by default: the PN headers' own non-circularity biases the blind
-        estimate while the carrier offset is near zero.
+        reported either way); both off runs no such stage. The estimate
+        leaves out the PN headers, which are not circular (E6 there).
     cfo_scatter_limit : float
         SI phase scatter over its thermal-noise expectation above which a
         frame is flagged LOW_QUALITY.
@@ -209,7 +210,7 @@ class ReceiverConfig:
     cfo_search_hz: float = DEFAULT_CFO_SEARCH_HZ
     channel_offset_hz: float = 0.0
     remove_dc: bool = True
-    correct_iq: bool = False
+    correct_iq: bool = True
     cfo_scatter_limit: float = CFO_SCATTER_LIMIT
     si_polarity: int = 1
     si_frames: int = 256
@@ -380,6 +381,11 @@ class Receiver:
         self.ranging = RangeIntegrator(carrier_hz, self.config.clock_offset_hz, self.config.static_window_s)
         #: The capture holds only the centre of the channel (module docstring).
         self.narrowband = self.sample_rate_hz < SYMBOL_RATE_HZ
+        # The path tracker needs the whole channel: a narrowband capture's taps merge paths a few chips apart,
+        # and the "first path" the fit follows is a blend whose phase wanders.
+        self.paths_off_narrowband = self.narrowband and self.config.track_paths
+        if self.paths_off_narrowband:
+            self.config = replace(self.config, track_paths=False)
         #: Width of the recorded part of the channel, Hz.
         self.bandwidth_hz = min(self.sample_rate_hz, SYMBOL_RATE_HZ)
         # Noise per received sample -> noise per carrier (in per-sample units): white noise fills the
@@ -499,7 +505,8 @@ class Receiver:
                        f"{self.bandwidth_hz / 1e6:g} MHz of the {SYMBOL_RATE_HZ / 1e6:g} MHz channel; the SI-carrier "
                        f"CFO, velocity and range are unaffected, but snr_db covers the recorded band only and "
                        f"the channel taps merge paths closer than {SYMBOL_RATE_HZ / self.bandwidth_hz:.1f} chips "
-                       f"(no delay resolution for path separation)")
+                       f"(no delay resolution for path separation)"
+                       + ("; path tracking is off (no first-path ranges)" if self.paths_off_narrowband else ""))
         if self.config.iq_orientation == "auto" and self.conjugated:
             out.append("I and Q are swapped in this capture (its SI word decodes only conjugated): "
                        "received conjugated, as --conjugate would")

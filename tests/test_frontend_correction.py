@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from receiver.frontend_correction import (BLOCK, FORGET_TIME_S, MAX_CORRECTABLE_GAIN_DB, FrontEndCorrector,
+from receiver.frontend_correction import (ACC_SIZE, BLOCK, FORGET_TIME_S, MAX_CORRECTABLE_GAIN_DB, FrontEndCorrector,
                                           correct_blocks_reference, frontend_warnings, image_rejection_db)
 
 FS = 7.56e6
@@ -100,8 +100,8 @@ def test_kernel_matches_the_numpy_reference(impaired, remove_dc, correct_iq):
     _, y = impaired
     y = y[: 3 * BLOCK + 4321]
     out, fc = run(y, cuts=(1000, BLOCK + 7), remove_dc=remove_dc, correct_iq=correct_iq)
-    acc = np.zeros(6)
-    ref, rows = correct_blocks_reference(y, acc, fc.decay_per_sample, remove_dc, correct_iq)
+    acc = np.zeros(ACC_SIZE)
+    ref, rows = correct_blocks_reference(y, acc, fc.decay_per_sample, remove_dc, correct_iq, segment=fc.segment)
     assert np.allclose(out, ref, rtol=0, atol=2e-6)
     est = fc.estimate()
     assert np.allclose(np.column_stack([est.dc_i, est.dc_q, est.gain_db, est.phase_deg, est.rms]), rows,
@@ -148,7 +148,7 @@ def test_flush_returns_the_partial_block():
     assert len(head) == 2 * BLOCK and fc.emitted == 2 * BLOCK and fc.position == len(y)
     tail = fc.flush()
     assert len(tail) == 5000
-    ref, _ = correct_blocks_reference(y, np.zeros(6), fc.decay_per_sample, True, True)
+    ref, _ = correct_blocks_reference(y, np.zeros(ACC_SIZE), fc.decay_per_sample, True, True, segment=fc.segment)
     assert np.allclose(np.concatenate([head, tail]), ref, rtol=0, atol=2e-6)
     assert list(fc.estimate().block_start) == [0, BLOCK, 2 * BLOCK]
     assert len(fc.flush()) == 0
@@ -284,3 +284,33 @@ def test_history_can_be_popped():
     assert list(second.block_start) == [2 * BLOCK, 3 * BLOCK]
     assert second.iq_gain_db == ONE_SHOT_FC.estimate().iq_gain_db
     assert len(fc.estimate().block_start) == 0
+
+
+def with_headers(z: np.ndarray, rng: np.random.Generator, period: int = 4200, length: int = 420) -> np.ndarray:
+    """``z`` with PN420-like headers: every ``period`` samples, ``length`` chips of +-(1 + j) at twice the
+    body's power and no carrier offset (their ``y^2`` then never turns)."""
+    out = z.copy()
+    rms = np.sqrt(np.mean(np.abs(z) ** 2) / 2.0)
+    for start in range(0, len(z) - length, period):
+        out[start: start + length] = rng.choice([-1.0, 1.0], length) * (1 + 1j) * rms * np.sqrt(2.0)
+    return out
+
+
+def plain_moments(y: np.ndarray) -> tuple[float, float]:
+    """(E2)-(E3) over every sample, headers included: gain dB and phase deg."""
+    i, q = y.real - y.real.mean(), y.imag - y.imag.mean()
+    p_i, p_q, c = np.mean(i * i), np.mean(q * q), np.mean(i * q)
+    return 10 * np.log10(p_q / p_i), np.degrees(np.arcsin(-c / np.sqrt(p_i * p_q)))
+
+
+@pytest.mark.parametrize("gain_db, phase_deg", [(0.0, 0.0), (1.0, 5.0)])
+def test_the_headers_are_left_out_of_the_imbalance(gain_db, phase_deg):
+    """Headers that do not turn read as degrees of imbalance in the plain moments; (E6) leaves them out."""
+    rng = np.random.default_rng(5)
+    y = impair(with_headers(multicarrier(1_000_000, rng, cfo_hz=0.0), rng), gain_db, phase_deg)
+    assert abs(plain_moments(y)[1] - phase_deg) > 5.0          # what the headers do to all samples' moments
+    _, fc = run(y)
+    est = fc.estimate()
+    assert abs(est.iq_gain_db - gain_db) < 0.05 and abs(est.iq_phase_deg - phase_deg) < 0.3
+    if gain_db == 0.0:
+        assert est.image_rejection_db > 40.0 and not frontend_warnings(est)
