@@ -15,6 +15,11 @@ periods is a drop, and the jump measures it.
   matches its predecessor's shifted by the same whole number of samples, and
   clearly better than unshifted (:func:`profile_shift`): a path appearing or
   fading moves the centroid but not the profile.
+  A step of more than half :data:`MAX_IN_LOCK_STEP` whose profile shifts by
+  more than it ends the lock at the frame (the loop would otherwise follow it
+  and take the lost samples into its grid): a multipath tail leaving the
+  window makes the centroid understate such a step, so the profile is
+  searched over the whole window there.
 - **Across a loss of lock** (a longer drop throws the header out of the
   window): the grid the lost lock was coasting on, carried over the gap,
   predicts where the frame the new lock starts with should be; the new lock
@@ -133,10 +138,18 @@ def find_in_lock_drop(measured: np.ndarray, strong: np.ndarray, period: float, p
         size = float(step[b - pos0])
         # The windows' own step beyond the period shifts the taps too (the loop rounds its timing).
         window_shift = int(starts[b] - (starts[b - 1] if b > 0 else prev_start) - round(period))
-        lag, gain = profile_shift(previous, taps[b], int(np.ceil(size)) + 2, -window_shift)
+        # A step near the window's edge moves the centroid less than the paths (a multipath tail leaves the
+        # window): there the profile alone measures it, searched over the whole window.
+        long_step = size > MAX_IN_LOCK_STEP / 2
+        max_lag = len(taps[b]) // 2 if long_step else int(np.ceil(size)) + 2
+        lag, gain = profile_shift(previous, taps[b], max_lag, -window_shift)
         shift = -lag - window_shift
-        if shift >= 1 and abs(shift - size) <= 0.75 and gain >= MIN_PROFILE_GAIN:
+        if shift < 1 or gain < MIN_PROFILE_GAIN:
+            continue
+        if abs(shift - size) <= 0.75:
             return int(b), size
+        if long_step and shift > MAX_IN_LOCK_STEP:
+            return int(b), float(shift)
     return None
 
 

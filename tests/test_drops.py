@@ -47,6 +47,22 @@ def test_a_drop_is_counted_and_t_s_stays_on_the_real_clock(lost):
     assert np.max(np.abs(cut.range_change_m[after] - full.range_change_m[matched])) < 0.05
 
 
+def test_a_drop_beyond_the_in_lock_limit_is_not_taken_into_the_grid():
+    """49 samples behind an echo 20 samples late: the echo leaves the window and the centroid understates the
+    step; the lock must end at the drop and the re-acquisition count it, not the loop follow it."""
+    x = make_signal(int(0.4 * SYMBOL_RATE_HZ), cfo_hz=2500.0, snr_db=15, start_symbol=START, echo=(20.0, 0.5))
+    at = int(0.2 * SYMBOL_RATE_HZ) + 1234
+    full, _ = _receive(x)
+    cut, rx = _receive(np.concatenate([x[:at], x[at + 49:]]))
+    assert rx.drops.samples == [49] and cut.segment_id.max() == 0
+    # The re-acquisition's first batch sits where the acquisition put the window (on the main path); the timing
+    # loop then pulls it onto the taps' centroid, which the echo moves by 4 samples (docs/schema.md, t_s). From
+    # there t_s is the uncut stream's.
+    after = cut.t_s > at / SYMBOL_RATE_HZ + 0.1
+    matched = np.searchsorted(full.frame_index, cut.frame_index[after])
+    assert np.max(np.abs(cut.t_s[after] - full.t_s[matched])) * SYMBOL_RATE_HZ <= 1.0 + 1e-6  # a window's rounding
+
+
 def test_no_drop_is_found_in_an_uncut_stream():
     x = make_signal(int(0.3 * SYMBOL_RATE_HZ), cfo_hz=2500.0, snr_db=0, start_symbol=START, echo=(5.3, 0.5j))
     rows, rx = _receive(x)
