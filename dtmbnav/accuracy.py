@@ -42,7 +42,7 @@ from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
 from dtmbnav.evaluate import seed_scenario
 from sim.channel import DIRECT
 from sim.path_truth import PathTruth, path_truth
-from sim.rf import CaptureGenerator, FrameTruth
+from sim.rf import CaptureGenerator, DropTruth, FrameTruth
 from sim.scenario import Scenario, load_scenario, scenario_from_dict
 from sim.walk import simulate_walk
 
@@ -58,6 +58,7 @@ class CaptureRun:
     start_s: float
     seconds_per_second: float
     paths: PathTruth | None = None
+    drops: DropTruth | None = None
 
 
 def run_capture(scenario: str | Scenario, *, start_s: float, seconds: float | None, config: ReceiverConfig,
@@ -85,7 +86,7 @@ def run_capture(scenario: str | Scenario, *, start_s: float, seconds: float | No
     frames = FrameBatch.concatenate(list(receive_stream(chunks(), gen.sample_rate_hz, gen.carrier_hz, receiver=rx)))
     elapsed = time.perf_counter() - t0
     return CaptureRun(frames, gen.frame_truth(), rx, scn, start_s, elapsed / gen.num_samples * gen.sample_rate_hz,
-                      path_truth(gen))
+                      path_truth(gen), gen.drops())
 
 
 def load_simulated_capture(folder: str | Path) -> tuple[Path, FrameTruth, PathTruth, Scenario, float]:

@@ -355,7 +355,8 @@ def bench_receive_command(seconds: float, rss_seconds: tuple[float, float], repe
     :func:`_child_env`), reading, conversion and writing. Next to it, the
     same samples through :class:`receiver.pipeline.Receiver` in this process
     (kernels only, reading left out); the command once more with
-    ``--no-paths`` (the rate the path tracker is measured against); the
+    ``--no-paths`` (the rate the path tracker is measured against) and with
+    ``--keep-dc --no-correct-iq`` (the front-end corrector's stage off); the
     command on a :data:`START_UP_CAPTURE_S` capture (its start-up); and the
     import of :mod:`receiver.pipeline` in a fresh interpreter. When dtmb-sdr is
     installed, its front end (:data:`DTMB_SDR_FRONT_END`) runs on the same
@@ -405,6 +406,11 @@ def bench_receive_command(seconds: float, rss_seconds: tuple[float, float], repe
                              capture.num_samples / off, None, seconds / off,
                              f"the same on 1 core with --no-paths; with tracking {off / whole_process[1]:.0%} of "
                              "this speed"))
+        raw = min(receive(seconds, 1, "--keep-dc", "--no-correct-iq") for _ in range(repeats))
+        rows.append(BenchRow("receive command, front-end stage off, --jobs 1", "samples/s",
+                             capture.num_samples / raw, None, seconds / raw,
+                             f"the same on 1 core with --keep-dc --no-correct-iq (no front-end corrector); with "
+                             f"the stage {raw / whole_process[1]:.0%} of this speed"))
         start_up = min(receive(START_UP_CAPTURE_S, 1) for _ in range(repeats))
         rows.append(BenchRow(f"receive command start-up ({START_UP_CAPTURE_S:g} s capture)", "s", start_up, None, None,
                              "whole process on 1 core: interpreter, imports, numba cache, acquisition, files"))

@@ -278,6 +278,23 @@ def paths_section(config: ResultsConfig) -> Section:
     return Section("paths", "Path tracker over whole walks", "--sections paths", body, time.perf_counter() - start)
 
 
+def frontends_section(config: ResultsConfig) -> Section:
+    """The SDR front ends against an ideal one (:mod:`dtmbnav.frontends`): device presets, sweep and drops."""
+    from dtmbnav.frontends import (DROP_SAMPLES, DROPS_PER_MINUTE, SWEEP_FORMAT, SWEEP_RATE_HZ, describe, device_cases,
+                                   drop_case, drop_table, frontend_table, sweep_cases)
+
+    start = time.perf_counter()
+    devices, _ = frontend_table(list(device_cases()))
+    sweep, _ = frontend_table(list(sweep_cases()))
+    drops = drop_table(*drop_case())
+    body = (f"{describe()}\n\nDevice presets at their usual rate and format (`python -m dtmbnav.frontends --devices`):"
+            f"\n\n{devices}\n\nLO leakage, I/Q imbalance and tuner offset at {SWEEP_RATE_HZ / 1e6:g} Msps "
+            f"{SWEEP_FORMAT} (`python -m dtmbnav.frontends --sweep`):\n\n{sweep}\n\nDropped samples, "
+            f"{DROPS_PER_MINUTE:g} a minute of {DROP_SAMPLES[0]} to {DROP_SAMPLES[1]} samples "
+            f"(`python -m dtmbnav.frontends --drops`): {drops}\n")
+    return Section("frontends", "SDR front ends", "--sections frontends", body, time.perf_counter() - start)
+
+
 def bench_section(config: ResultsConfig) -> Section:
     """Throughput of every kernel next to its numpy reference (``dtmbnav bench``); every figure is a timing."""
     import contextlib
@@ -305,12 +322,13 @@ def _sections(config: ResultsConfig) -> dict[str, Callable[[], Section]]:
         "pdr": lambda: pdr_section(config),
         "receiver": lambda: receiver_section(config),
         "paths": lambda: paths_section(config),
+        "frontends": lambda: frontends_section(config),
         "bench": lambda: bench_section(config),
     }
 
 
 #: Every section, in the file's order.
-SECTIONS = ("fusion-iq", "fusion-obs", "fusion-exact", "receiver", "paths", "pdr", "bench")
+SECTIONS = ("fusion-iq", "fusion-obs", "fusion-exact", "receiver", "paths", "frontends", "pdr", "bench")
 
 
 def render_section(section: Section, commit: str, date: str, machine: str) -> str:
