@@ -1,12 +1,14 @@
-"""Real SDR front ends against an ideal one: each device preset, and a sweep of LO leakage, I/Q imbalance and tuner offset.
+"""Real SDR front ends against an ideal one: the device presets, a leakage, imbalance and offset sweep, drops.
 
 A front end is judged by the walk it spoils, not by its own estimates: the
-scenario file's park-loop-cw walk (C/N 15 dB, its standstill for f_s, then
-:data:`WALK_S` seconds of walking) is received once through the impaired
-front end and once through an *ideal* twin, the same scenario with every
-impairment key of :data:`sim.frontend.IMPAIRMENT_DEFAULTS` at its default
-(same rate, sample format, oscillator and tuner offset, same noise). A case
-passes (docs/devices.md, "Judging a front end") when the receiver
+park-loop-cw walk (C/N 15 dB, the end of its standstill for f_s, then
+:data:`WALK_S` seconds of walking; :data:`WALKS` walks of the tuning range)
+is received through the impaired front end and through an *ideal* twin,
+the same scenario with every impairment key of
+:data:`sim.frontend.IMPAIRMENT_DEFAULTS` at its default (same rate, sample
+format, oscillator and tuner offset, same noise), and the figures are
+averaged over the walks. A case passes (docs/devices.md, "Judging a front
+end") when the receiver
 
 - locks and names the SI word the tower sends,
 - flags at most :data:`MAX_LOW_QUALITY` of its frames LOW_QUALITY, and
@@ -28,13 +30,16 @@ from __future__ import annotations
 
 import argparse
 import itertools
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from dtmbnav.accuracy import (CaptureRun, accuracy, direct_range_m, match_truth, path_accuracy, run_capture,
                               segment_config)
+from dtmbnav.distributed import ClusterConfig, Task, run_tasks
+from dtmbnav.evaluate import seed_scenario
+from dtmbnav.seeds import TUNING_SEEDS
 from dtmbnav_core.constants import CLOCK_PRESETS
 from dtmbnav_core.records import FrameFlag
 from sim.devices import DEVICES, get_device
@@ -50,6 +55,11 @@ WALK_S = 20.0
 MAX_LOW_QUALITY = 0.05
 #: Largest ratio of an error figure to the ideal twin's.
 TOLERANCE = 1.2
+#: Walks each case and its twin are received on (their figures averaged): a first-path figure of one walk
+#: moves by tens of per cent with which paths the tracker happens to follow, impairment or not.
+WALKS = 3
+#: Where the walks run by default: a local Dask cluster, a worker per core.
+LOCAL = ClusterConfig()
 #: Sweep axes: LO leakage (dBc; None: none), I/Q imbalance (gain dB, phase deg) and tuner offset (Hz) at the
 #: sweep's rate and format.
 SWEEP_LEAKAGE_DBC = (None, -40.0, -20.0, -12.0, -6.0)
@@ -129,7 +139,7 @@ def score(run: CaptureRun, t_from_s: float, t_to_s: float) -> FrontEndScore:
     low = float(np.mean((f.flags[sel] & FrameFlag.LOW_QUALITY) > 0)) if sel.any() else 1.0
     si = accuracy(run, t_from_s, t_to_s)
     # A narrowband capture has no path tracker, so no first-path range.
-    tracked = f.first_path_range_change_m is not None
+    tracked = run.receiver.config.track_paths
     first_p95 = path_accuracy(run, t_from_s, t_to_s).first_path_error_p95_m if tracked else float("nan")
     first_rmse = first_path_velocity_rmse_mps(run, t_from_s, t_to_s) if tracked else float("nan")
     return FrontEndScore(True, run.receiver.si_index == run.scenario.tower.si_index, low, si.range_error_p95_m,
@@ -188,20 +198,51 @@ class FrontEndCase:
     ideal: FrontEndScore
 
 
-def device_cases(names: Sequence[str] = tuple(DEVICES)) -> Iterator[FrontEndCase]:
-    """Each device preset at its usual rate and format (:mod:`sim.devices`) against its ideal twin."""
-    for name in names:
-        scenario = device_scenario(name)
-        yield FrontEndCase(name, receive_walk(scenario), receive_walk(ideal_front_end(scenario)))
+def mean_score(scores: Sequence[FrontEndScore]) -> FrontEndScore:
+    """One score for several walks: locked and the right SI word on every walk, the shares and error figures
+    averaged (NaN where a walk has none), the drops added."""
+    def mean(name: str) -> float:
+        return float(np.mean([getattr(s, name) for s in scores]))
+
+    return FrontEndScore(all(s.locked for s in scores), all(s.si_word_ok for s in scores), mean("low_quality_share"),
+                         *(mean(name) for name, _ in FrontEndScore.ERRORS), sum(s.drops for s in scores))
 
 
-def sweep_cases() -> Iterator[FrontEndCase]:
-    """Every point of the LO-leakage, I/Q-imbalance and tuner-offset grid (the sweep axes) against its ideal twin."""
+def walk_scenario(scenario: Scenario, k: int) -> Scenario:
+    """Walk ``k`` of a case: the scenario with Monte Carlo seed ``k`` of the tuning range, its layout kept."""
+    return seed_scenario(scenario, k, first_seed=TUNING_SEEDS.start, vary_geometry=False)
+
+
+def compare(cases: Sequence[tuple[str, Scenario, Scenario]], walks: int = WALKS, cluster: ClusterConfig = LOCAL,
+            progress: bool = False) -> list[FrontEndCase]:
+    """Receive every ``(label, scenario, ideal twin)`` on ``walks`` walks where ``cluster`` says (a twin shared by
+    several cases is received once) and score each case against its twin, averaged over the walks."""
+    scenarios: list[Scenario] = []
+    for _, case, ideal in cases:
+        scenarios.extend(s for s in (case, ideal) if s not in scenarios)
+    tasks = [Task(f"{s.name} walk {k}", receive_walk, (walk_scenario(s, k),)) for s in scenarios
+             for k in range(walks)]
+    outcome = run_tasks(tasks, cluster, progress, "front ends")
+    if outcome.failures:
+        failed = "; ".join(f"{f.label}: {f.error}" for f in outcome.failures)
+        raise RuntimeError(f"front ends: walks failed: {failed}")
+    scores = [mean_score(outcome.results[i * walks: (i + 1) * walks]) for i in range(len(scenarios))]
+    return [FrontEndCase(label, scores[scenarios.index(case)], scores[scenarios.index(ideal)])
+            for label, case, ideal in cases]
+
+
+def device_cases(names: Sequence[str] = tuple(DEVICES)) -> list[tuple[str, Scenario, Scenario]]:
+    """Each device preset at its usual rate and format (:mod:`sim.devices`) with its ideal twin."""
+    return [(name, device_scenario(name), ideal_front_end(device_scenario(name))) for name in names]
+
+
+def sweep_cases() -> list[tuple[str, Scenario, Scenario]]:
+    """Every point of the LO-leakage, I/Q-imbalance and tuner-offset grid (the sweep axes) with its ideal twin."""
     base = load_scenario(SCENARIO).replace(receiver={"sample_rate_hz": SWEEP_RATE_HZ,
                                                      "sample_format": SWEEP_FORMAT})
+    out = []
     for offset in SWEEP_OFFSET_HZ:
         tuned = base.replace(receiver={"bulk_cfo_hz": offset})
-        ideal = receive_walk(tuned)
         for leakage, (gain_db, phase_deg) in itertools.product(SWEEP_LEAKAGE_DBC, SWEEP_IQ):
             if leakage is None and gain_db == 0.0 and phase_deg == 0.0:
                 continue
@@ -209,7 +250,8 @@ def sweep_cases() -> Iterator[FrontEndCase]:
                                                "iq_phase_deg": phase_deg})
             label = (f"{offset / 1e3:+g} kHz, {'no leakage' if leakage is None else f'{leakage:g} dBc'}, "
                      f"{gain_db:g} dB / {phase_deg:g} deg")
-            yield FrontEndCase(label, receive_walk(impaired), ideal)
+            out.append((label, impaired, tuned))
+    return out
 
 
 #: The drop case: drops a minute, their length range (samples at the capture's rate) and seconds of walking.
@@ -331,11 +373,13 @@ def frontend_table(cases: Sequence[FrontEndCase]) -> tuple[str, int]:
 
 def describe() -> str:
     """The paragraph above the tables: what is received and how it is judged."""
-    return (f"The scenario file's {SCENARIO} walk, C/N 15 dB, its standstill then {WALK_S:g} s of walking, received "
-            "through each front end and through its ideal twin (every impairment key at its default; same rate, "
-            "format, oscillator, tuner offset and noise). Each error column gives the figure and, in brackets, its "
-            f"ratio to the twin's; a case passes with lock, the right SI word, at most {100 * MAX_LOW_QUALITY:g} % "
-            f"of frames LOW_QUALITY and every ratio at most {TOLERANCE:g} (`python -m dtmbnav.frontends`).")
+    first = TUNING_SEEDS.start
+    return (f"The {SCENARIO} walk (its layout; Monte Carlo seeds {first}-{first + WALKS - 1} of the tuning range), "
+            f"C/N 15 dB, the last {STILL_S:g} s of its standstill then {WALK_S:g} s of walking, received through each "
+            "front end and through its ideal twin (every impairment key at its default; same rate, format, "
+            "oscillator, tuner offset and noise). Each error column gives the mean over the walks and, in brackets, "
+            f"its ratio to the twin's; a case passes with lock and the right SI word on every walk, at most "
+            f"{100 * MAX_LOW_QUALITY:g} % of frames LOW_QUALITY and every ratio at most {TOLERANCE:g}.")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -350,11 +394,11 @@ def main(argv: list[str] | None = None) -> int:
     print(describe())
     failed = 0
     if args.devices or both:
-        table, n = frontend_table(list(device_cases()))
+        table, n = frontend_table(compare(device_cases(), progress=True))
         print(f"\nDevice presets at their usual rate and format:\n\n{table}", flush=True)
         failed += n
     if args.sweep or both:
-        table, n = frontend_table(list(sweep_cases()))
+        table, n = frontend_table(compare(sweep_cases(), progress=True))
         print(f"\nSweep at {SWEEP_RATE_HZ / 1e6:g} Msps {SWEEP_FORMAT}:\n\n{table}", flush=True)
         failed += n
     if args.drops or both:

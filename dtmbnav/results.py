@@ -280,12 +280,12 @@ def paths_section(config: ResultsConfig) -> Section:
 
 def frontends_section(config: ResultsConfig) -> Section:
     """The SDR front ends against an ideal one (:mod:`dtmbnav.frontends`): device presets, sweep and drops."""
-    from dtmbnav.frontends import (DROP_SAMPLES, DROPS_PER_MINUTE, SWEEP_FORMAT, SWEEP_RATE_HZ, describe, device_cases,
-                                   drop_case, drop_table, frontend_table, sweep_cases)
+    from dtmbnav.frontends import (DROP_SAMPLES, DROPS_PER_MINUTE, SWEEP_FORMAT, SWEEP_RATE_HZ, compare, describe,
+                                   device_cases, drop_case, drop_table, frontend_table, sweep_cases)
 
     start = time.perf_counter()
-    devices, _ = frontend_table(list(device_cases()))
-    sweep, _ = frontend_table(list(sweep_cases()))
+    devices, _ = frontend_table(compare(device_cases(), cluster=config.cluster, progress=config.progress))
+    sweep, _ = frontend_table(compare(sweep_cases(), cluster=config.cluster, progress=config.progress))
     drops = drop_table(*drop_case())
     body = (f"{describe()}\n\nDevice presets at their usual rate and format (`python -m dtmbnav.frontends --devices`):"
             f"\n\n{devices}\n\nLO leakage, I/Q imbalance and tuner offset at {SWEEP_RATE_HZ / 1e6:g} Msps "
