@@ -56,3 +56,16 @@ def test_drops_are_counted_and_bridged():
     score, _ = drop_case(drops_per_minute=60.0, walk_s=8.0)
     assert len(score.true_samples) >= 5
     assert score.failures() == [], score
+
+
+def test_paths_continue_across_a_drop_with_a_crystal_12_ppm_off():
+    """A PlutoSDR-like capture (8 Msps, 12 ppm): across a 109 182-sample drop the lock is found again and the
+    paths resume on the clock's drift, not where the lost lock carried them (the first path held)."""
+    scn = load_scenario("park-loop-cw").replace(receiver={
+        "sample_rate_hz": 8e6, "sample_format": "ci16",
+        "clock": {"preset": "custom", "offset_ppb": 12_000.0, "drift_adev": 1e-12},
+        "drops_per_minute": 1.0, "drop_samples": [65536, 262144]})
+    scn = scn.replace(seed=scn.seed * 1000 + 100)       # the walk whose drop falls 2.9 s into the walking
+    score = receive_walk(scn, WALK_S)
+    assert score.drops == 1
+    assert score.first_path_range_p95_m < 0.05

@@ -369,6 +369,7 @@ class PathTracker:
         self._towers: list[float] = []       # last first-path grid delay of each tower
         self._start_ref: int | None = None
         self._index_ref = 0
+        self._next_index: int | None = None    # frame after the last batch
         self._loop_batches = 0               # batches since the timing loop (re)started
 
     def break_phase(self) -> None:
@@ -418,6 +419,13 @@ class PathTracker:
         nominal = self.mode.value.frame_length
         if self._start_ref is None:
             self._start_ref, self._index_ref = int(starts[0]), int(frame_index[0])
+        elif self._next_index is not None and frame_index[0] != self._next_index:
+            # A re-acquisition across a drop resumes at another frame than the next: frames skipped (the paths
+            # drifted with the clock meanwhile), or frames the lost lock went on taking after the drop and the
+            # new lock takes again (the paths were carried past them).
+            for p in self.paths:
+                p.delay += p.rate * (int(frame_index[0]) - self._next_index)
+        self._next_index = int(frame_index[-1]) + 1
         offsets = ((starts - self._start_ref) - (frame_index - self._index_ref) * nominal).astype(np.float64)
         paths = self.paths
         n = len(paths)
