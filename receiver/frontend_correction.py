@@ -39,12 +39,11 @@ PN420 header (:data:`SEGMENT_S`); a segment's normalised pseudo-covariance
 ``rho = (sum (y_I^2 - y_Q^2) + 2 j sum y_I y_Q) / sum |y|^2`` (moments about
 the block's mean) scatters about the front end's own by ``2 / L`` in
 squared magnitude for ``L`` circular samples, and a segment further from the
-block's median ``rho`` than :data:`TRIM_LEVEL` times that is left out of
-``P_I``, ``P_Q`` and ``C``: a header's segments stand out by about the
-header's power share, a body segment almost never (``exp(-TRIM_LEVEL)``).
-The median, not the running estimate, centres the test, so a large or
-changing imbalance is kept in. The DC (E1) and the signal power take every
-sample.
+running estimate's ``rho`` (the stream's first block: from its segments'
+median) than :data:`TRIM_LEVEL` times that is left out of ``P_I``, ``P_Q``
+and ``C``: a header's segments stand out by about the header's power share,
+a body segment almost never (``exp(-TRIM_LEVEL)``). The DC (E1) and the
+signal power take every sample.
 
 (E4) inverts (M1) exactly, and its output has ``E[I'^2] = E[Q'^2]`` and
 ``E[I' Q'] = 0`` for the estimated moments: it is the closed-form,
@@ -113,7 +112,7 @@ SEGMENT_S = 18e-6
 #: Fewest samples in a segment of (E6) (its noise grows as the segment shortens).
 SEGMENT_MIN = 32
 #: A segment is left out of the I/Q moments (E6) when the squared distance of its normalised
-#: pseudo-covariance from the block's median exceeds this many times its noise variance ``2 / L``: for a
+#: pseudo-covariance from the running estimate's exceeds this many times its noise variance ``2 / L``: for a
 #: circular segment of ``L`` Gaussian samples that distance is exponential, so ``exp(-TRIM_LEVEL)`` (about
 #: 1e-4) of the signal's own segments are lost.
 TRIM_LEVEL = 9.0
@@ -226,13 +225,15 @@ def correct_blocks(x: np.ndarray, out: np.ndarray, block: int, segment: int, acc
         ob = out[start: start + n]
         n_seg = -(-n // segment)
         for g in range(n_seg):
+            # A view from 0: LLVM vectorises the loop over it (not one that starts at g * segment).
+            part = xb[g * segment: min((g + 1) * segment, n)]
             s_i = 0.0
             s_q = 0.0
             s_ii = 0.0
             s_qq = 0.0
             s_iq = 0.0
-            for j in range(g * segment, min((g + 1) * segment, n)):
-                v = xb[j]
+            for j in range(part.shape[0]):
+                v = part[j]
                 re = np.float64(v.real)
                 im = np.float64(v.imag)
                 s_i += re
@@ -265,7 +266,8 @@ def correct_blocks(x: np.ndarray, out: np.ndarray, block: int, segment: int, acc
         m_i = s_i / n
         m_q = s_q / n
         # (E6): each segment's moments about the block's mean; a segment whose normalised pseudo-covariance
-        # lies off the block's median by more than noise explains (a PN header's) is left out.
+        # lies off the running estimate's (the stream's first block: off its segments' median) by more than
+        # noise explains (a PN header's) is left out.
         for g in range(n_seg):
             length = min((g + 1) * segment, n) - g * segment
             c_ii = sums[g, 2] - 2.0 * m_i * sums[g, 0] + length * m_i * m_i
@@ -277,8 +279,13 @@ def correct_blocks(x: np.ndarray, out: np.ndarray, block: int, segment: int, acc
             centred[g, 2] = c_iq
             rho[0, g] = (c_ii - c_qq) / p if p > 0.0 else 0.0
             rho[1, g] = 2.0 * c_iq / p if p > 0.0 else 0.0
-        ref_re = np.median(rho[0, :n_seg])
-        ref_im = np.median(rho[1, :n_seg])
+        if first:
+            ref_re = np.median(rho[0, :n_seg])
+            ref_im = np.median(rho[1, :n_seg])
+        else:
+            p_ref = acc[5] + acc[6]
+            ref_re = (acc[5] - acc[6]) / p_ref if p_ref > 0.0 else 0.0
+            ref_im = 2.0 * acc[7] / p_ref if p_ref > 0.0 else 0.0
         k_n = 0.0
         k_ii = 0.0
         k_qq = 0.0
@@ -372,14 +379,19 @@ def correct_blocks_reference(x: np.ndarray, acc: np.ndarray, decay_per_sample: f
         re, im = xb.real.astype(np.float64), xb.imag.astype(np.float64)
         m_i, m_q = re.mean(), im.mean()
         y_i, y_q = re - m_i, im - m_q
-        # (E6): segments whose normalised pseudo-covariance is off the block's median by more than noise.
+        # (E6): segments whose normalised pseudo-covariance is off the running estimate's (the first block: off
+        # the segments' median) by more than noise.
         edges = np.arange(0, n, segment)
         lengths = np.diff(np.append(edges, n))
         c_ii, c_qq, c_iq = (np.add.reduceat(v, edges) for v in (y_i * y_i, y_q * y_q, y_i * y_q))
         p = c_ii + c_qq
         with np.errstate(invalid="ignore", divide="ignore"):
             rho = np.where(p > 0, (c_ii - c_qq + 2j * c_iq) / p, 0j)
-        rho_ref = complex(np.median(rho.real), np.median(rho.imag))
+        p_acc = acc[5] + acc[6]
+        if acc[0] == 0.0:
+            rho_ref = complex(np.median(rho.real), np.median(rho.imag))
+        else:
+            rho_ref = complex(acc[5] - acc[6], 2.0 * acc[7]) / p_acc if p_acc > 0 else 0j
         keep = np.abs((c_ii - c_qq + 2j * c_iq) - rho_ref * p) ** 2 <= TRIM_LEVEL * 2.0 / lengths * p * p
         # (E5): the block's mean and its moments about its own mean, weighted by its length.
         sums = np.array([n, n * m_i, n * m_q, np.sum(y_i * y_i) + np.sum(y_q * y_q), lengths[keep].sum(),
