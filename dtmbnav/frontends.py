@@ -233,7 +233,8 @@ def compare(cases: Sequence[tuple[str, Scenario, Scenario]], walks: int = WALKS,
 
 def device_cases(names: Sequence[str] = tuple(DEVICES)) -> list[tuple[str, Scenario, Scenario]]:
     """Each device preset at its usual rate and format (:mod:`sim.devices`) with its ideal twin."""
-    return [(name, device_scenario(name), ideal_front_end(device_scenario(name))) for name in names]
+    scenarios = {name: device_scenario(name) for name in names}
+    return [(name, scenario, ideal_front_end(scenario)) for name, scenario in scenarios.items()]
 
 
 def sweep_cases() -> list[tuple[str, Scenario, Scenario]]:

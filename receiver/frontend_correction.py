@@ -277,8 +277,9 @@ def correct_blocks(x: np.ndarray, out: np.ndarray, block: int, segment: int, acc
             centred[g, 0] = c_ii
             centred[g, 1] = c_qq
             centred[g, 2] = c_iq
-            rho[0, g] = (c_ii - c_qq) / p if p > 0.0 else 0.0
-            rho[1, g] = 2.0 * c_iq / p if p > 0.0 else 0.0
+            if first:   # only the stream's first block centres its test on the segments themselves
+                rho[0, g] = (c_ii - c_qq) / p if p > 0.0 else 0.0
+                rho[1, g] = 2.0 * c_iq / p if p > 0.0 else 0.0
         if first:
             ref_re = np.median(rho[0, :n_seg])
             ref_im = np.median(rho[1, :n_seg])
