@@ -6,8 +6,8 @@ The log is read by :mod:`dtmbnav.phone_logs`; this module
   sensor covers, by linear interpolation of each axis; the grid's first sample is t_s = 0 and its UTC
   time is stored (``start_utc``). Each sensor's own timing is measured on the way: its mean rate,
   its jitter (standard deviation of the sample interval over its mean) and its gaps (intervals
-  longer than :data:`GAP_INTERVALS` median intervals), reported to the user and stored as
-  ``/imu`` attributes;
+  longer than :data:`~dtmbnav_core.resampling.GAP_INTERVALS` median intervals), reported to the user
+  and stored as ``/imu`` attributes (:mod:`dtmbnav_core.resampling`, which the PDR shares);
 - keeps the phone's axes (Android's device frame is the project's phone frame, ``docs/conventions.md``)
   and the units (m/s^2, rad/s, uT); a log without a magnetometer gets zeros and
   ``has_magnetometer = False``;
@@ -35,24 +35,20 @@ from scipy.ndimage import uniform_filter1d
 
 from dtmbnav_core import schema
 from dtmbnav_core.h5io import atomic_h5
+from dtmbnav_core.phone import ACCURACY_CONFIDENCE, ACCURACY_RADIUS_SIGMAS
 from dtmbnav_core.records import GnssLog, ImuLog, StartFix
+from dtmbnav_core.resampling import GAP_INTERVALS, interpolate, sample_timing, uniform_grid
 from dtmbnav_core.sensors import write_gnss, write_imu
 from dtmbnav.geodetic import GeodeticPoint, to_enu
 from dtmbnav.phone_logs import FixSeries, PhoneLog, SensorSeries, read_phone_log
 
 #: Default rate of the resampled ``/imu``, Hz.
 DEFAULT_RATE_HZ = 100.0
-#: A sample interval longer than this many of the sensor's median intervals is a gap.
-GAP_INTERVALS = 5.0
 #: Window of the accelerometer-magnitude standard deviation that detects the walk's start, s.
 MOTION_WINDOW_S = 1.0
 #: Standard deviation of the accelerometer magnitude above which the phone moves with a walker, m/s^2: above
 #: a hand-held phone's tremor at rest, below the first step's.
 MOTION_THRESHOLD_MPS2 = 0.2
-#: Confidence of Android's stated horizontal accuracy radius.
-ACCURACY_CONFIDENCE = 0.68
-#: Radius of :data:`ACCURACY_CONFIDENCE` of a circular normal error, in per-axis sigmas.
-ACCURACY_RADIUS_SIGMAS = math.sqrt(-2.0 * math.log(1.0 - ACCURACY_CONFIDENCE))
 PHONE_FRAME = ("phone (Android device frame, kept as logged): x right, y forward (up the screen, towards the top "
                "of the phone), z out of the screen")
 IMU_UNITS = "acc_mps2 m/s^2, gyro_radps rad/s, mag_ut uT"
@@ -77,11 +73,12 @@ class SensorTiming:
     source : str
         Where its samples came from.
     rate_hz : float
-        Mean sample rate, Hz.
+        Mean sample rate (gaps left out), Hz.
     jitter : float
-        Standard deviation of the sample interval over its mean (0 for a perfectly regular sensor).
+        Standard deviation of the sample interval over its mean, gaps left out (0 for a perfectly
+        regular sensor).
     gaps : tuple of Gap
-        Intervals longer than :data:`GAP_INTERVALS` median intervals.
+        Intervals longer than :data:`~dtmbnav_core.resampling.GAP_INTERVALS` median intervals.
     """
 
     sensor: str
@@ -134,12 +131,9 @@ class ImportedSensors:
 
 def sensor_timing(series: SensorSeries, t0_ns: int) -> SensorTiming:
     """Rate, jitter and gaps of one sensor; gap times on the clock that starts at ``t0_ns``."""
-    interval = np.diff(series.t_ns) / 1e9
-    mean = float(interval.mean())
-    long = np.flatnonzero(interval > GAP_INTERVALS * float(np.median(interval)))
-    t_s = (series.t_ns - t0_ns) / 1e9
-    gaps = tuple(Gap(series.sensor, float(t_s[i]), float(t_s[i + 1])) for i in long)
-    return SensorTiming(series.sensor, series.source, 1.0 / mean, float(interval.std() / mean), gaps)
+    timing = sample_timing((series.t_ns - t0_ns) / 1e9)
+    gaps = tuple(Gap(series.sensor, start, end) for start, end in timing.gaps_s)
+    return SensorTiming(series.sensor, series.source, timing.rate_hz, timing.jitter, gaps)
 
 
 def common_grid(series: Sequence[SensorSeries], rate_hz: float) -> tuple[int, np.ndarray]:
@@ -152,17 +146,16 @@ def common_grid(series: Sequence[SensorSeries], rate_hz: float) -> tuple[int, np
     """
     t0_ns = max(int(s.t_ns[0]) for s in series)
     t1_ns = min(int(s.t_ns[-1]) for s in series)
-    n = int(np.floor((t1_ns - t0_ns) / 1e9 * rate_hz)) + 1 if t1_ns >= t0_ns else 0
-    if n < 3:
+    t_s = uniform_grid(0.0, (t1_ns - t0_ns) / 1e9, rate_hz) if t1_ns >= t0_ns else np.zeros(0)
+    if len(t_s) < 3:
         spans = ", ".join(f"{s.sensor} {(s.t_ns[-1] - s.t_ns[0]) / 1e9:.3f} s" for s in series)
         raise ValueError(f"{series[0].source}: the motion sensors overlap for less than {2 / rate_hz:g} s ({spans})")
-    return t0_ns, np.arange(n) / rate_hz
+    return t0_ns, t_s
 
 
 def resample(series: SensorSeries, t0_ns: int, t_s: np.ndarray) -> np.ndarray:
     """A sensor's samples linearly interpolated at ``t_s`` (s after ``t0_ns`` on the log clock), N x 3."""
-    source_t_s = (series.t_ns - t0_ns) / 1e9
-    return np.column_stack([np.interp(t_s, source_t_s, series.values[:, k]) for k in range(3)])
+    return interpolate((series.t_ns - t0_ns) / 1e9, series.values, t_s)
 
 
 def walk_start_s(t_s: np.ndarray, acc_mps2: np.ndarray, rate_hz: float) -> float:
@@ -245,7 +238,7 @@ def build_sensors(log: PhoneLog, rate_hz: float = DEFAULT_RATE_HZ,
     else:
         mag = np.zeros_like(acc)
         notes.append(f"{log.sources[0]}: no magnetometer: /imu/mag_ut holds zeros (has_magnetometer False); the PDR's "
-                     "attitude filter needs a magnetometer for now, so 'dtmbnav pdr' cannot use this file yet")
+                     "attitude will come from the gyro and accelerometer alone")
     imu = ImuLog(t_s=t_s, acc_mps2=acc, gyro_radps=gyro, mag_ut=mag)
     ground = _origin_of(log.fixes, origin, notes)
     gnss, geodetic = fixes_in_enu(log.fixes, ground, t0_ns, notes)

@@ -8,16 +8,21 @@ The attitude is built as yaw-pitch-roll: rotate about up by ``-yaw`` (yaw is
 clockwise from north, like the heading), then about the sensor's x axis by
 ``pitch`` (nose up positive), then about its y axis by ``roll``.
 
-- ``phone``: held in front of the walker, nose up by about 20 deg, pointing a
-  few degrees off the walking direction (a per-walk mount offset). The body
+- ``phone``: carried as ``imu.carriage`` says (:data:`CARRIAGES`). The body
   follows the smooth truth track; on top of it each step adds the gait: a
   vertical bounce whose peak-to-peak acceleration follows Weinberg's relation
   for this walker, ``P = ((1 + step_gain_error) L / K_walker)^4`` (so a PDR
   calibrated with ``step_gain_error = 0`` sees steps ``1 + step_gain_error``
-  too long), a forward surge at the step frequency, a sideways sway at half of
-  it, and an attitude wobble (pitch at the step frequency, roll and yaw at
-  half of it). The gait is zero-mean over each step, so it does not move the
-  phone away from the truth track.
+  too long), scaled by the part of it that reaches the phone, a forward surge
+  at the step frequency and a sideways sway at half of it. The gait is
+  zero-mean over each step, so it does not move the phone away from the truth
+  track. Held in the hand (``hand``, ``texting``) the phone points a few
+  degrees off the walking direction (a per-walk mount offset) and wobbles
+  (pitch at the step frequency, roll and yaw at half of it). In a trouser
+  pocket or a hand swinging at the side it rides on a limb that swings about
+  the hip or the shoulder at half the step frequency (a pendulum that fades in
+  over a leg's first step and out over its last); the pocket adds the pocket
+  leg's heel strikes and a stride-frequency asymmetry between the legs.
 - ``foot-mems``: strapped to the right foot. The foot stands still (stance)
   on the ground beside the path and swings to its next footprint in
   ``FOOT_SWING_S`` before each of its heel strikes (every other step), with a
@@ -30,7 +35,15 @@ plus a random-walk wander, scale-factor errors; the z gyro bias can be set
 (``gyro_bias_dps``) and a late extra bias can switch on (``heading_drift_*``).
 The magnetometer sees the Earth field (a Wuhan-like field, see
 :data:`EARTH_FIELD_UT`) plus a disturbance near every building footprint that
-decays with distance, plus noise.
+decays with distance, plus noise; a device without one (``magnetometer =
+false``) writes zeros, as an imported log without one does.
+
+Sample times: uniform at ``rate_hz`` unless ``time_jitter`` scatters them (each
+time stamp independently about its nominal time; the readings are those at the
+scattered times) and ``gaps_per_minute`` drops runs of ``gap_s`` seconds, as a
+phone's operating system does. Their random draws, and the pocket's placement,
+come from sub-streams of the IMU stream, so that switching them on changes no
+other error.
 
 Angular rates are the central difference of the attitude (rotation vector of
 ``R(t-dt)^T R(t+dt)`` over ``2 dt``); accelerations are the central second
@@ -39,20 +52,28 @@ difference of the truth position plus the analytic gait terms.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import uniform_filter1d
 from scipy.spatial.transform import Rotation
 
 from dtmbnav_core.constants import GRAVITY_MPS2
 from dtmbnav_core.records import ImuLog
-from sim.scenario import Building, Scenario
+from dtmbnav_core.resampling import interpolate
+from sim.scenario import Building, ImuConfig, Scenario
 from sim.walk import Walk
 
 #: Random stream of the IMU (the walk and the GNSS use other stream ids).
 IMU_STREAM = 2
 #: Sub-stream of the IMU stream for the magnetic disturbance directions.
 MAG_SCENE_SUBSTREAM = 1
+#: Sub-streams of the IMU stream for the sample-time jitter and gaps, and for the phone's place in a pocket.
+TIMING_SUBSTREAM = 2
+CARRIAGE_SUBSTREAM = 3
+#: Largest jitter offset of a time stamp from its nominal time, in sample intervals (keeps the order).
+MAX_TIME_OFFSET = 0.45
 #: Earth field in ENU, uT: Wuhan (30.5 N, 114.3 E), total about 50 uT,
 #: inclination about 45 deg down, declination about -3.5 deg (west), WMM-like.
 EARTH_FIELD_UT = 50.0 * np.array([np.cos(np.radians(45.0)) * np.sin(np.radians(-3.5)),
@@ -96,9 +117,7 @@ class ImuPreset:
     mag_offset_ut : float
         Residual hard-iron offset after the device's calibration, 1 sigma per axis, uT.
     weinberg_k_m : float
-        The walker's true Weinberg gain for this carriage (bounce to step length), m.
-    hold_pitch_rad : float
-        Mean pitch at which the device is held, rad.
+        The walker's true Weinberg gain of the body's bounce (bounce to step length), m.
     mount_yaw_sigma_rad : float
         Spread of the device's yaw offset from the walking direction, rad.
     """
@@ -114,22 +133,90 @@ class ImuPreset:
     mag_noise_ut: float
     mag_offset_ut: float
     weinberg_k_m: float
-    hold_pitch_rad: float
     mount_yaw_sigma_rad: float
 
 
 #: The presets of ``ImuConfig.preset`` (docs/scenarios.md: phone accel noise ~0.02 m/s^2,
-#: gyro 0.01 deg/s/sqrt(Hz), bias 0.1-0.5 deg/s that wanders).
+#: gyro 0.01 deg/s/sqrt(Hz), bias 0.1-0.5 deg/s that wanders; how a phone is held is its carriage).
 PRESETS: dict[str, ImuPreset] = {
     "phone": ImuPreset(mount="hand", accel_noise_mps2=0.02, accel_bias_mps2=0.03, accel_scale_error=0.005,
                        gyro_noise_dps_rthz=0.01, gyro_bias_range_dps=(0.1, 0.5), gyro_bias_walk_dps_rts=0.002,
                        gyro_scale_error=0.003, mag_noise_ut=0.3, mag_offset_ut=1.0, weinberg_k_m=0.47,
-                       hold_pitch_rad=np.radians(20.0), mount_yaw_sigma_rad=np.radians(5.0)),
+                       mount_yaw_sigma_rad=np.radians(5.0)),
     "foot-mems": ImuPreset(mount="foot", accel_noise_mps2=0.01, accel_bias_mps2=0.01, accel_scale_error=0.002,
                            gyro_noise_dps_rthz=0.005, gyro_bias_range_dps=(0.02, 0.1),
                            gyro_bias_walk_dps_rts=0.0005, gyro_scale_error=0.001, mag_noise_ut=0.3,
-                           mag_offset_ut=1.0, weinberg_k_m=0.47, hold_pitch_rad=0.0, mount_yaw_sigma_rad=0.0),
+                           mag_offset_ut=1.0, weinberg_k_m=0.47, mount_yaw_sigma_rad=0.0),
 }
+
+
+@dataclass(frozen=True)
+class Carriage:
+    """How the phone rides on the walker (scenario ``imu.carriage``).
+
+    Attributes
+    ----------
+    bounce_scale : float
+        Part of the body's vertical bounce (Weinberg's relation) that reaches the phone.
+    pitch_rad : float
+        Pitch at which the phone is held, nose up, rad (for a limb: when the limb hangs straight).
+    roll_rad : float
+        Roll of the phone about its forward axis, rad (pi/2: the screen faces right).
+    limb_m : float
+        Distance from the joint the limb swings about (hip, shoulder) to the phone, m;
+        0 for a phone held in front.
+    swing_rad : float
+        Amplitude of the limb's swing about the lateral axis (at half the step frequency), rad.
+    swing_mean_rad : float
+        Mean angle of the limb forward of the vertical while walking, rad.
+    leg_asymmetry : float
+        Stride-frequency part of the vertical bounce, relative: the strike of the leg
+        that carries the phone peaks ``1 + a`` times the body's, the other leg's ``1 - a``.
+    strike_mps2 : float
+        Peak of the heel-strike transient of the leg that carries the phone, m/s^2 (the
+        other leg's reaches it through the pelvis at a third of that).
+    in_pocket : bool
+        The phone lies flat on the front of the thigh at an orientation drawn per walk
+        (``pitch_rad`` and ``roll_rad`` unused).
+    """
+
+    bounce_scale: float
+    pitch_rad: float
+    roll_rad: float = 0.0
+    limb_m: float = 0.0
+    swing_rad: float = 0.0
+    swing_mean_rad: float = 0.0
+    leg_asymmetry: float = 0.0
+    strike_mps2: float = 0.0
+    in_pocket: bool = False
+
+
+#: Carriages of the phone preset (``imu.carriage``). Typical values of the gait literature:
+#: - ``hand``: held in front at about 20 deg nose up, rigidly enough that the body's bounce reaches it;
+#: - ``texting``: held closer and steeper (the screen faced towards the eyes), and kept steady to be read,
+#:   so the arm damps the trunk's bounce to some 40 %; people walk slower and with a lower cadence
+#:   while texting (Lamberg & Muratori 2012, Gait & Posture 35:688; Schabrun et al. 2014, PLoS ONE
+#:   9:e84312): the scenario's ``[walk]`` sets that gait (e.g. 1.1 steps/s at 0.7 m/s);
+#: - ``pocket``: front trouser pocket about 0.2 m below the hip joint; the hip flexes and extends over
+#:   some 40 deg each stride (about +25 to -15 deg, Perry & Burnfield, Gait Analysis, 2010), the leg that
+#:   carries the phone dominates the signal, and its heel strike reaches the thigh as a transient of the
+#:   order of half a g (the shock at the shin, one to a few g, is damped up the leg);
+#: - ``swinging``: gripped across the palm (top forward, screen facing out) in an arm that hangs about
+#:   0.65 m from the shoulder and swings as a pendulum at half the step frequency, some +-20 deg at a
+#:   normal pace (arm swing reviewed by Meyns, Bruijn & Duysens 2013, Gait & Posture 38:555): angular
+#:   rates of well over 100 deg/s.
+CARRIAGES: dict[str, Carriage] = {
+    "hand": Carriage(bounce_scale=1.0, pitch_rad=np.radians(20.0)),
+    "texting": Carriage(bounce_scale=0.4, pitch_rad=np.radians(35.0)),
+    "pocket": Carriage(bounce_scale=1.0, pitch_rad=0.0, limb_m=0.2, swing_rad=np.radians(20.0),
+                       swing_mean_rad=np.radians(5.0), leg_asymmetry=0.4, strike_mps2=5.0, in_pocket=True),
+    "swinging": Carriage(bounce_scale=1.0, pitch_rad=0.0, roll_rad=np.radians(90.0), limb_m=0.65,
+                         swing_rad=np.radians(20.0)),
+}
+#: Width (standard deviation of the Gaussian it is built on) of a heel-strike transient, s.
+STRIKE_WIDTH_S = 0.02
+#: Moving-average window over which a swinging limb's phase follows the steps', s (about a stride).
+SWING_SMOOTHING_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -185,9 +272,27 @@ def _attitude(yaw_rad: np.ndarray, pitch_rad: np.ndarray, roll_rad: np.ndarray) 
     return Rotation.from_euler("ZXY", np.column_stack([-yaw_rad, pitch_rad, roll_rad]))
 
 
-def _phone_motion(walk: Walk, t_s: np.ndarray, preset: ImuPreset, gain_error: float,
-                  mount_yaw_rad: float) -> _Motion:
-    """Hand-held phone: smooth truth motion plus the per-step gait (module docstring)."""
+@dataclass(frozen=True)
+class _Gait:
+    """The body's part of a phone's motion at the sample times.
+
+    ``heading`` is the truth heading (unwrapped, rad); ``walking`` marks the samples
+    inside a step; ``cycle`` is the step's phase angle (2 pi per step) and ``stride``
+    the stride's (pi per step, continuous from step to step); ``bounce_pp`` the
+    peak-to-peak bounce reaching the phone, m/s^2; ``acc_enu_mps2`` the truth
+    track's acceleration plus the bounce, surge and sway.
+    """
+
+    heading: np.ndarray
+    walking: np.ndarray
+    cycle: np.ndarray
+    stride: np.ndarray
+    bounce_pp: np.ndarray
+    acc_enu_mps2: np.ndarray
+
+
+def _body_gait(walk: Walk, t_s: np.ndarray, preset: ImuPreset, carriage: Carriage, gain_error: float) -> _Gait:
+    """Smooth truth motion plus the per-step gait of the body (module docstring)."""
     dt = t_s[1] - t_s[0]
     xy, heading = _resample_walk(walk, t_s)
     acc = np.zeros((len(t_s), 3))
@@ -196,27 +301,98 @@ def _phone_motion(walk: Walk, t_s: np.ndarray, preset: ImuPreset, gain_error: fl
     step, phase = walk.step_phase(t_s)
     walking = step >= 0
     length = np.where(walking, walk.step_length_m[np.maximum(step, 0)], 0.0)
-    bounce_pp = ((1.0 + gain_error) * length / preset.weinberg_k_m) ** 4  # Weinberg, peak-to-peak
+    # Weinberg, peak-to-peak, of which the carriage passes on a part.
+    bounce_pp = carriage.bounce_scale * ((1.0 + gain_error) * length / preset.weinberg_k_m) ** 4
     # The body is lowest and decelerating upwards (vertical acceleration at its peak) at heel
     # strike, phase 0 and 1 of a step, and highest at mid-stance. Setting off from a standstill
     # there is no strike at phase 0: the first step of a leg fades in from zero.
     cycle = 2.0 * np.pi * phase
     fade_in = np.where(walking & walk.first_of_leg[np.maximum(step, 0)], np.sin(0.5 * np.pi * phase) ** 2, 1.0)
-    half_cycle = np.pi * (np.maximum(step, 0) + phase)  # the sway alternates sides every step
+    stride = np.pi * (np.maximum(step, 0) + phase)  # the sway alternates sides every step
     vertical = 0.5 * bounce_pp * np.cos(cycle) * fade_in
     forward = 0.15 * bounce_pp * np.sin(cycle)
-    sideways = np.where(walking, 0.4 * np.sin(half_cycle), 0.0)
+    sideways = np.where(walking, 0.4 * np.sin(stride), 0.0)
     fwd_unit = np.column_stack([np.sin(heading), np.cos(heading)])
     right_unit = np.column_stack([np.cos(heading), -np.sin(heading)])
     acc[:, :2] += forward[:, None] * fwd_unit + sideways[:, None] * right_unit
     acc[:, 2] += vertical
+    return _Gait(heading=heading, walking=walking, cycle=cycle, stride=stride, bounce_pp=bounce_pp,
+                 acc_enu_mps2=acc)
 
+
+def _hand_motion(gait: _Gait, carriage: Carriage, mount_yaw_rad: float) -> _Motion:
+    """Phone held in front: the body's motion and an attitude wobble with the gait."""
     # Attitude wobble grows with the bounce (a relaxed arm swings more at a brisk pace).
-    wobble = np.sqrt(bounce_pp / 5.0)
-    yaw = heading + mount_yaw_rad + np.radians(2.0) * wobble * np.sin(half_cycle)
-    pitch = preset.hold_pitch_rad + np.radians(1.5) * wobble * np.sin(cycle)
-    roll = np.radians(1.5) * wobble * np.sin(half_cycle)
-    return _Motion(attitude=_attitude(yaw, pitch, roll), acc_enu_mps2=acc)
+    wobble = np.sqrt(gait.bounce_pp / 5.0)
+    yaw = gait.heading + mount_yaw_rad + np.radians(2.0) * wobble * np.sin(gait.stride)
+    pitch = carriage.pitch_rad + np.radians(1.5) * wobble * np.sin(gait.cycle)
+    roll = np.radians(1.5) * wobble * np.sin(gait.stride)
+    return _Motion(attitude=_attitude(yaw, pitch, roll), acc_enu_mps2=gait.acc_enu_mps2)
+
+
+def _limb_motion(walk: Walk, t_s: np.ndarray, gait: _Gait, carriage: Carriage, mount_yaw_rad: float,
+                 placement: Rotation) -> _Motion:
+    """Phone on a limb swinging about the hip or shoulder at half the step frequency.
+
+    The limb's angle forward of the vertical is ``mean + swing cos(stride)``: it is at
+    its extremes about the heel strikes (the leg that carries the phone forward at its own
+    strikes) and hangs straight while standing. A limb is a pendulum with inertia: its
+    stride angle is the steps' smoothed over :data:`SWING_SMOOTHING_S`, so that its rate
+    does not jump with each step's duration. From a standstill the swing fades in over the
+    leg's first step and out over its last, with the square of a half-cosine ramp (zero
+    rate at both ends: attitude and rates stay continuous; squared, so that the limb
+    hardly moves against its first swing while the ramp is low). ``placement`` is the
+    phone's fixed orientation on the limb.
+    """
+    dt = t_s[1] - t_s[0]
+    step, phase = walk.step_phase(t_s)
+    index = np.maximum(step, 0)
+    first = gait.walking & walk.first_of_leg[index]
+    last = gait.walking & np.concatenate([walk.first_of_leg[1:], [True]])[index]
+    rise, fall = 0.5 * (1.0 - np.cos(np.pi * phase)), 0.5 * (1.0 + np.cos(np.pi * phase))
+    envelope = np.where(gait.walking, np.where(first, rise, 1.0) * np.where(last, fall, 1.0), 0.0)
+    # Steps done plus the current one's phase: continuous through standstills too.
+    steps_done = np.searchsorted(walk.step_t_s, t_s, side="right") + phase
+    stride = uniform_filter1d(np.pi * steps_done, max(1, round(SWING_SMOOTHING_S / dt)), mode="nearest")
+    angle = carriage.swing_mean_rad * envelope + carriage.swing_rad * envelope**2 * np.cos(stride)
+    # The phone's offset from the joint (forward and up in the walking direction's vertical plane).
+    forward = carriage.limb_m * np.sin(angle)
+    offset = np.column_stack([forward * np.sin(gait.heading), forward * np.cos(gait.heading),
+                              -carriage.limb_m * np.cos(angle)])
+    acc = gait.acc_enu_mps2 + _second_difference(offset, dt)
+    # The leg that carries the phone dominates: its strikes (the ends of odd steps, where cos(stride) = 1)
+    # bounce more than the other leg's.
+    acc[:, 2] += carriage.leg_asymmetry * 0.5 * gait.bounce_pp * np.cos(gait.stride) * envelope
+    # Heel-strike transients: a Mexican hat (zero net velocity change) at each strike, full size on that leg.
+    strikes = walk.step_t_s
+    j = np.clip(np.searchsorted(strikes, t_s), 1, len(strikes) - 1)
+    nearest = np.where(np.abs(t_s - strikes[j - 1]) < np.abs(t_s - strikes[j]), j - 1, j)
+    size = np.where(nearest % 2 == 1, carriage.strike_mps2, carriage.strike_mps2 / 3.0)
+    u = (t_s - strikes[nearest]) / STRIKE_WIDTH_S
+    acc[:, 2] += size * (1.0 - u**2) * np.exp(-0.5 * u**2)
+    limb = Rotation.from_euler("ZX", np.column_stack([-(gait.heading + mount_yaw_rad), angle]))
+    return _Motion(attitude=limb * placement, acc_enu_mps2=acc)
+
+
+def _placement(carriage: Carriage, rng: np.random.Generator) -> Rotation:
+    """The phone's orientation on its limb: fixed, or drawn for a pocket.
+
+    In a pocket the phone lies flat on the front of the thigh, its screen towards the
+    thigh or away from it, its long axis at any angle in the pocket's plane.
+    """
+    if not carriage.in_pocket:
+        return Rotation.from_euler("XY", [carriage.pitch_rad, carriage.roll_rad])
+    screen = rng.choice([-0.5 * np.pi, 0.5 * np.pi])
+    return Rotation.from_euler("XZ", [screen, rng.uniform(0.0, 2.0 * np.pi)])
+
+
+def _phone_motion(walk: Walk, t_s: np.ndarray, preset: ImuPreset, carriage: Carriage, gain_error: float,
+                  mount_yaw_rad: float, rng: np.random.Generator) -> _Motion:
+    """A phone carried as ``carriage`` says (module docstring)."""
+    gait = _body_gait(walk, t_s, preset, carriage, gain_error)
+    if carriage.limb_m == 0.0:
+        return _hand_motion(gait, carriage, mount_yaw_rad)
+    return _limb_motion(walk, t_s, gait, carriage, mount_yaw_rad, _placement(carriage, rng))
 
 
 def _foot_motion(walk: Walk, t_s: np.ndarray) -> _Motion:
@@ -332,19 +508,32 @@ def simulate_imu_with_errors(scenario: Scenario, walk: Walk) -> tuple[ImuLog, Im
     Returns
     -------
     ImuLog, ImuErrors
-        Samples at ``scenario.imu.rate_hz`` over the whole walk, and the error truth.
+        Samples at ``scenario.imu.rate_hz`` over the whole walk (at uneven times and
+        with runs missing where ``time_jitter`` and ``gaps_per_minute`` say so), and
+        the error truth (``gyro_bias_radps`` at the samples returned).
 
     Raises
     ------
     ValueError
-        Unknown preset or a non-positive rate.
+        Unknown preset or carriage, a carriage other than ``hand`` on the foot,
+        a non-positive rate, or a jitter or gap setting out of range.
     """
     cfg = scenario.imu
     if cfg.preset not in PRESETS:
         raise ValueError(f"imu.preset: unknown {cfg.preset!r}; known: {sorted(PRESETS)}")
+    if cfg.carriage not in CARRIAGES:
+        raise ValueError(f"imu.carriage: unknown {cfg.carriage!r}; known: {sorted(CARRIAGES)}")
     if cfg.rate_hz <= 0:
         raise ValueError(f"imu.rate_hz must be > 0, got {cfg.rate_hz}")
     preset = PRESETS[cfg.preset]
+    if preset.mount != "hand" and cfg.carriage != "hand":
+        raise ValueError(f"imu.carriage: {cfg.carriage!r} applies to the phone preset only, not {cfg.preset!r}")
+    if not 0.0 <= cfg.time_jitter <= 0.2:
+        raise ValueError(f"imu.time_jitter must lie in [0, 0.2], got {cfg.time_jitter}")
+    if cfg.gaps_per_minute < 0 or cfg.gap_s <= 0:
+        raise ValueError(f"imu.gaps_per_minute must be >= 0 and imu.gap_s > 0, got {cfg.gaps_per_minute}, "
+                         f"{cfg.gap_s}")
+    carriage = CARRIAGES[cfg.carriage]
     rng = np.random.default_rng([scenario.seed, IMU_STREAM])
     dt = 1.0 / cfg.rate_hz
     t_s = np.arange(int(np.floor(walk.track.t_s[-1] * cfg.rate_hz)) + 1) * dt
@@ -352,7 +541,8 @@ def simulate_imu_with_errors(scenario: Scenario, walk: Walk) -> tuple[ImuLog, Im
 
     mount_yaw = float(rng.normal(0.0, preset.mount_yaw_sigma_rad)) if preset.mount_yaw_sigma_rad > 0 else 0.0
     if preset.mount == "hand":
-        motion = _phone_motion(walk, t_s, preset, cfg.step_gain_error, mount_yaw)
+        motion = _phone_motion(walk, t_s, preset, carriage, cfg.step_gain_error, mount_yaw,
+                               np.random.default_rng([scenario.seed, IMU_STREAM, CARRIAGE_SUBSTREAM]))
     else:
         motion = _foot_motion(walk, t_s)
 
@@ -365,13 +555,18 @@ def simulate_imu_with_errors(scenario: Scenario, walk: Walk) -> tuple[ImuLog, Im
     field_enu = EARTH_FIELD_UT + magnetic_disturbance_ut(xy, scenario.channel.buildings,
                                                          cfg.mag_disturbance_ut, scene_rng)
     true_mag = motion.attitude.inv().apply(field_enu)
+    sample_t, keep = _sample_times(cfg, t_s, np.random.default_rng([scenario.seed, IMU_STREAM, TIMING_SUBSTREAM]))
+    if sample_t is not t_s:
+        # The motion is smooth on the scale of a sample interval: its readings at the uneven times are
+        # interpolated; the noise and bias below are drawn per sample as on the uniform grid.
+        true_acc, true_gyro, true_mag = (interpolate(t_s, v, sample_t) for v in (true_acc, true_gyro, true_mag))
 
     errors = ImuErrors(
         gyro_bias_radps=_gyro_bias(preset, scenario, t_s, rng),
         gyro_scale=rng.normal(0.0, preset.gyro_scale_error, 3),
         accel_bias_mps2=rng.normal(0.0, preset.accel_bias_mps2, 3),
         accel_scale=rng.normal(0.0, preset.accel_scale_error, 3),
-        mount_yaw_rad=mount_yaw, weinberg_k_m=preset.weinberg_k_m)
+        mount_yaw_rad=mount_yaw, weinberg_k_m=preset.weinberg_k_m / carriage.bounce_scale**0.25)
     gyro_sigma = np.radians(preset.gyro_noise_dps_rthz) * np.sqrt(cfg.rate_hz)
     gyro = (true_gyro * (1.0 + errors.gyro_scale) + errors.gyro_bias_radps
             + gyro_sigma * rng.standard_normal((n, 3)))
@@ -379,7 +574,37 @@ def simulate_imu_with_errors(scenario: Scenario, walk: Walk) -> tuple[ImuLog, Im
            + preset.accel_noise_mps2 * rng.standard_normal((n, 3)))
     mag = (true_mag + rng.normal(0.0, preset.mag_offset_ut, 3)
            + preset.mag_noise_ut * rng.standard_normal((n, 3)))
-    return ImuLog(t_s=t_s, acc_mps2=acc, gyro_radps=gyro, mag_ut=mag), errors
+    if not cfg.magnetometer:
+        mag = np.zeros_like(mag)
+    imu = ImuLog(t_s=sample_t, acc_mps2=acc, gyro_radps=gyro, mag_ut=mag)
+    if keep.all():
+        return imu, errors
+    return imu.select(keep), dataclasses.replace(errors, gyro_bias_radps=errors.gyro_bias_radps[keep])
+
+
+def _sample_times(cfg: ImuConfig, t_s: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """The times the samples are taken at, and which of them the device delivers.
+
+    Returns ``t_s`` itself when ``cfg.time_jitter`` is 0. Otherwise each time
+    scatters about its nominal one by ``time_jitter / sqrt(2)`` intervals (so
+    that an interval, the difference of two, scatters by ``time_jitter``),
+    clipped to :data:`MAX_TIME_OFFSET` intervals so that the order is kept and
+    to the span of ``t_s``. Gaps: a Poisson number of runs of ``gap_s`` seconds
+    (``gaps_per_minute`` on average) start at uniformly drawn times; their
+    samples are dropped.
+    """
+    times = t_s
+    dt = t_s[1] - t_s[0]
+    if cfg.time_jitter > 0:
+        offsets = np.clip(rng.normal(0.0, cfg.time_jitter / np.sqrt(2.0), len(t_s)), -MAX_TIME_OFFSET,
+                          MAX_TIME_OFFSET)
+        times = np.clip(t_s + offsets * dt, t_s[0], t_s[-1])
+    keep = np.ones(len(t_s), dtype=bool)
+    if cfg.gaps_per_minute > 0:
+        count = rng.poisson(cfg.gaps_per_minute * (t_s[-1] - t_s[0]) / 60.0)
+        for start in rng.uniform(t_s[0], t_s[-1], count):
+            keep &= (times < start) | (times >= start + cfg.gap_s)
+    return times, keep
 
 
 def simulate_imu(scenario: Scenario, walk: Walk) -> ImuLog:

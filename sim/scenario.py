@@ -2,7 +2,8 @@
 
 A scenario names the tower (or the towers of a single-frequency network,
 ``[[towers]]``) and its signal, the walk, the receiver front end and
-clock, the propagation scene, the IMU and the GNSS start fix, plus the seed. The
+clock, the propagation scene, the IMU and the GNSS start fix, where the local frame
+lies on the Earth (``[origin]``), plus the seed. The
 four reference walks of ``docs/scenarios.md`` ship as package data
 (``park-loop-cw``, ``park-loop-ccw``, ``street-out``, ``street-back``; the aliases
 ``park-loop`` and ``street`` name the first run of each).
@@ -23,6 +24,8 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any
+
+from dtmbnav_core.geodetic import GeodeticPoint
 
 #: Short names that resolve to a packaged scenario.
 ALIASES = {"park-loop": "park-loop-cw", "street": "street-out"}
@@ -281,7 +284,9 @@ _OMIT_DEFAULT = {("receiver", "tuning_offset_hz"): 0.0, ("receiver", "lo_leakage
                  ("receiver", "iq_gain_db"): 0.0, ("receiver", "iq_phase_deg"): 0.0,
                  ("receiver", "adc_dc_lsb"): [0.0, 0.0], ("receiver", "agc_step_db"): 0.0,
                  ("receiver", "agc_steps_per_minute"): 0.0, ("receiver", "drops_per_minute"): 0.0,
-                 ("receiver", "drop_samples"): [1, 100000]}
+                 ("receiver", "drop_samples"): [1, 100000], ("imu", "carriage"): "hand",
+                 ("imu", "magnetometer"): True, ("imu", "time_jitter"): 0.0, ("imu", "gaps_per_minute"): 0.0,
+                 ("imu", "gap_s"): 0.5}
 
 
 @dataclass(frozen=True)
@@ -391,6 +396,21 @@ class ImuConfig:
         Extra z-gyro bias after ``heading_drift_start_s``, deg/s.
     mag_disturbance_ut : float
         Peak magnetic disturbance near buildings, uT.
+    carriage : str
+        How the phone is carried (:data:`sim.imu.CARRIAGES`): ``"hand"`` (held in
+        front), ``"texting"`` (held in front to read, the bounce damped by the arm),
+        ``"pocket"`` (front trouser pocket) or ``"swinging"`` (in a hand swinging at the
+        side). The phone preset only.
+    magnetometer : bool
+        False: the device has none, and ``mag_ut`` holds zeros (the convention of an
+        imported log without one, :func:`dtmbnav_core.sensors.read_has_magnetometer`).
+    time_jitter : float
+        Standard deviation of the sample interval over the nominal one (a phone's
+        uneven sample times; 0 is a uniform grid), at most 0.2.
+    gaps_per_minute : float
+        Mean number of dropped runs of samples per minute (Poisson).
+    gap_s : float
+        Length of each dropped run, s.
     """
 
     preset: str = "phone"
@@ -400,6 +420,11 @@ class ImuConfig:
     heading_drift_start_s: float | None = None
     heading_drift_dps: float = 0.0
     mag_disturbance_ut: float = 5.0
+    carriage: str = "hand"
+    magnetometer: bool = True
+    time_jitter: float = 0.0
+    gaps_per_minute: float = 0.0
+    gap_s: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -425,6 +450,38 @@ class GnssConfig:
 
 
 @dataclass(frozen=True)
+class OriginConfig:
+    """Where the scenario's local ENU frame lies on the Earth: the WGS84 point of x = y = 0 on the walker's plane.
+
+    The simulator writes the phone's fixes and the towers as latitude, longitude and height about it
+    (``simulate --phone-log``, ``towers.csv``). The default lies in Wuhan, where the magnetometer's Earth
+    field (:data:`sim.imu.EARTH_FIELD_UT`) is taken.
+
+    Attributes
+    ----------
+    lat_deg, lon_deg : float
+        WGS84 latitude (-90..90) and longitude (-180..180), deg.
+    height_m : float
+        Height of the walker's plane (the ground) above the WGS84 ellipsoid, m.
+    """
+
+    lat_deg: float = 30.52
+    lon_deg: float = 114.36
+    height_m: float = 20.0
+
+    def __post_init__(self) -> None:
+        try:
+            self.point
+        except ValueError as exc:
+            raise ValueError(f"[origin]: {exc}") from None
+
+    @property
+    def point(self) -> GeodeticPoint:
+        """The origin as a :class:`~dtmbnav_core.geodetic.GeodeticPoint`."""
+        return GeodeticPoint(self.lat_deg, self.lon_deg, self.height_m)
+
+
+@dataclass(frozen=True)
 class Scenario:
     """A complete simulation scenario (see the module docstring).
 
@@ -444,6 +501,7 @@ class Scenario:
     imu: ImuConfig = field(default_factory=ImuConfig)
     gnss: GnssConfig = field(default_factory=GnssConfig)
     towers: list[TowerSite] = field(default_factory=list)
+    origin: OriginConfig = field(default_factory=OriginConfig)
 
     def __post_init__(self) -> None:
         towers = [t if isinstance(t, TowerSite) else _build(TowerSite, t, "towers") for t in self.towers]
@@ -561,7 +619,7 @@ def _to_dict(obj: Any) -> dict[str, Any]:
 
 _SECTIONS = {
     "tower": TowerConfig, "walk": WalkConfig, "receiver": FrontEndConfig,
-    "channel": ChannelConfig, "imu": ImuConfig, "gnss": GnssConfig,
+    "channel": ChannelConfig, "imu": ImuConfig, "gnss": GnssConfig, "origin": OriginConfig,
 }
 
 

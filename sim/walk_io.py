@@ -56,6 +56,8 @@ def write_walk_groups(h5file: h5py.File, scenario: Scenario, walk: Walk, imu: Im
     mount = PRESETS[scenario.imu.preset].mount
     imu_attrs = {"rate_hz": scenario.imu.rate_hz, "preset": scenario.imu.preset, "frame": FRAME_DEFINITIONS[mount],
                  "units": "acc_mps2 m/s^2, gyro_radps rad/s, mag_ut uT"}
+    if not scenario.imu.magnetometer:  # as an imported log without one: zeros, and said
+        imu_attrs[schema.HAS_MAGNETOMETER_ATTR] = False
     if weinberg_k_m is not None:
         imu_attrs[schema.WEINBERG_K_ATTR] = weinberg_k_m
         imu_attrs["weinberg_k_source"] = (f"{CALIBRATION_WALK_M:g} m straight calibration walk by the same "

@@ -4,15 +4,25 @@ The Weinberg gain K is never assumed: either the caller passes one calibrated
 beforehand with :func:`calibrate_weinberg_k_from_walk` (a walk of known
 length by the same person and device), or chooses the linear frequency model,
 which needs no calibration.
+
+What a phone gives is taken as it comes: samples at uneven times (a phone's
+time stamps scatter, and runs of samples go missing) are linearly resampled
+onto a uniform grid at their mean rate (:mod:`dtmbnav_core.resampling`), and
+the jitter and gaps found are reported in the result; a log without a
+magnetometer (``mag_ut`` all zeros, the convention of
+:func:`dtmbnav_core.sensors.read_has_magnetometer`) gets the attitude from the
+gyro and accelerometer alone. Each such choice is said in ``PdrResult.notes``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from dtmbnav_core.records import ImuLog, PdrSteps, Track
+from dtmbnav_core.resampling import SampleTiming, check_increasing, interpolate, is_uniform, sample_timing, uniform_grid
 from fusion.pdr.attitude import AttitudeConfig, relative_heading
 from fusion.pdr.dead_reckoning import dead_reckon, mean_heading_over_windows, resample_steps
 from fusion.pdr.step_length import calibrate_weinberg_k, frequency_length, weinberg_length
@@ -49,10 +59,22 @@ class PdrResult:
     """PDR output: one row per step, and the same resampled at ``output_rate_hz``.
 
     Both are in the PDR frame: start at (0, 0), heading relative to the initial one.
+
+    Attributes
+    ----------
+    steps : PdrSteps
+    track : Track
+    timing : SampleTiming or None
+        Rate, jitter and gaps of the IMU's sample times (None where not measured).
+    notes : tuple of str
+        What the PDR did in place of its settings, for the user: resampled
+        uneven times, bridged gaps, no magnetometer.
     """
 
     steps: PdrSteps
     track: Track
+    timing: SampleTiming | None = None
+    notes: tuple[str, ...] = ()
 
 
 def _check_imu(imu: ImuLog) -> None:
@@ -64,14 +86,48 @@ def _check_imu(imu: ImuLog) -> None:
             raise ValueError(f"imu.{name} contains NaN or inf")
 
 
+def uniform_imu(imu: ImuLog) -> tuple[ImuLog, SampleTiming, tuple[str, ...]]:
+    """The IMU log on a uniform time grid, the timing of its samples, and notes for the user.
+
+    A log already on a uniform grid (:func:`~dtmbnav_core.resampling.is_uniform`)
+    is returned as it is. Otherwise every axis is linearly interpolated onto a grid
+    from the first sample at the mean rate of the intervals that are no gap
+    (:func:`~dtmbnav_core.resampling.sample_timing`); a gap is bridged by a straight
+    line, so a step inside it may go uncounted, and each is noted.
+
+    Raises
+    ------
+    ValueError
+        Times that do not strictly increase (a repeated or decreasing time stamp).
+    """
+    check_increasing(imu.t_s, "imu.t_s")
+    timing = sample_timing(imu.t_s)
+    if is_uniform(imu.t_s):
+        return imu, timing, ()
+    grid = uniform_grid(float(imu.t_s[0]), float(imu.t_s[-1]), timing.rate_hz)
+    resampled = ImuLog(t_s=grid, **{name: interpolate(imu.t_s, getattr(imu, name), grid)
+                                    for name in ("acc_mps2", "gyro_radps", "mag_ut")})
+    notes = [(f"imu: uneven sample times ({timing.describe()}): resampled onto a uniform grid at "
+              f"{timing.rate_hz:.2f} Hz")]
+    notes += [(f"imu: no samples for {end - start:.3f} s from {start:.3f} s: bridged by interpolation (a step "
+               "there may go uncounted)") for start, end in timing.gaps_s]
+    return resampled, timing, tuple(notes)
+
+
+def has_magnetometer(imu: ImuLog) -> bool:
+    """Whether the log holds magnetometer samples (all zeros stands for none, as in an imported log)."""
+    return bool(np.any(imu.mag_ut != 0.0))
+
+
 def run_pdr(imu: ImuLog, config: PdrConfig) -> PdrResult:
     """Run pedestrian dead reckoning on an IMU log.
 
     Parameters
     ----------
     imu : ImuLog
-        Uniformly sampled accelerometer, gyro and magnetometer, sensor frame
-        x right, y forward, z up.
+        Accelerometer, gyro and magnetometer, sensor frame x right, y forward,
+        z up; uneven sample times are resampled (:func:`uniform_imu`), and a
+        magnetometer of all zeros (none) makes the attitude gyro-and-accelerometer.
     config : PdrConfig
 
     Returns
@@ -81,7 +137,8 @@ def run_pdr(imu: ImuLog, config: PdrConfig) -> PdrResult:
     Raises
     ------
     ValueError
-        Malformed IMU data, an unknown step model, or the Weinberg model without a gain.
+        Malformed IMU data (including sample times that do not strictly
+        increase), an unknown step model, or the Weinberg model without a gain.
     """
     _check_imu(imu)
     if config.step_model not in STEP_MODELS:
@@ -91,9 +148,15 @@ def run_pdr(imu: ImuLog, config: PdrConfig) -> PdrResult:
                          "calibrate_weinberg_k_from_walk on a walk of known length, or use step_model='frequency'")
     if config.output_rate_hz <= 0:
         raise ValueError(f"PdrConfig.output_rate_hz must be > 0, got {config.output_rate_hz}")
+    imu, timing, notes = uniform_imu(imu)
+    attitude = config.attitude
+    if attitude.use_magnetometer and not has_magnetometer(imu):
+        attitude = dataclasses.replace(attitude, use_magnetometer=False)
+        notes += (("imu: no magnetometer (mag_ut all zeros): the attitude comes from the gyro and accelerometer "
+                   "alone, and the heading drifts with the gyro's bias"),)
     detected = detect_steps(imu.t_s, imu.acc_mps2, config.steps)
     first_step = detected.t_s[0] if len(detected.t_s) else imu.t_s[-1]
-    heading = relative_heading(imu.t_s, imu.acc_mps2, imu.gyro_radps, imu.mag_ut, first_step, config.attitude)
+    heading = relative_heading(imu.t_s, imu.acc_mps2, imu.gyro_radps, imu.mag_ut, first_step, attitude)
     if config.step_model == "weinberg":
         lengths = weinberg_length(detected.acc_max_mps2, detected.acc_min_mps2, config.weinberg_k_m)
     else:
@@ -102,7 +165,7 @@ def run_pdr(imu: ImuLog, config: PdrConfig) -> PdrResult:
     steps = dead_reckon(detected.t_s, detected.start_t_s, lengths, step_heading)
     n_out = int(np.floor((imu.t_s[-1] - imu.t_s[0]) * config.output_rate_hz)) + 1
     track = resample_steps(steps, detected.start_t_s, imu.t_s[0] + np.arange(n_out) / config.output_rate_hz)
-    return PdrResult(steps=steps, track=track)
+    return PdrResult(steps=steps, track=track, timing=timing, notes=notes)
 
 
 def calibrate_weinberg_k_from_walk(imu: ImuLog, distance_m: float, config: PdrConfig | None = None) -> float:
@@ -114,5 +177,6 @@ def calibrate_weinberg_k_from_walk(imu: ImuLog, distance_m: float, config: PdrCo
     """
     _check_imu(imu)
     detector = (config or PdrConfig()).steps
+    imu, _, _ = uniform_imu(imu)
     detected = detect_steps(imu.t_s, imu.acc_mps2, detector)
     return calibrate_weinberg_k(detected.acc_max_mps2, detected.acc_min_mps2, distance_m)
