@@ -1,52 +1,25 @@
-"""WGS84 latitude, longitude and height to and from the project's local ENU frame, through ``pymap3d``.
+"""WGS84 latitude, longitude and height to and from the project's local ENU frame: files and command lines.
 
 The ENU frame (x east, y north, z up, m; ``docs/conventions.md``) of an imported phone log is the
 tangent plane at a geodetic origin stored on its ``/gnss`` group
 (:data:`dtmbnav_core.schema.ORIGIN_ATTRS`); ``fuse --tower-ll`` puts a tower given by latitude and
 longitude into the same frame, and ``fuse`` and ``report`` put the fused tracks and the towers back onto
-WGS84 for maps.
+WGS84 for maps. The pure conversions and :class:`GeodeticPoint` are :mod:`dtmbnav_core.geodetic`'s
+(re-exported here); this module adds the parsing of ``LAT,LON[,H]`` and the reading of a file's origin.
 """
 
 from __future__ import annotations
 
-import math
 import os
-from dataclasses import dataclass
 
 import numpy as np
-import pymap3d
 
+from dtmbnav_core.geodetic import GeodeticPoint, to_enu, to_geodetic
 from dtmbnav_core.sensors import read_geodetic_origin
 
-
-@dataclass(frozen=True)
-class GeodeticPoint:
-    """A point on WGS84.
-
-    Attributes
-    ----------
-    lat_deg, lon_deg : float
-        Latitude (-90..90) and longitude (-180..180), deg.
-    height_m : float or None
-        Height above the WGS84 ellipsoid, m; None where not given (see :meth:`with_height`).
-    """
-
-    lat_deg: float
-    lon_deg: float
-    height_m: float | None = None
-
-    def __post_init__(self) -> None:
-        values = (self.lat_deg, self.lon_deg) + (() if self.height_m is None else (self.height_m,))
-        if not all(math.isfinite(v) for v in values):
-            raise ValueError(f"latitude, longitude and height must be finite numbers, got {values}")
-        if abs(self.lat_deg) > 90.0:
-            raise ValueError(f"latitude {self.lat_deg} deg is out of range (-90..90)")
-        if abs(self.lon_deg) > 180.0:
-            raise ValueError(f"longitude {self.lon_deg} deg is out of range (-180..180)")
-
-    def with_height(self, default_m: float) -> GeodeticPoint:
-        """This point, its height ``default_m`` where none was given."""
-        return self if self.height_m is not None else GeodeticPoint(self.lat_deg, self.lon_deg, float(default_m))
+#: The conversions live in :mod:`dtmbnav_core.geodetic` (the simulator uses them too); importers of this
+#: module get them here as well.
+__all__ = ["GeodeticPoint", "parse_point", "read_origin", "to_enu", "to_geodetic", "tower_in_sensors_frame"]
 
 
 def parse_point(text: str) -> GeodeticPoint:
@@ -60,30 +33,6 @@ def parse_point(text: str) -> GeodeticPoint:
     except ValueError:
         raise ValueError(f"expected LAT,LON[,HEIGHT_M] as numbers, got {text!r}") from None
     return GeodeticPoint(*values)
-
-
-def to_enu(lat_deg: np.ndarray, lon_deg: np.ndarray, height_m: np.ndarray,
-           origin: GeodeticPoint) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """East, north and up of WGS84 points about ``origin`` (whose height must be known), m (``pymap3d.geodetic2enu``)."""
-    if origin.height_m is None:
-        raise ValueError("the ENU origin needs a height")
-    east, north, up = pymap3d.geodetic2enu(np.asarray(lat_deg, dtype=np.float64), np.asarray(lon_deg, dtype=np.float64),
-                                           np.asarray(height_m, dtype=np.float64), origin.lat_deg, origin.lon_deg,
-                                           origin.height_m)
-    return np.asarray(east, dtype=np.float64), np.asarray(north, dtype=np.float64), np.asarray(up, dtype=np.float64)
-
-
-def to_geodetic(east_m: np.ndarray, north_m: np.ndarray, up_m: np.ndarray | float,
-                origin: GeodeticPoint) -> tuple[np.ndarray, np.ndarray]:
-    """WGS84 latitude and longitude, deg, of ENU points about ``origin`` (whose height must be known)
-    (``pymap3d.enu2geodetic``; east, north and up in m)."""
-    if origin.height_m is None:
-        raise ValueError("the ENU origin needs a height")
-    east = np.asarray(east_m, dtype=np.float64)
-    up = np.broadcast_to(np.asarray(up_m, dtype=np.float64), east.shape)
-    lat, lon, _ = pymap3d.enu2geodetic(east, np.asarray(north_m, dtype=np.float64), up, origin.lat_deg,
-                                       origin.lon_deg, origin.height_m)
-    return np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
 
 
 def read_origin(path: str | os.PathLike) -> GeodeticPoint | None:

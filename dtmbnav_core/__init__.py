@@ -9,6 +9,9 @@
 - :mod:`~dtmbnav_core.h5io`: atomic HDF5 writing and column reading.
 - :mod:`~dtmbnav_core.sensors`: typed readers and writers of the sensor and
   truth groups.
+- :mod:`~dtmbnav_core.geodetic`: WGS84 latitude, longitude and height to and
+  from a local ENU frame.
+- :mod:`~dtmbnav_core.phone`: a phone log's clock model and stated fix accuracy.
 
 Nothing here imports ``receiver``, ``sim`` or ``fusion``; they import this and
 never each other (README, "Layout").

@@ -24,7 +24,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from dtmbnav_core.records import GnssLog, StartFix
-from sim.scenario import Building, Scenario
+from sim.scenario import Building, GnssConfig, Scenario
 from sim.walk import Walk
 
 GNSS_STREAM = 3
@@ -75,6 +75,11 @@ def _gauss_markov(rng: np.random.Generator, n: int, shape_tail: tuple[int, ...],
     return lfilter([1.0], [1.0, -phi], drive, axis=0)
 
 
+def fix_sigma_m(cfg: GnssConfig, cn0_dbhz: np.ndarray) -> np.ndarray:
+    """Standard deviation of a fix's error per axis at C/N0 ``cn0_dbhz`` (dB-Hz), m (module docstring)."""
+    return cfg.start_fix_sigma_m * 10.0 ** ((cfg.open_sky_cn0_dbhz - np.asarray(cn0_dbhz, dtype=np.float64)) / 20.0)
+
+
 def simulate_gnss(scenario: Scenario, walk: Walk) -> GnssLog:
     """Per-epoch GNSS fixes over the whole walk.
 
@@ -102,7 +107,7 @@ def simulate_gnss(scenario: Scenario, walk: Walk) -> GnssLog:
     drop = cfg.blocked_cn0_drop_db * np.minimum(1.0, 2.0 * blocked_sky_fraction(xy, scenario.channel.buildings))
     cn0 = (cfg.open_sky_cn0_dbhz - drop
            + CN0_WANDER_DB * _gauss_markov(rng, len(t_s), (), dt, CN0_WANDER_TAU_S))
-    sigma = cfg.start_fix_sigma_m * 10.0 ** ((cfg.open_sky_cn0_dbhz - cn0) / 20.0)
+    sigma = fix_sigma_m(cfg, cn0)
     error = sigma[:, None] * _gauss_markov(rng, len(t_s), (2,), dt, FIX_ERROR_TAU_S)
     return GnssLog(t_s=t_s, x_m=xy[:, 0] + error[:, 0], y_m=xy[:, 1] + error[:, 1], cn0_dbhz=cn0)
 

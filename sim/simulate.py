@@ -17,7 +17,13 @@
   (:meth:`sim.rf.CaptureGenerator.drops`, columns
   ``dtmbnav_core.schema.DROP_COLUMNS``, no rows when none fell in the
   segment); ``num_samples`` is then the samples in the file and
-  ``receiver_num_samples`` those the receiver's clock spans.
+  ``receiver_num_samples`` those the receiver's clock spans;
+- ``towers.csv``: every tower as latitude, longitude and height about the
+  scenario's ``[origin]`` (:mod:`sim.towers_csv`);
+- with ``phone_log``, the walk's IMU and GNSS as that phone app logs them,
+  stamped on a phone clock (:mod:`sim.phone_log_writer`): the log starts at
+  the scenario's time 0, whose true UTC is :data:`SIM_START_UTC_NS`, like
+  the capture's ``core:datetime`` (``SIM_START_UTC_NS`` + ``capture_start_s``).
 
 Segments: ``start_s``/``seconds`` select a window of the scenario. The
 capture's first sample is sample ``round(start_s * fs)`` of the full
@@ -37,12 +43,15 @@ from tqdm import tqdm
 
 from dtmbnav_core import schema
 from dtmbnav_core.h5io import atomic_h5, write_columns
+from dtmbnav_core.phone import PhoneClock
 from sim.capture_writer import CaptureWriter
 from sim.gnss import simulate_gnss
 from sim.imu import simulate_imu
 from sim.path_truth import path_truth, path_truth_attributes
+from sim.phone_log_writer import check_format, write_phone_log
 from sim.rf import CaptureGenerator
 from sim.scenario import Scenario, scenario_to_toml
+from sim.towers_csv import write_towers_csv
 from sim.walk import simulate_walk
 from sim.walk_io import write_walk_groups
 
@@ -64,17 +73,24 @@ class SimulationResult:
         The capture (SigMF meta or raw data file); None with ``with_iq=False``.
     truth_path : Path
         ``truth.h5``.
+    towers_path : Path
+        ``towers.csv``.
+    phone_log_path : Path or None
+        The phone log (GnssLogger's file, Sensor Logger's folder); None without ``phone_log``.
     """
 
     capture_path: Path | None
     truth_path: Path
+    towers_path: Path
+    phone_log_path: Path | None = None
 
 
 def simulate(scenario: Scenario, out_dir: str | Path, *, seconds: float | None = None, start_s: float = 0.0,
              sample_rate_hz: float | None = None, sample_format: str | None = None, pn_mode: str | None = None,
              seed: int | None = None, container: str = "sigmf", with_iq: bool = True,
              chunk_samples: int = DEFAULT_CHUNK_SAMPLES, progress: bool = False,
-             weinberg_k_m: float | None = None, jobs: int = 1) -> SimulationResult:
+             weinberg_k_m: float | None = None, jobs: int = 1, phone_log: str | None = None,
+             phone_clock: PhoneClock = PhoneClock()) -> SimulationResult:
     """Write the capture and ``truth.h5`` of a scenario (module docstring).
 
     Parameters
@@ -100,7 +116,14 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, seconds: float | None =
         PDR (see :func:`sim.walk_io.write_walk_groups`).
     jobs : int
         Threads generating the capture; the bytes do not depend on it.
+    phone_log : str, optional
+        Also write the phone's log in this app's format (``"gnsslogger"`` or
+        ``"sensorlogger"``, :func:`sim.phone_log_writer.write_phone_log`).
+    phone_clock : PhoneClock
+        The phone's clock against the capture's (offset, drift) for ``phone_log``.
     """
+    if phone_log is not None:
+        check_format(phone_log)
     if seed is not None:
         scenario = scenario.replace(seed=int(seed))
     walk = simulate_walk(scenario)
@@ -145,4 +168,8 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, seconds: float | None =
         # Only a scenario that drops samples gets the table (its other truth files keep their layout).
         if scenario.receiver.drops_per_minute > 0:
             write_columns(h5, schema.TRUTH_DROPS, generator.drops())
-    return SimulationResult(capture_path, truth_path)
+    towers_path = write_towers_csv(out_dir, scenario)
+    phone_log_path = None
+    if phone_log is not None:
+        phone_log_path = write_phone_log(phone_log, out_dir, scenario, imu, gnss, phone_clock, SIM_START_UTC_NS)
+    return SimulationResult(capture_path, truth_path, towers_path, phone_log_path)
