@@ -39,6 +39,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from dtmbnav_core.phone import DEFAULT_CLOCK_DRIFT_PPM, DEFAULT_CLOCK_OFFSET_S, PHONE_LOG_FORMATS
 from dtmbnav_core.settings import parse_setting, with_settings
 from dtmbnav.errors import NoResult, UsageError
 from dtmbnav.seeds import LEVELS, REPORTING_SEEDS, TUNING_SEEDS
@@ -66,6 +67,7 @@ examples:
   dtmbnav demo                                   # simulate park-loop, receive, fuse, report
   dtmbnav simulate park-loop --seconds 5 -o out/ # 5 s SigMF capture + truth.h5
   dtmbnav simulate street-back --no-iq -o out/   # IMU, GNSS and truth only
+  dtmbnav simulate park-loop --no-iq --phone-log gnsslogger -o out/  # and the phone's own log of the walk
   dtmbnav receive out/park-loop-cw.sigmf-meta -o out/rx.h5
   dtmbnav receive cap.ci8 --format ci8 --rate 10e6 --center 666e6 -o rx.h5
   rtl_sdr ... | dtmbnav receive - --format cu8 --rate 2.4e6 --center 666e6 -o rx.h5
@@ -92,6 +94,15 @@ def _number(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
     return value
+
+
+def _utc_time(text: str) -> int:
+    from receiver.capture import parse_utc
+
+    try:
+        return parse_utc("--start-time", text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _positive(text: str) -> float:
@@ -192,6 +203,16 @@ def _filter_list(known: tuple[str, ...], what: str = "filter") -> Callable[[str]
     return parse
 
 
+def _tower_names(text: str) -> tuple[str, ...]:
+    """An argparse type: ``NAME[,NAME...]``, towers of a towers file, each named once."""
+    names = tuple(name.strip() for name in text.split(","))
+    if not all(names):
+        raise argparse.ArgumentTypeError(f"expected NAME[,NAME...] without empty names, got {text!r}")
+    if len(set(names)) < len(names):
+        raise argparse.ArgumentTypeError(f"a tower is named twice in {text!r}")
+    return names
+
+
 def _looks_like_path(text: str) -> bool:
     return text.endswith(".toml") or os.sep in text or Path(text).exists()
 
@@ -255,7 +276,8 @@ def _io_paths(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[tup
     elif command == "pdr":
         inputs, files = [("SENSORS", args.sensors)], [("-o", args.output), ("--csv", args.csv)]
     elif command == "fuse":
-        inputs, files = [("--receiver", args.receiver), ("--sensors", args.sensors)], [("-o", args.output)]
+        inputs, files = [("--receiver", args.receiver), ("--sensors", args.sensors),
+                         ("--towers", args.towers)], [("-o", args.output)]
     elif command == "sensors":
         inputs, files = [("LOG", log) for log in args.logs], [("-o", args.output)]
     elif command == "report":
@@ -283,6 +305,8 @@ def check_usage(args: argparse.Namespace) -> str | None:
             return "--static-window must be positive unless --clock-offset gives f_s"
         if args.dump is None and (args.dump_stages is not None or args.dump_window is not None):
             return "--dump-stages and --dump-window need --dump FILE"
+    if args.command == "fuse" and args.tower_name is not None and args.towers is None:
+        return "--tower-name needs --towers FILE"
     if getattr(args, "output", None) is not None and str(args.output) == "-" and args.command in ("receive", "pdr",
                                                                                                   "fuse", "sensors"):
         hint = " (use --csv - for the rows)" if hasattr(args, "csv") else ""
@@ -346,11 +370,29 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     result = simulate_capture_set(scenario, args.output, seconds=args.seconds, start_s=args.start,
                                   sample_rate_hz=args.rate, sample_format=args.format, pn_mode=args.pn_mode,
                                   seed=args.seed, container=args.container, with_iq=not args.no_iq,
-                                  progress=not args.quiet, jobs=args.jobs)
+                                  progress=not args.quiet, jobs=args.jobs, phone_log=args.phone_log,
+                                  phone_clock=_phone_clock(args))
     if result.capture_path is not None:
         print(f"capture: {result.capture_path}", file=sys.stderr)
     print(f"truth:   {result.truth_path}", file=sys.stderr)
+    print(f"towers:  {result.towers_path}", file=sys.stderr)
+    if result.phone_log_path is not None:
+        print(f"phone:   {result.phone_log_path}", file=sys.stderr)
     return EXIT_OK
+
+
+def _phone_clock(args: argparse.Namespace):
+    """The phone's clock of ``simulate --phone-log`` (its defaults where an option is not given)."""
+    from dtmbnav_core.phone import PhoneClock
+
+    given = {name: value for name, value in (("offset_s", args.phone_clock_offset),
+                                              ("drift_ppm", args.phone_clock_drift)) if value is not None}
+    if given and args.phone_log is None:
+        raise UsageError("--phone-clock-offset and --phone-clock-drift need --phone-log")
+    try:
+        return PhoneClock(**given)
+    except ValueError as exc:
+        raise UsageError(f"--phone-clock-drift: {exc}") from None
 
 
 def _receiver_config(args: argparse.Namespace):
@@ -404,6 +446,10 @@ def cmd_receive(args: argparse.Namespace) -> int:
         raise UsageError(f"{exc} (--format, --rate)") from None
     if source.center_hz is None:
         raise UsageError(f"{args.capture}: the capture does not say its RF centre frequency; give --center")
+    if args.start_time is not None:
+        if source.start_utc_unix_ns is not None and source.start_utc_unix_ns != args.start_time:
+            raise UsageError(f"{args.capture}: the capture says it starts at another time than --start-time")
+        source.start_utc_unix_ns = args.start_time
     config = _receiver_config(args)
     channel_hz = _channel_centre(args, source)
     if channel_hz != source.center_hz:
@@ -455,6 +501,8 @@ def cmd_pdr(args: argparse.Namespace) -> int:
 
     _say_pdr_choices(args)
     result = run_pdr_file(args.sensors, args.output, _pdr_config(args), csv_path=args.csv)
+    for note in result.notes:
+        _warn(args, f"{args.sensors}: {note}")
     print(f"pdr: {len(result.steps)} steps, {result.steps.step_length_m.sum():.1f} m walked -> {args.output}",
           file=sys.stderr)
     return EXIT_OK if len(result.steps) else EXIT_NO_RESULT
@@ -476,16 +524,32 @@ def cmd_fuse(args: argparse.Namespace) -> int:
     from dtmbnav.chain import fuse_files
 
     config = _fusion_config(args, seed=args.seed, clock_model=args.clock_model)
-    _say_pdr_choices(args)
     tower, tower_height_m = args.tower, 0.0
     if args.tower_ll is not None:
         from dtmbnav.geodetic import tower_in_sensors_frame
 
         x_m, y_m, tower_height_m = tower_in_sensors_frame(args.sensors, args.tower_ll)
         tower = (x_m, y_m)
-    result = fuse_files(args.receiver, args.sensors, args.output, filters=args.filters,
-                        pdr_config=_pdr_config(args), tower_xy_m=tower, start_xy_m=args.start, config=config,
-                        tower_height_m=tower_height_m)
+    other_towers, transmit_delays_s = (), None
+    if args.towers is not None:
+        from dtmbnav.towers import towers_for_fuse
+
+        layout = towers_for_fuse(args.towers, args.tower_name, args.receiver, args.sensors)
+        if layout.note:
+            _warn(args, layout.note)
+        print(f"towers: {', '.join(layout.names)} (ranging on {layout.names[0]})", file=sys.stderr)
+        tower, tower_height_m = layout.tower_xy_m, layout.tower_height_m
+        other_towers, transmit_delays_s = layout.other_towers, layout.transmit_delays_s
+    _say_pdr_choices(args)
+    result, alignment = fuse_files(args.receiver, args.sensors, args.output, filters=args.filters,
+                                   pdr_config=_pdr_config(args), tower_xy_m=tower, start_xy_m=args.start,
+                                   config=config, tower_height_m=tower_height_m, other_towers=other_towers,
+                                   transmit_delays_s=transmit_delays_s, time_offset_s=args.time_offset)
+    print(f"time alignment: {alignment.describe()}", file=sys.stderr)
+    if alignment.disagrees:
+        _warn(args, f"the motion puts the capture's start {alignment.fine_offset_s - alignment.coarse_offset_s:+.3f} "
+                    "s from where the two files' start times put it, more than their uncertainty: check both "
+                    "clocks, or give --time-offset")
     print(f"initial heading {result.heading.describe()}", file=sys.stderr)
     print(f"fused {', '.join(result.tracks)} -> {args.output}", file=sys.stderr)
     return EXIT_OK
@@ -750,6 +814,16 @@ def _add_simulate_command(subparsers: argparse._SubParsersAction, common: argpar
                         "(rtl-sdr, hackrf-one, plutosdr, ...: docs/devices.md); --rate and --format still override")
     p.add_argument("--no-iq", action="store_true", help="write IMU, GNSS and truth only")
     p.add_argument("--jobs", type=_positive_int, default=1, help="threads generating the IQ (same bytes for any N)")
+    phone = p.add_argument_group("phone log")
+    phone.add_argument("--phone-log", choices=PHONE_LOG_FORMATS,
+                       help="also write the walk's IMU and GNSS as this phone app logs them (GnssLogger's text log "
+                            "gnss_log_*.txt, or a Sensor Logger export folder), for dtmbnav sensors")
+    phone.add_argument("--phone-clock-offset", type=_number, metavar="S",
+                       help="the phone's UTC clock minus the capture's at the log's start, s "
+                            f"(default {DEFAULT_CLOCK_OFFSET_S:g}; needs --phone-log)")
+    phone.add_argument("--phone-clock-drift", type=_number, metavar="PPM",
+                       help="how much faster the phone's clock runs than the capture's, ppm "
+                            f"(default {DEFAULT_CLOCK_DRIFT_PPM:g}; needs --phone-log)")
     p.set_defaults(handler=cmd_simulate)
 
 
@@ -764,6 +838,9 @@ def _add_receive_command(subparsers: argparse._SubParsersAction, common: argpars
     p.add_argument("--channel", type=_positive, metavar="HZ",
                    help="centre of the DTMB channel, Hz, for a capture tuned beside it (default: the channel the "
                         "capture's metadata records, else its centre frequency)")
+    p.add_argument("--start-time", type=_utc_time, metavar="ISO8601",
+                   help="UTC time of the capture's first sample, e.g. 2026-12-05T10:00:00.250Z, for a capture "
+                        "that does not record it (a raw file): fuse aligns the phone's log with it")
     p.add_argument("--csv", metavar="FILE", help="also write the frame table as CSV ('-' for stdout)")
     p.add_argument("--jobs", type=_positive_int, default=1, metavar="N",
                    help="threads for the per-frame work (default 1); the output is the same for any N")
@@ -821,7 +898,17 @@ def _add_fuse_command(subparsers: argparse._SubParsersAction, common: argparse.A
                        help="tower position, WGS84 deg, and its antenna's height above the ellipsoid, m; put into the "
                             "ENU frame of a sensors file written by 'dtmbnav sensors' (without H its height above "
                             "the receiver is 0, as with --tower)")
+    tower.add_argument("--towers", metavar="FILE",
+                       help="towers file, TOML ([[towers]]) or CSV (name,lat_deg,lon_deg,height_m and optional "
+                            "channel_hz, transmit_delay_s, transmit_delay_sigma_s): its first tower (or the first "
+                            "--tower-name) ranges, the others are the SFN's further towers; put into the ENU frame "
+                            "of a sensors file written by 'dtmbnav sensors' (docs/cli.md)")
+    p.add_argument("--tower-name", type=_tower_names, metavar="NAME[,NAME...]",
+                   help="with --towers: the towers to use, the ranging tower first (default: all of the file's)")
     p.add_argument("--start", type=_xy, metavar="X,Y", help="start fix P0, ENU m (default: from /gnss)")
+    p.add_argument("--time-offset", type=_number, metavar="S",
+                   help="where the capture starts on the IMU log's clock, s (default: from the two files' start "
+                        "times, refined from the motion; a simulation's own record where it has one)")
     p.add_argument("--particles", type=_positive_int, help=f"particle-filter Np (default {DEFAULT_PARTICLES})")
     p.add_argument("--seed", type=_seed, default=0, help="particle-filter seed")
     p.add_argument("--clock-model", choices=CLOCK_MODELS, default=DEFAULT_CLOCK_MODEL,

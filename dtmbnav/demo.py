@@ -66,7 +66,7 @@ def run_demo(out_dir: Path, scenario: str = "park-loop", seconds: float | None =
         raise RuntimeError("the receiver found no DTMB signal in the simulated capture")
     print("[3/4] PDR, initial heading and fusion", file=sys.stderr)
     results_path = out_dir / "results.h5"
-    result = fuse_files(rx_path, truth_path, results_path, tuple(FILTERS), PdrConfig(),
+    result, _ = fuse_files(rx_path, truth_path, results_path, tuple(FILTERS), PdrConfig(),
                         config=FusionConfig(clock_model=receiver_clock_model(scn)))
     print(f"      initial heading {result.heading.describe()}", file=sys.stderr)
     print("[4/4] writing the report", file=sys.stderr)

@@ -295,11 +295,12 @@ def _agree(where: str, what: str, from_file: Any, given: Any) -> Any:
     return from_file
 
 
-def _parse_utc(where: str, text: Any) -> int:
+def parse_utc(where: str, text: Any) -> int:
+    """ISO 8601 time (``core:datetime``, ``receive --start-time``; without a zone: UTC) -> ns since the Unix epoch."""
     try:
         stamp = dt.datetime.fromisoformat(str(text).replace("Z", "+00:00"))
     except ValueError:
-        raise ValueError(f"{where}: bad core:datetime {text!r}") from None
+        raise ValueError(f"{where}: bad ISO 8601 time {text!r}") from None
     if stamp.tzinfo is None:
         stamp = stamp.replace(tzinfo=dt.timezone.utc)
     delta = stamp - dt.datetime(1970, 1, 1, tzinfo=dt.timezone.utc)
@@ -354,7 +355,7 @@ def _open_sigmf(path: Path, sample_format: str | None, sample_rate_hz: float | N
     first = captures[0]
     centre = _agree(where, "centre frequency", _number(where, "core:frequency", first.get("core:frequency")),
                     center_hz)
-    start = _parse_utc(where, first["core:datetime"]) if "core:datetime" in first else None
+    start = parse_utc(where, first["core:datetime"]) if "core:datetime" in first else None
     header = int(_number(where, "core:header_bytes", first.get("core:header_bytes", 0), positive=False) or 0)
     channel = _number(where, f"{PROJECT_NAMESPACE}:channel_hz", info.get(f"{PROJECT_NAMESPACE}:channel_hz"))
     if channel is None and centre is not None:

@@ -1089,6 +1089,174 @@ def fuse_tower_ll_longitude_out_of_range(ctx):
     return _fuse(ctx, ctx.rx, ctx.truth, "--tower-ll", "30.5,200"), ["--tower-ll", "out of range"]
 
 
+#: The header the simulator writes a towers CSV with, and a valid row of it.
+TOWERS_HEADER = "name,lat_deg,lon_deg,height_m,channel_hz,transmit_delay_s"
+TOWER_ROW = "Guishan,30.5508,114.2763,420,,"
+
+
+def _towers(ctx, *rows: str, header: str = TOWERS_HEADER, name: str = "towers.csv") -> str:
+    """A towers file in the case's folder: ``header`` and ``rows`` as lines."""
+    return ctx.write(name, "".join(f"{line}\n" for line in (header, *rows)))
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_without_the_named_tower(ctx):
+    towers = _towers(ctx, TOWER_ROW, "Hongshan,30.5071,114.3382,96.5,,2.5e-6")
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers, "--tower-name", "Wuchang"), [
+        towers, "no tower named 'Wuchang'", "'Guishan', 'Hongshan'"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_latitude_91(ctx):
+    towers = _towers(ctx, "Guishan,91,114.2763,420,,")
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers), [towers, "line 2", "lat_deg 91 deg is out of range"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_longitude_minus_181(ctx):
+    towers = _towers(ctx, TOWER_ROW, "Hongshan,30.5071,-181,96.5,,")
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers), [towers, "line 3", "lon_deg -181 deg is out of range"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_without_a_lat_column(ctx):
+    towers = _towers(ctx, "Guishan,114.2763,420", header="name,lon_deg,height_m")
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers), [towers, "line 1", "no column(s) lat_deg"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_height_not_a_number(ctx):
+    towers = _towers(ctx, "Guishan,30.5508,114.2763,tall,,")
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers), [towers, "line 2", "height_m must be a number", "'tall'"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_height_absurd(ctx):
+    towers = _towers(ctx, "Guishan,30.5508,114.2763,42000,,")
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers), [towers, "line 2", "height_m 42000 m is out of range"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_duplicate_names(ctx):
+    towers = _towers(ctx, TOWER_ROW, "Hongshan,30.5071,114.3382,96.5,,", TOWER_ROW)
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers), [towers, "'Guishan' given more than once"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_empty_file(ctx):
+    towers = ctx.write("towers.csv", "")
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers), [towers, "empty", "header row"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_header_only(ctx):
+    towers = _towers(ctx)
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers), [towers, "no towers"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_toml_without_towers_tables(ctx):
+    towers = ctx.write("towers.toml", '[[tower]]\nname = "Guishan"\nlat_deg = 30.5\nlon_deg = 114.3\nheight_m = 420\n')
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers), [towers, "no [[towers]] table"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_toml_entry_missing_a_field(ctx):
+    towers = ctx.write("towers.toml", '[[towers]]\nname = "Guishan"\nlat_deg = 30.5\nlon_deg = 114.3\n')
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers), [towers, "[[towers]] entry 1", "missing height_m"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_nan(ctx):
+    towers = _towers(ctx, "Guishan,nan,114.2763,420,,")
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers), [towers, "line 2", "lat_deg must be a finite number"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_nonexistent_file(ctx):
+    towers = str(ctx.tmp / "towers.csv")
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers), [towers, "no such file"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_of_an_unknown_format(ctx):
+    towers = _towers(ctx, TOWER_ROW, name="towers.txt")
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers), [towers, ".toml", ".csv"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_named_tower_on_another_channel(ctx):
+    towers = _towers(ctx, "Guishan,30.5508,114.2763,420,730e6,")
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers, "--tower-name", "Guishan"), [
+        towers, "'Guishan' (7.3e+08 Hz)", "another channel"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_towers_without_a_geodetic_origin(ctx):
+    towers = _towers(ctx, TOWER_ROW)
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers), [str(ctx.truth), "no geodetic origin"]
+
+
+@case(EXIT_USAGE)
+def fuse_towers_and_tower(ctx):
+    towers = _towers(ctx, TOWER_ROW)
+    return _fuse(ctx, ctx.rx, ctx.truth, "--tower", "1,2", "--towers", towers), ["--towers", "not allowed with"]
+
+
+def _field_pair(ctx, capture_utc_ns: int, log_utc_ns: int) -> tuple[str, str]:
+    """The tiny walk as a field recording: a receiver file and a sensors file with these start times (the
+    simulation's own record of where the capture starts taken out)."""
+    rx = ctx.tiny_rx_copy(edit=_set_attr(schema.RECEIVER_FRAMES, schema.START_UTC_NS_ATTR, np.int64(capture_utc_ns)))
+
+    def edit(f: h5py.File) -> None:
+        del f[schema.TRUTH_FRAMES].attrs[schema.CAPTURE_START_ATTR]
+        f[schema.IMU].attrs[schema.START_UTC_NS_ATTR] = np.int64(log_utc_ns)
+    return rx, ctx.h5(ctx.truth, "sensors.h5", edit)
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_log_from_another_day_than_the_capture(ctx):
+    day_ns = 86_400 * 10**9
+    rx, sensors = _field_pair(ctx, 1_767_225_600 * 10**9 + day_ns, 1_767_225_600 * 10**9)
+    return _fuse(ctx, rx, sensors, "--tower", "2000,2200"), [
+        "2026-01-02T00:00:00", "2026-01-01T00:00:00", "+86400.0 s apart", "--time-offset"]
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_time_offset_past_the_log(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--time-offset", "3600"), [str(ctx.rx), "do not overlap in time"]
+
+
+@case(EXIT_USAGE)
+def fuse_time_offset_not_a_number(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--time-offset", "nan"), ["--time-offset", "finite number"]
+
+
+@case(EXIT_USAGE)
+def receive_start_time_not_a_time(ctx):
+    return ["-q", "receive", str(ctx.sim / "tiny-walk.sigmf-meta"), "--start-time", "10 o'clock", "-o", ctx.o()], [
+        "--start-time", "bad ISO 8601 time"]
+
+
+@case(EXIT_USAGE)
+def fuse_tower_name_without_towers(ctx):
+    return _fuse(ctx, ctx.rx, ctx.truth, "--tower-name", "Guishan"), ["--tower-name needs --towers"]
+
+
+@case(EXIT_USAGE)
+def fuse_tower_name_empty_name(ctx):
+    towers = _towers(ctx, TOWER_ROW)
+    return _fuse(ctx, ctx.rx, ctx.truth, "--towers", towers, "--tower-name", "Guishan,,"), ["--tower-name",
+                                                                                             "empty names"]
+
+
+@case(EXIT_USAGE)
+def fuse_output_is_the_towers_file(ctx):
+    towers = _towers(ctx, TOWER_ROW)
+    return ["-q", "fuse", "--receiver", str(ctx.rx), "--sensors", str(ctx.truth), "--towers", towers, "-o",
+            towers], ["-o", towers, "--towers"]
+
+
 @case(EXIT_USAGE)
 def fuse_start_text(ctx):
     return _fuse(ctx, ctx.rx, ctx.truth, "--start", "here"), ["--start"]

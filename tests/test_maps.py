@@ -232,9 +232,12 @@ def test_fuse_writes_latitude_and_longitude_with_an_origin(tiny_results, geo_sen
 
 
 def test_fuse_without_an_origin_writes_the_old_layout(tiny_results):
-    """A simulation's results: no /gnss, no latitude or longitude columns, no tower attributes."""
+    """A simulation's results: no /gnss, no latitude or longitude columns, no tower attributes (only the
+    time offset's, from the simulation's record)."""
     with h5py.File(tiny_results, "r") as f:
         assert schema.GNSS not in f
-        assert not set(f[schema.FUSION].attrs)
+        attrs = f[schema.FUSION].attrs
+        assert all(key.startswith("time_offset_") for key in attrs)
+        assert attrs["time_offset_source"] == "simulation record" and attrs["time_offset_sigma_s"] == 0.0
         for name in f[schema.FUSION]:
             assert set(f[schema.fusion_group(name)]) == set(schema.TRACK_COLUMNS)
