@@ -295,6 +295,17 @@ def frontends_section(config: ResultsConfig) -> Section:
     return Section("frontends", "SDR front ends", "--sections frontends", body, time.perf_counter() - start)
 
 
+def field_section(config: ResultsConfig) -> Section:
+    """A phone's own log and a capture with its start time, against the simulator's files (:mod:`dtmbnav.field_check`)."""
+    from dtmbnav.field_check import check, describe, field_table
+
+    start = time.perf_counter()
+    table, _ = field_table(check(cluster=config.cluster, progress=config.progress))
+    body = f"{describe()} (`python -m dtmbnav.field_check`)\n\n{table}\n"
+    return Section("field", "The field path: a phone's log and a capture's start time", "--sections field", body,
+                   time.perf_counter() - start)
+
+
 def bench_section(config: ResultsConfig) -> Section:
     """Throughput of every kernel next to its numpy reference (``dtmbnav bench``); every figure is a timing."""
     import contextlib
@@ -323,12 +334,13 @@ def _sections(config: ResultsConfig) -> dict[str, Callable[[], Section]]:
         "receiver": lambda: receiver_section(config),
         "paths": lambda: paths_section(config),
         "frontends": lambda: frontends_section(config),
+        "field": lambda: field_section(config),
         "bench": lambda: bench_section(config),
     }
 
 
 #: Every section, in the file's order.
-SECTIONS = ("fusion-iq", "fusion-obs", "fusion-exact", "receiver", "paths", "frontends", "pdr", "bench")
+SECTIONS = ("fusion-iq", "fusion-obs", "fusion-exact", "receiver", "paths", "frontends", "field", "pdr", "bench")
 
 
 def render_section(section: Section, commit: str, date: str, machine: str) -> str:
