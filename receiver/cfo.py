@@ -25,6 +25,29 @@ cause (thermal noise, interference, data folded onto the SI carriers):
 (:func:`expected_phase_variance`); the receiver flags frames whose scatter
 exceeds that by a wide margin.
 
+**Telescoping.** Summed over frames, eq. 5's phase advances should add up
+to the SI phase of the last frame minus the first's, so that the noise of
+each frame cancels from the range (docs/method.md §2). The angle of a sum of
+products of two noisy frames does so to first order only: its second-order
+terms (the noise of one frame times the noise of the other; the LO phase
+noise's inter-carrier interference times the thermal noise) are independent
+from pair to pair, so the summed angles random-walk by about
+``1 / (6 sqrt(2) gamma)`` rad a frame, and the f_s of the static window (the
+mean CFO over it) carries that walk divided by the window's length, an error
+that grows the range linearly over the rest of the walk. Each frame's SI
+phase is therefore measured against a *reference* ``R``: the exponential
+average (gain :data:`SI_REFERENCE_GAIN`) of the previous frames' carriers,
+each with its window offset (the ``delta`` term) and its own measured phase
+taken out, so ``R`` holds the channel's pattern over the 36 carriers at
+phase zero. Frame m's phase is ``psi_m = angle(R^H Z_m)`` with
+``Z_m(k) = Y_m(k) exp(-j 2 pi k delta_m / N)``, and its advance
+``psi_m - psi_{m-1}`` (wrapped to +-pi, as eq. 5's angle) takes the place of
+``-angle(Theta_m)``: the advances telescope exactly, to the last frame's
+phase minus the first's, and only ``R``'s own phase wanders, by the gain
+times each frame's phase noise (first order, far below the second-order
+walk). With a gain of 1 the reference is the previous frame and this is eq. 6.
+Theta's terms still give the scatter below.
+
 **PN headers.** The channel taps of consecutive headers (estimated against
 the known, phase-correct PN) rotate by the same residual CFO:
 ``angle(sum_l conj(h_m[l]) h_{m-1}[l])`` gives an independent estimate from
@@ -55,10 +78,17 @@ from dtmbnav_core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ
 from receiver.ofdm import si_carrier_numbers
 
 
+#: Weight of each frame in the SI reference (module docstring, "Telescoping"). The reference's phase wanders by
+#: the gain times a frame's phase noise, and the reference must follow the channel's pattern over the SI carriers,
+#: which changes over a fraction of a wavelength of motion (some 150 frames at walking pace): a memory of 32
+#: frames (18 ms of PN420) follows it closely and divides the per-frame phase noise's effect by 32.
+SI_REFERENCE_GAIN = 1.0 / 32.0
+
+
 @njit(cache=True)
-def si_theta_kernel(y_prev: np.ndarray, y: np.ndarray, k: np.ndarray, delta_prev: float,
-                    delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Theta (eq. 6) of each frame of a batch with the one before it, and the scatter of its phase.
+def si_phase_kernel(y_prev: np.ndarray, y: np.ndarray, k: np.ndarray, delta_prev: float, delta: np.ndarray,
+                    reference: np.ndarray, phase_prev: float, gain: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """SI phase advance of each frame of a batch against the reference, and the scatter of eq. 6's terms.
 
     Parameters
     ----------
@@ -72,51 +102,78 @@ def si_theta_kernel(y_prev: np.ndarray, y: np.ndarray, k: np.ndarray, delta_prev
         Window offset of the frame before the batch, samples.
     delta : (B,) float64
         Window offsets ``n_m - tau_m`` of the batch's frames.
+    reference : (36,) complex128
+        The SI reference before the batch (module docstring, "Telescoping"; zeros at the start of a lock);
+        updated in place to the reference after the batch.
+    phase_prev : float
+        Phase of the frame before the batch against the reference, rad.
+    gain : float
+        Weight of each new frame in the reference (1: the previous frame, eq. 6).
 
     Returns
     -------
-    theta : (B,) complex128
+    advance : (B,) float64
+        Phase advance of each frame over the one before it, rad, in (-pi, pi].
     phase_var : (B,) float64
-        Variance of ``angle(theta)`` measured from the spread of its terms,
-        rad^2 (module docstring); inf where theta is 0.
+        Variance of ``angle(Theta)`` (eq. 6, each frame with the one before
+        it) measured from the spread of its terms, rad^2 (module
+        docstring); inf where theta is 0.
+    phase : float
+        Phase of the batch's last frame against the updated reference, rad.
     """
     count = y.shape[0]
     n_si = y.shape[1]
-    theta = np.empty(count, dtype=np.complex128)
+    advance = np.empty(count, dtype=np.float64)
     phase_var = np.empty(count, dtype=np.float64)
     terms = np.empty(n_si, dtype=np.complex128)
+    # Z (module docstring) of the frame before and of the current one: conj(Z_m) Z_{m-1} are eq. 6's terms.
+    z_old = np.empty(n_si, dtype=np.complex128)
+    z = np.empty(n_si, dtype=np.complex128)
     scale = 2.0 * np.pi / 3780.0
+    for s in range(n_si):
+        z_old[s] = np.complex128(y_prev[s]) * np.exp(-1j * scale * delta_prev * k[s])
+    phase = phase_prev
     for b in range(count):
-        d_old = delta_prev if b == 0 else delta[b - 1]
-        step = scale * (delta[b] - d_old)
         acc = 0j
+        projection = 0j
         for s in range(n_si):
-            old = y_prev[s] if b == 0 else y[b - 1, s]
-            terms[s] = np.conj(np.complex128(y[b, s])) * old * np.exp(1j * step * k[s])
+            z[s] = np.complex128(y[b, s]) * np.exp(-1j * scale * delta[b] * k[s])
+            terms[s] = np.conj(z[s]) * z_old[s]
             acc += terms[s]
-        theta[b] = acc
+            projection += np.conj(reference[s]) * z[s]
         size2 = acc.real * acc.real + acc.imag * acc.imag
         quad = 0.0
         for s in range(n_si):
             q = terms[s].imag * acc.real - terms[s].real * acc.imag
             quad += q * q
         phase_var[b] = quad / (size2 * size2) if size2 > 0 else np.inf
-    return theta, phase_var
+        advance[b] = np.angle(projection * np.exp(-1j * phase))
+        phase = np.angle(projection)
+        turn = gain * np.exp(-1j * phase)
+        for s in range(n_si):
+            reference[s] = (1.0 - gain) * reference[s] + turn * z[s]
+            z_old[s] = z[s]
+    return advance, phase_var, phase
 
 
-def si_theta_reference(y_prev: np.ndarray, y: np.ndarray, k: np.ndarray, delta_prev: float,
-                       delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Plain-numpy :func:`si_theta_kernel`."""
-    both = np.vstack([y_prev[None, :], y]).astype(np.complex128)
+def si_phase_reference(y_prev: np.ndarray, y: np.ndarray, k: np.ndarray, delta_prev: float, delta: np.ndarray,
+                       reference: np.ndarray, phase_prev: float, gain: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Plain-numpy :func:`si_phase_kernel` (the reference updated in place alike)."""
     d = np.concatenate([[delta_prev], delta])
-    phase = np.exp(1j * 2 * np.pi / BODY_LENGTH * np.diff(d)[:, None] * k[None, :])
-    terms = np.conj(both[1:]) * both[:-1] * phase
+    aligned = np.vstack([y_prev[None, :], y]).astype(np.complex128) * np.exp(
+        -1j * 2 * np.pi / BODY_LENGTH * d[:, None] * k[None, :])
+    terms = np.conj(aligned[1:]) * aligned[:-1]
     theta = np.sum(terms, axis=1)
     size2 = np.abs(theta) ** 2
     quad = np.sum(np.imag(terms * np.conj(theta)[:, None]) ** 2, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         phase_var = np.where(size2 > 0, quad / size2 ** 2, np.inf)
-    return theta, phase_var
+    phases = np.empty(len(y) + 1)
+    phases[0] = phase_prev
+    for b, z in enumerate(aligned[1:]):     # each frame's phase needs the reference the frames before it made
+        phases[b + 1] = np.angle(np.vdot(reference, z))
+        reference[:] = (1.0 - gain) * reference + gain * np.exp(-1j * phases[b + 1]) * z
+    return np.angle(np.exp(1j * np.diff(phases))), phase_var, float(phases[-1])
 
 
 def expected_phase_variance(si_snr_db: np.ndarray, n_carriers: int = gb20600.SI_LENGTH) -> np.ndarray:
@@ -166,13 +223,14 @@ def pn_theta_reference(taps_prev: np.ndarray, taps: np.ndarray, shift: np.ndarra
     return theta
 
 
-def cfo_from_theta(theta: np.ndarray, window_step: np.ndarray, eta: np.ndarray | float, coarse_hz: float) -> np.ndarray:
-    """Total CFO (eq. 5): coarse + ``-angle(Theta) / (2 pi window_step T_rx)``, Hz.
+def cfo_from_advance(advance_rad: np.ndarray, window_step: np.ndarray, eta: np.ndarray | float,
+                     coarse_hz: float) -> np.ndarray:
+    """Total CFO (eq. 5): coarse + ``advance / (2 pi window_step T_rx)``, Hz.
 
     Parameters
     ----------
-    theta : ndarray, complex
-        Theta of each frame pair.
+    advance_rad : ndarray
+        Carrier phase advance of each frame over the one before it, rad.
     window_step : ndarray
         ``n_m - n_{m-1}``, samples of the receiver clock.
     eta : ndarray or float
@@ -181,7 +239,13 @@ def cfo_from_theta(theta: np.ndarray, window_step: np.ndarray, eta: np.ndarray |
         CFO removed before the FFT.
     """
     sample_period_s = 1.0 / (SYMBOL_RATE_HZ * (1.0 + np.asarray(eta)))
-    return coarse_hz - np.angle(theta) / (2 * np.pi * np.asarray(window_step) * sample_period_s)
+    return coarse_hz + np.asarray(advance_rad) / (2 * np.pi * np.asarray(window_step) * sample_period_s)
+
+
+def cfo_from_theta(theta: np.ndarray, window_step: np.ndarray, eta: np.ndarray | float, coarse_hz: float) -> np.ndarray:
+    """Total CFO (eq. 5) from Theta, the sum of products of two frames: :func:`cfo_from_advance` of
+    ``-angle(Theta)``, Hz (arguments as there)."""
+    return cfo_from_advance(-np.angle(theta), window_step, eta, coarse_hz)
 
 
 class SiWordDetector:

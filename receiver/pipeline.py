@@ -82,7 +82,8 @@ from dtmbnav_core.records import FrameBatch, FrameFlag, PathBatch
 from receiver import DEFAULT_CFO_SEARCH_HZ, DEFAULT_STATIC_WINDOW_S
 from receiver.acquisition import CFO_OUTSIDE_SEARCH, Acquisition, search_window, window_length
 from receiver.capture import CaptureSource
-from receiver.cfo import SiWordDetector, cfo_from_theta, expected_phase_variance, pn_theta_kernel, si_theta_kernel
+from receiver.cfo import (SI_REFERENCE_GAIN, SiWordDetector, cfo_from_advance, cfo_from_theta, expected_phase_variance,
+                          pn_theta_kernel, si_phase_kernel)
 from receiver.channel_estimate import TAP_THRESHOLD, TAPS_AFTER, TAPS_BEFORE, ChannelEstimates
 from receiver.derotate import rotation_table
 from receiver.drops import MAX_BRIDGE_S, MAX_IN_LOCK_STEP, MIN_STEP, DropLog, find_in_lock_drop, lost_input_samples
@@ -328,6 +329,9 @@ class _Lock:
         self.prev_taps: np.ndarray | None = None
         self.prev_start = 0
         self.prev_delta = 0.0
+        #: The SI reference and the last frame's SI phase against it (receiver.cfo, "Telescoping").
+        self.si_reference = np.zeros(gb20600.SI_LENGTH, dtype=np.complex128)
+        self.si_phase = 0.0
         #: Measured timing of the last processed frame (for the drop detector, receiver.drops).
         self.prev_measured: float | None = None
         #: The next frame follows samples the front end dropped: it has no CFO pair.
@@ -887,10 +891,11 @@ class Receiver:
         prev_taps = ch.raw_taps[0] if first_of_lock else lock.prev_taps
         prev_start = starts[0] if first_of_lock else lock.prev_start
         prev_delta = float(delta[0]) if first_of_lock else lock.prev_delta
-        theta, phase_var = si_theta_kernel(prev_si, si, self._k_si, prev_delta, delta)
+        advance, phase_var, lock.si_phase = si_phase_kernel(prev_si, si, self._k_si, prev_delta, delta,
+                                                            lock.si_reference, lock.si_phase, SI_REFERENCE_GAIN)
         step = np.diff(np.concatenate([[prev_start], starts]))
         eta = periods / lock.tracker.nominal_period - 1.0
-        cfo = cfo_from_theta(theta, np.maximum(step, 1), eta, lock.acq.coarse_cfo_hz)
+        cfo = cfo_from_advance(advance, np.maximum(step, 1), eta, lock.acq.coarse_cfo_hz)
         shift = step - np.rint(periods).astype(np.int64)
         cfo_pn = cfo_from_theta(pn_theta_kernel(prev_taps, ch.raw_taps, shift), np.maximum(step, 1), eta,
                                 lock.acq.coarse_cfo_hz)

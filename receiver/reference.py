@@ -19,7 +19,7 @@ from dtmbnav_core import gb20600
 from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ
 from receiver.acquisition import Acquisition
 from receiver.body import recover_bodies_reference
-from receiver.cfo import cfo_from_theta, pn_theta_reference, si_theta_reference
+from receiver.cfo import SI_REFERENCE_GAIN, cfo_from_advance, cfo_from_theta, pn_theta_reference, si_phase_reference
 from receiver.channel_estimate import TAP_THRESHOLD, TAPS_AFTER, TAPS_BEFORE, ChannelEstimator
 from receiver.derotate import derotate_segments_reference
 from receiver.ofdm import si_carrier_numbers, si_carriers_reference
@@ -60,6 +60,7 @@ def receive_reference(r: np.ndarray, acq: Acquisition, n_frames: int, *, taps_be
     tau, period = float(acq.frame_start), float(m.frame_length)
     out = ReferenceFrames(*(np.full(n_frames, np.nan) for _ in range(4)))
     prev = None
+    si_reference, si_phase = np.zeros(gb20600.SI_LENGTH, dtype=np.complex128), 0.0
     for i in range(n_frames):
         if i % batch_frames == 0:
             batch_tau, batch_period = tau, period
@@ -84,12 +85,14 @@ def receive_reference(r: np.ndarray, acq: Acquisition, n_frames: int, *, taps_be
         t5 = time.perf_counter()
         delta = start - smoothed[0]
         out.window_start[i], out.snr_db[i] = start, ch.snr_db[0]
+        prev_si, prev_taps, prev_start, prev_delta = (si, ch.raw_taps[0], start, delta) if prev is None else prev
+        # The first frame has no CFO but starts the SI reference.
+        advance, _, si_phase = si_phase_reference(prev_si, si[None, :], k, prev_delta, np.array([delta]), si_reference,
+                                                  si_phase, SI_REFERENCE_GAIN)
         if prev is not None:
-            prev_si, prev_taps, prev_start, prev_delta = prev
             step = np.array([start - prev_start])
             eta = periods[0] / m.frame_length - 1.0
-            theta, _ = si_theta_reference(prev_si, si[None, :], k, prev_delta, np.array([delta]))
-            out.cfo_hz[i] = cfo_from_theta(theta, step, eta, acq.coarse_cfo_hz)[0]
+            out.cfo_hz[i] = cfo_from_advance(advance, step, eta, acq.coarse_cfo_hz)[0]
             shift = step - np.rint(periods).astype(np.int64)
             out.cfo_pn_hz[i] = cfo_from_theta(pn_theta_reference(prev_taps, ch.raw_taps, shift), step, eta,
                                               acq.coarse_cfo_hz)[0]

@@ -428,7 +428,7 @@ def test_no_writable_folder_at_all_means_no_numba_cache(tmp_path):
     env = _unwritable_cache_tree(tmp_path)
     script = ("import dtmbnav.numba_cache as m; m.fallback_cache_folders = lambda environ: []; "
               "print(m.configure_numba_cache()); import receiver.pipeline; "
-              "from receiver.cfo import si_theta_kernel; print(si_theta_kernel._cache.__class__.__name__)")
+              "from receiver.cfo import si_phase_kernel; print(si_phase_kernel._cache.__class__.__name__)")
     run = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env=env, capture_output=True, text=True,
                          timeout=300)
     assert run.returncode == 0, run.stderr

@@ -9,7 +9,8 @@ from dtmbnav_core import gb20600
 from dtmbnav_core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
 from dtmbnav_core.records import FrameBatch
 from receiver.body import body_phases, recover_bodies, recover_bodies_reference
-from receiver.cfo import cfo_from_theta, pn_theta_kernel, pn_theta_reference, si_theta_kernel, si_theta_reference
+from receiver.cfo import (SI_REFERENCE_GAIN, cfo_from_advance, pn_theta_kernel, pn_theta_reference, si_phase_kernel,
+                          si_phase_reference)
 from receiver.channel_estimate import (ChannelEstimator, hadamard_slots, m_sequence_correlation_kernel,
                                        walsh_hadamard_inplace)
 from receiver.derotate import derotate_segments, derotate_segments_reference, rotation_table
@@ -222,20 +223,37 @@ def test_dft6_matches_numpy_fft():
     assert np.max(np.abs(got[0::2] + 1j * got[1::2] - np.fft.fft(x))) < 1e-5
 
 
-def test_si_theta_kernel_and_cfo_sign():
+def test_si_phase_kernel_and_cfo_sign():
     k = si_carrier_numbers().astype(np.float64)
     assert sorted(k) == list(range(-18, 18))
     x = crandn(36)
     f, step = 250.0, 4200
-    frames = np.array([x * np.exp(2j * np.pi * f * i * step / SYMBOL_RATE_HZ) for i in range(5)], np.complex64)
-    delta = RNG.uniform(-0.5, 0.5, 4)
-    shifted = frames[1:] * np.exp(2j * np.pi * k[None, :] * delta[:, None] / BODY_LENGTH)
-    theta, phase_var = si_theta_kernel(frames[0], shifted.astype(np.complex64), k, 0.0, delta)
-    theta_ref, phase_var_ref = si_theta_reference(frames[0], shifted, k, 0.0, delta)
-    assert np.allclose(theta, theta_ref, rtol=1e-5)
-    assert np.all(phase_var < 1e-10) and np.allclose(phase_var, phase_var_ref, rtol=1e-3, atol=1e-14)
+    frames = np.array([x * np.exp(2j * np.pi * f * i * step / SYMBOL_RATE_HZ) for i in range(9)], np.complex64)
+    delta = RNG.uniform(-0.5, 0.5, 9)
+    shifted = (frames * np.exp(2j * np.pi * k[None, :] * delta[:, None] / BODY_LENGTH)).astype(np.complex64)
+    # The whole run in two batches, the state carried (a lock's first frame pairs with itself), against the
+    # one-frame-at-a-time reference.
+    ref_state, state = np.zeros(36, complex), np.zeros(36, complex)
+    a1, v1, p1 = si_phase_kernel(shifted[0], shifted[:4], k, delta[0], delta[:4], state, 0.0, SI_REFERENCE_GAIN)
+    a2, v2, p2 = si_phase_kernel(shifted[3], shifted[4:], k, delta[3], delta[4:], state, p1, SI_REFERENCE_GAIN)
+    advance, phase_var = np.concatenate([a1, a2]), np.concatenate([v1, v2])
+    phase, expected = 0.0, []
+    for i in range(9):
+        a, v, phase = si_phase_reference(shifted[max(i - 1, 0)], shifted[i: i + 1], k, delta[max(i - 1, 0)],
+                                         delta[i: i + 1], ref_state, phase, SI_REFERENCE_GAIN)
+        expected.append((a[0], v[0]))
+    assert np.allclose(advance, [e[0] for e in expected], atol=1e-6) and np.isclose(p2, phase, atol=1e-6)
+    assert np.allclose(state, ref_state, rtol=1e-5)
+    assert np.all(phase_var < 1e-10) and np.allclose(phase_var, [e[1] for e in expected], rtol=1e-3, atol=1e-14)
+    assert advance[0] == 0.0    # a lock's first frame: nothing to advance from
     # Received carrier above nominal -> positive CFO, whatever the window offsets.
-    assert np.allclose(cfo_from_theta(theta, np.full(4, step), 0.0, 1000.0), 1000.0 + f, atol=0.05)
+    assert np.allclose(cfo_from_advance(advance[1:], np.full(8, step), 0.0, 1000.0), 1000.0 + f, atol=0.05)
+    # With a gain of 1 the reference is the previous frame: eq. 6's -angle(Theta).
+    noisy = (shifted + 0.3 * crandn(9, 36)).astype(np.complex64)
+    pairs, _, _ = si_phase_kernel(noisy[0], noisy[1:], k, delta[0], delta[1:], np.zeros(36, complex), 0.0, 1.0)
+    theta = np.sum(np.conj(noisy[1:]) * noisy[:-1] * np.exp(2j * np.pi / BODY_LENGTH * np.diff(delta)[:, None] * k),
+                   axis=1)
+    assert np.allclose(pairs[1:], -np.angle(theta[1:]), atol=1e-5)
 
 
 def test_timing_loop_kernel_and_ramp_tracking():
