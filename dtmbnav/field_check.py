@@ -143,8 +143,8 @@ def run_walk(name: str, k: int) -> FieldRun:
                 errors[app] = float(attrs["time_offset_s"]) - true_offset_s
                 sigmas[app] = float(attrs["time_offset_sigma_s"])
         start = _start_in_scenario_frame(folder / f"sensors-{PHONE_LOG_FORMATS[0]}.h5", origin)
-        _cli("fuse", "--receiver", str(folder / "rx.h5"), "--sensors", str(truth), "--start",
-             f"{start[0]},{start[1]}", "--clock-model", receiver_clock_model(scenario), "-o", str(folder / "own.h5"))
+        _cli("fuse", "--receiver", str(folder / "rx.h5"), "--sensors", str(truth), f"--start={start[0]},{start[1]}",
+             "--clock-model", receiver_clock_model(scenario), "-o", str(folder / "own.h5"))
         own = _p95_errors_m(folder / "own.h5", truth, None)
     return FieldRun(f"{name} walk {k}", own, field, errors, sigmas)
 
