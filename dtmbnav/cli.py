@@ -32,6 +32,7 @@ import contextlib
 import dataclasses
 import json
 import math
+import re
 import os
 import sys
 import traceback
@@ -1093,13 +1094,30 @@ def run_command(args: argparse.Namespace) -> int:
         return EXIT_INTERNAL
 
 
+#: Options whose value is a list of coordinates, which may start with a minus sign.
+COORDINATE_OPTIONS = ("--tower", "--tower-ll", "--start", "--origin")
+_NEGATIVE_VALUE = re.compile(r"-\d[\d.,eE+-]*")
+
+
+def _joined_coordinates(argv: list[str]) -> list[str]:
+    """``--start -2.5,3`` as ``--start=-2.5,3``: argparse takes a value like ``-2.5,3`` (a west or south
+    coordinate) for an option, unless it is joined to its option's name."""
+    out: list[str] = []
+    for arg in argv:
+        if out and out[-1] in COORDINATE_OPTIONS and _NEGATIVE_VALUE.fullmatch(arg):
+            out[-1] = f"{out[-1]}={arg}"
+        else:
+            out.append(arg)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``dtmbnav`` console script."""
     from dtmbnav_core.interrupt import interrupts_raise
     from dtmbnav.numba_cache import configure_numba_cache
 
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_joined_coordinates(sys.argv[1:] if argv is None else list(argv)))
     # Before anything imports numba (the usage check reads capture metadata through the receiver).
     note = configure_numba_cache()
     problem = check_usage(args)

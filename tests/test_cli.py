@@ -452,3 +452,15 @@ def test_cache_folder_choice(tmp_path):
     # Nowhere to write: no folder, and the note says there will be no cache.
     folder, note = choose_cache_folder({}, [blocker / "__pycache__"], [blocker / "z"])
     assert folder is None and "no cache" in note
+
+
+def test_coordinates_west_and_south_of_zero_are_values_not_options():
+    """``--start -2.5,3`` and ``--tower-ll -33.9,151.2,40`` parse as written (argparse alone reads them as options)."""
+    from dtmbnav.cli import _joined_coordinates, build_parser
+
+    argv = ["fuse", "--receiver", "rx.h5", "--sensors", "s.h5", "-o", "out.h5", "--start", "-2.5,3", "--tower-ll",
+            "-33.9,151.2,40"]
+    args = build_parser().parse_args(_joined_coordinates(argv))
+    assert args.start == (-2.5, 3.0)
+    assert (args.tower_ll.lat_deg, args.tower_ll.lon_deg) == (-33.9, 151.2)
+    assert _joined_coordinates(["--seed", "-1", "--start", "1,2"]) == ["--seed", "-1", "--start", "1,2"]
