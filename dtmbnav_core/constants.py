@@ -10,3 +10,9 @@ GRAVITY_MPS2 = 9.80665
 #: clock from them (sim.oscillator); the fusion's clock state takes its process noise from them
 #: (fusion.model.ClockModel).
 CLOCK_PRESETS = {"gnss-disciplined": (30.0, 1e-12), "free-running": (500.0, 1e-9)}
+
+#: Weight of each frame in the receiver's SI reference (``receiver/cfo.py``, "Telescoping"; the observation
+#: model measures its SI phases the same way). The reference must follow the channel's pattern over the SI
+#: carriers, which changes over a fraction of a wavelength of motion, and its own phase wanders by the gain
+#: times a frame's phase noise: a memory of 32 frames does both.
+SI_REFERENCE_GAIN = 1.0 / 32.0

@@ -36,7 +36,7 @@ from pair to pair, so the summed angles random-walk by about
 mean CFO over it) carries that walk divided by the window's length, an error
 that grows the range linearly over the rest of the walk. Each frame's SI
 phase is therefore measured against a *reference* ``R``: the exponential
-average (gain :data:`SI_REFERENCE_GAIN`) of the previous frames' carriers,
+average (gain :data:`dtmbnav_core.constants.SI_REFERENCE_GAIN`) of the previous frames' carriers,
 each with its window offset (the ``delta`` term) and its own measured phase
 taken out, so ``R`` holds the channel's pattern over the 36 carriers at
 phase zero. Frame m's phase is ``psi_m = angle(R^H Z_m)`` with
@@ -78,11 +78,6 @@ from dtmbnav_core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ
 from receiver.ofdm import si_carrier_numbers
 
 
-#: Weight of each frame in the SI reference (module docstring, "Telescoping"). The reference's phase wanders by
-#: the gain times a frame's phase noise, and the reference must follow the channel's pattern over the SI carriers,
-#: which changes over a fraction of a wavelength of motion (some 150 frames at walking pace): a memory of 32
-#: frames (18 ms of PN420) follows it closely and divides the per-frame phase noise's effect by 32.
-SI_REFERENCE_GAIN = 1.0 / 32.0
 
 
 @njit(cache=True)

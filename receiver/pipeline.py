@@ -77,12 +77,13 @@ import numpy as np
 from tqdm import tqdm
 
 from dtmbnav_core import gb20600
+from dtmbnav_core.constants import SI_REFERENCE_GAIN
 from dtmbnav_core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
 from dtmbnav_core.records import FrameBatch, FrameFlag, PathBatch
 from receiver import DEFAULT_CFO_SEARCH_HZ, DEFAULT_STATIC_WINDOW_S
 from receiver.acquisition import CFO_OUTSIDE_SEARCH, Acquisition, search_window, window_length
 from receiver.capture import CaptureSource
-from receiver.cfo import (SI_REFERENCE_GAIN, SiWordDetector, cfo_from_advance, cfo_from_theta, expected_phase_variance,
+from receiver.cfo import (SiWordDetector, cfo_from_advance, cfo_from_theta, expected_phase_variance,
                           pn_theta_kernel, si_phase_kernel)
 from receiver.channel_estimate import TAP_THRESHOLD, TAPS_AFTER, TAPS_BEFORE, ChannelEstimates
 from receiver.derotate import rotation_table

@@ -16,10 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from dtmbnav_core import gb20600
+from dtmbnav_core.constants import SI_REFERENCE_GAIN
 from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ
 from receiver.acquisition import Acquisition
 from receiver.body import recover_bodies_reference
-from receiver.cfo import SI_REFERENCE_GAIN, cfo_from_advance, cfo_from_theta, pn_theta_reference, si_phase_reference
+from receiver.cfo import cfo_from_advance, cfo_from_theta, pn_theta_reference, si_phase_reference
 from receiver.channel_estimate import TAP_THRESHOLD, TAPS_AFTER, TAPS_BEFORE, ChannelEstimator
 from receiver.derotate import derotate_segments_reference
 from receiver.ofdm import si_carrier_numbers, si_carriers_reference

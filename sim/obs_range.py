@@ -26,8 +26,8 @@ carriers per frame, not the samples they come from.
   ripples by centimetres around the direct path's; where buildings attenuate
   the direct path and a reflection dominates, the range follows the
   reflection's length: the NLOS bias.
-- **Phase steps (eq. 8).** Per frame, ``angle(sum_k Y_m(k) conj(Y_{m-1}(k)))``,
-  as the receiver computes it: on a strong link the noise telescopes
+- **Phase steps (eq. 8).** Per frame, the SI phase against a running reference of the
+  frames before it, differenced, as the receiver computes it (``receiver/cfo.py``, "Telescoping"): on a strong link the noise telescopes
   (docs/method.md §2); in a deep flat fade of the SI slice the per-frame angle
   is noisy and non-linear, and its errors (up to half a wavelength a frame)
   no longer cancel, which is where the receiver's integrated range picks up
@@ -82,7 +82,7 @@ import numpy as np
 from numba import njit
 
 from dtmbnav_core import gb20600
-from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from dtmbnav_core.constants import SI_REFERENCE_GAIN, SPEED_OF_LIGHT_MPS
 from dtmbnav_core.gb20600 import PnMode
 from dtmbnav_core.records import RangeSeries, Track
 from sim.channel import Channel
@@ -175,9 +175,13 @@ def coarse_cfo_sigma_hz(header_snr: float, mode: PnMode, acquisition_frames: int
 
 @njit(cache=True)
 def si_frames_kernel(coef: np.ndarray, delay_s: np.ndarray, common_rad: np.ndarray, first_hz: float,
-                     spacing_hz: float, count: int, noise: np.ndarray, previous: np.ndarray
+                     spacing_hz: float, count: int, noise: np.ndarray, reference: np.ndarray, phase: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray]:
-    """Eq. 8 frame by frame on noisy SI carriers: the phase steps and the mean carrier power.
+    """Eq. 8 frame by frame on noisy SI carriers, as the receiver measures it: the phase steps and the mean power.
+
+    Each frame's phase is taken against a reference, the exponential average (gain
+    :data:`~dtmbnav_core.constants.SI_REFERENCE_GAIN`) of the frames before it, each turned back by its own
+    phase, and its step is the difference of two such phases (``receiver/cfo.py``, "Telescoping").
 
     Parameters
     ----------
@@ -193,15 +197,17 @@ def si_frames_kernel(coef: np.ndarray, delay_s: np.ndarray, common_rad: np.ndarr
         Number of SI carriers K.
     noise : ndarray of complex, shape (M, K)
         Noise added to each carrier (same units as ``coef``).
-    previous : ndarray of complex, shape (K,)
-        Noisy carriers of the frame before the first (its step is 0 when they are all 0).
+    reference : ndarray of complex, shape (K,)
+        The SI reference before the first frame (all 0 at the start: the first step is 0); updated in place.
+    phase : ndarray, shape (1,)
+        Phase of the frame before the first against the reference, rad; updated in place.
 
     Returns
     -------
     steps : ndarray, shape (M,)
-        ``angle(sum_k Y_m(k) conj(Y_{m-1}(k)))``: phase advance into frame m, rad.
+        Phase advance into frame m, rad, in (-pi, pi].
     power : ndarray, shape (M,)
-        Mean ``|Y_m(k)|^2`` over the carriers. ``previous`` is updated to the last frame's carriers.
+        Mean ``|Y_m(k)|^2`` over the carriers.
     """
     p_count, m_count = coef.shape
     y = np.zeros(count, dtype=np.complex128)
@@ -218,27 +224,34 @@ def si_frames_kernel(coef: np.ndarray, delay_s: np.ndarray, common_rad: np.ndarr
             for k in range(count):
                 y[k] += z
                 z *= ratio
-        theta = 0j
+        projection = 0j
         acc = 0.0
         for k in range(count):
-            theta += y[k] * np.conj(previous[k])
+            projection += np.conj(reference[k]) * y[k]
             acc += y[k].real * y[k].real + y[k].imag * y[k].imag
-            previous[k] = y[k]
-        steps[m] = np.angle(theta)
+        steps[m] = np.angle(projection * np.exp(-1j * phase[0]))
+        phase[0] = np.angle(projection)
+        turn = SI_REFERENCE_GAIN * np.exp(-1j * phase[0])
+        for k in range(count):
+            reference[k] = (1.0 - SI_REFERENCE_GAIN) * reference[k] + turn * y[k]
         power[m] = acc / count
     return steps, power
 
 
 def si_frames_reference(coef: np.ndarray, delay_s: np.ndarray, common_rad: np.ndarray, first_hz: float,
-                        spacing_hz: float, count: int, noise: np.ndarray, previous: np.ndarray
+                        spacing_hz: float, count: int, noise: np.ndarray, reference: np.ndarray, phase: np.ndarray
                         ) -> tuple[np.ndarray, np.ndarray]:
     """Plain-numpy twin of :func:`si_frames_kernel` (one complex exponential per carrier and path)."""
     baseband_hz = first_hz + spacing_hz * np.arange(count)
     h = np.einsum("pm,pmk->mk", coef, np.exp(-2j * np.pi * baseband_hz[None, None, :] * delay_s[:, :, None]))
     y = h * np.exp(1j * common_rad)[:, None] + noise
-    before = np.concatenate([previous[None, :], y[:-1]])
-    previous[:] = y[-1]
-    return np.angle(np.sum(y * np.conj(before), axis=1)), np.mean(np.abs(y) ** 2, axis=1)
+    phases = np.empty(len(y) + 1)
+    phases[0] = phase[0]
+    for m, carriers in enumerate(y):     # each frame's phase needs the reference the frames before it made
+        phases[m + 1] = np.angle(np.vdot(reference, carriers))
+        reference[:] = (1.0 - SI_REFERENCE_GAIN) * reference + SI_REFERENCE_GAIN * np.exp(-1j * phases[m + 1]) * carriers
+    phase[0] = phases[-1]
+    return np.angle(np.exp(1j * np.diff(phases))), np.mean(np.abs(y) ** 2, axis=1)
 
 
 def si_carrier_grid_hz() -> tuple[float, float, int]:
@@ -324,7 +337,7 @@ def simulate_obs_range(scenario: Scenario, truth: Track, config: ObsRangeConfig 
     steps = np.empty(len(t_s))
     snr_est = np.empty(len(t_s))
     header_power = np.empty(len(t_s))
-    previous = np.zeros(count, dtype=np.complex128)
+    reference, last_phase = np.zeros(count, dtype=np.complex128), np.zeros(1)
     for lo in range(0, len(t_s), block_frames):
         hi = min(lo + block_frames, len(t_s))
         state = channel.state(t_s[lo:hi])
@@ -333,7 +346,8 @@ def simulate_obs_range(scenario: Scenario, truth: Track, config: ObsRangeConfig 
         cycles = fc * oscillator.time_error_s(t_s[lo:hi]) + coarse_hz * (t_s[lo:hi] - t0)
         common = -2.0 * np.pi * (cycles - np.floor(cycles))
         steps[lo:hi], power = si_frames_kernel(state.coef * si_amplitude, state.delay_s, common, first_hz,
-                                               spacing_hz, count, noise * np.sqrt(noise_var / 2.0), previous)
+                                               spacing_hz, count, noise * np.sqrt(noise_var / 2.0), reference,
+                                               last_phase)
         # The receiver's noise-power estimate: mean power of 2 * noise_bins real Gaussian components.
         dof = 2 * config.noise_bins
         noise_estimate = noise_var * estimate_rng.chisquare(dof, hi - lo) / dof

@@ -116,13 +116,17 @@ def test_si_frames_kernel_matches_reference():
     common = rng.uniform(-np.pi, np.pi, 300)
     noise = 0.3 * (rng.normal(size=(300, 36)) + 1j * rng.normal(size=(300, 36)))
     first = 0.2 * (rng.normal(size=36) + 1j * rng.normal(size=36))
-    prev_kernel, prev_reference = first.copy(), first.copy()
+    ref_kernel, ref_reference = first.copy(), first.copy()
+    phase_kernel, phase_reference = np.array([0.3]), np.array([0.3])
     first_hz, spacing_hz, count = si_carrier_grid_hz()
-    kernel = si_frames_kernel(coef, delay, common, first_hz, spacing_hz, count, noise, prev_kernel)
-    reference = si_frames_reference(coef, delay, common, first_hz, spacing_hz, count, noise, prev_reference)
+    kernel = si_frames_kernel(coef, delay, common, first_hz, spacing_hz, count, noise, ref_kernel, phase_kernel)
+    reference = si_frames_reference(coef, delay, common, first_hz, spacing_hz, count, noise, ref_reference,
+                                    phase_reference)
     for a, b in zip(kernel, reference, strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(prev_kernel, prev_reference, rtol=1e-9)  # both carry the last frame on
+    # Both carry the reference and the last frame's phase on.
+    np.testing.assert_allclose(ref_kernel, ref_reference, rtol=1e-9)
+    np.testing.assert_allclose(phase_kernel, phase_reference, rtol=1e-9)
 
 
 def test_si_carriers_are_36_consecutive_carriers():

@@ -9,7 +9,8 @@ from dtmbnav_core import gb20600
 from dtmbnav_core.gb20600 import BODY_LENGTH, SYMBOL_RATE_HZ, PnMode
 from dtmbnav_core.records import FrameBatch
 from receiver.body import body_phases, recover_bodies, recover_bodies_reference
-from receiver.cfo import (SI_REFERENCE_GAIN, cfo_from_advance, pn_theta_kernel, pn_theta_reference, si_phase_kernel,
+from dtmbnav_core.constants import SI_REFERENCE_GAIN
+from receiver.cfo import (cfo_from_advance, pn_theta_kernel, pn_theta_reference, si_phase_kernel,
                           si_phase_reference)
 from receiver.channel_estimate import (ChannelEstimator, hadamard_slots, m_sequence_correlation_kernel,
                                        walsh_hadamard_inplace)
