@@ -83,7 +83,7 @@ def _cli(*argv: str) -> None:
         raise RuntimeError(f"dtmbnav {' '.join(argv)} exited {done.returncode}: {done.stderr.strip()}")
 
 
-def _p95_errors_m(results: Path, truth_path: Path, origin: GeodeticPoint | None) -> dict[str, float]:
+def p95_errors_m(results: Path, truth_path: Path, origin: GeodeticPoint | None) -> dict[str, float]:
     """Each filter's 95 % horizontal error against the truth track, m; with ``origin``, the track's latitude
     and longitude put into the scenario's frame about it (a field run's), else its own x, y."""
     truth = read_walk_truth(truth_path).track
@@ -137,7 +137,7 @@ def run_walk(name: str, k: int) -> FieldRun:
             _cli("sensors", str(logs[app]), "-o", str(sensors))
             _cli("fuse", "--receiver", str(folder / "rx.h5"), "--sensors", str(sensors), *known, "-o", str(fused))
             _cli("report", str(fused), "-o", str(folder / f"report-{app}"))
-            field[app] = _p95_errors_m(fused, truth, origin)
+            field[app] = p95_errors_m(fused, truth, origin)
             with h5py.File(fused, "r") as f:
                 attrs = f[schema.FUSION].attrs
                 errors[app] = float(attrs["time_offset_s"]) - true_offset_s
@@ -145,7 +145,7 @@ def run_walk(name: str, k: int) -> FieldRun:
         start = _start_in_scenario_frame(folder / f"sensors-{PHONE_LOG_FORMATS[0]}.h5", origin)
         _cli("fuse", "--receiver", str(folder / "rx.h5"), "--sensors", str(truth), f"--start={start[0]},{start[1]}",
              "--clock-model", receiver_clock_model(scenario), "-o", str(folder / "own.h5"))
-        own = _p95_errors_m(folder / "own.h5", truth, None)
+        own = p95_errors_m(folder / "own.h5", truth, None)
     return FieldRun(f"{name} walk {k}", own, field, errors, sigmas)
 
 

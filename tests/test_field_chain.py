@@ -14,13 +14,11 @@ import sys
 from pathlib import Path
 
 import h5py
-import numpy as np
 import pytest
 
 from dtmbnav.cli import EXIT_OK, main
+from dtmbnav.field_check import p95_errors_m
 from dtmbnav_core import schema
-from dtmbnav_core.geodetic import to_enu
-from dtmbnav_core.sensors import read_walk_truth
 from sim.scenario import load_scenario
 
 TINY_WALK = Path(__file__).parent / "data" / "tiny-walk.toml"
@@ -51,25 +49,6 @@ def walk(tmp_path_factory) -> Path:
     return out
 
 
-def _errors_95_m(results: Path, truth_path: Path, geodetic: bool) -> dict[str, float]:
-    """Each filter's 95 % horizontal error against the truth track, m (the field run's via its latitude and
-    longitude, put into the scenario's own frame)."""
-    truth = read_walk_truth(truth_path).track
-    origin = load_scenario(TINY_WALK).origin.point
-    out = {}
-    with h5py.File(results, "r") as f:
-        for name in f[schema.FUSION]:
-            g = f[schema.fusion_group(name)]
-            if geodetic:
-                x, y, _ = to_enu(g["lat_deg"][:], g["lon_deg"][:], np.zeros(len(g["t_s"])), origin)
-            else:
-                x, y = g["x_m"][:], g["y_m"][:]
-            t = g["t_s"][:]
-            error = np.hypot(x - np.interp(t, truth.t_s, truth.x_m), y - np.interp(t, truth.t_s, truth.y_m))
-            out[name] = float(np.percentile(error, 95))
-    return out
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("app", ["gnsslogger", "sensorlogger"])
 def test_a_phone_log_fuses_as_well_as_the_simulators_own_files(walk, app, tmp_path):
@@ -85,8 +64,9 @@ def test_a_phone_log_fuses_as_well_as_the_simulators_own_files(walk, app, tmp_pa
     assert alignment["time_offset_coarse_offset_s"] == pytest.approx(-CLOCK_OFFSET_S, abs=2e-3)
     assert alignment["time_offset_source"] == "fine"
     assert abs(alignment["time_offset_s"]) < 3 * alignment["time_offset_sigma_s"]
-    field = _errors_95_m(tmp_path / "fused.h5", walk / "gnsslogger" / "truth.h5", geodetic=True)
-    own = _errors_95_m(walk / "own.h5", walk / "gnsslogger" / "truth.h5", geodetic=False)
+    truth = walk / "gnsslogger" / "truth.h5"
+    field = p95_errors_m(tmp_path / "fused.h5", truth, load_scenario(TINY_WALK).origin.point)
+    own = p95_errors_m(walk / "own.h5", truth, None)
     for name, error in own.items():
         assert field[name] <= 1.05 * error, (name, field[name], error)
     assert (tmp_path / "report" / "map.html").is_file() and (tmp_path / "report" / "tracks.gpx").is_file()
