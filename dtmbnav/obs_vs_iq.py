@@ -49,7 +49,7 @@ import numpy as np
 from dtmbnav_core.records import PathRangeSeries, RangeSeries, Track
 from dtmbnav.distributed import IN_PROCESS, ClusterConfig, Task, run_tasks
 from dtmbnav.iq_range import iq_observations
-from dtmbnav.seeds import REPORTING_SEEDS, monte_carlo_seed
+from dtmbnav.seeds import TUNING_SEEDS, monte_carlo_seed
 from fusion.metrics import interpolate_track
 from sim.obs_paths import ObsPathConfig, simulate_obs_paths
 from sim.obs_range import ObsRangeConfig, simulate_obs_range
@@ -242,7 +242,7 @@ def walk_errors(scenario: Scenario, seconds: float, obs_draws: int = OBS_DRAWS
 
 
 def compare(cases: Sequence[Case], seeds: Sequence[int], seconds: float, still_s: float | None = None,
-            first_seed: int = REPORTING_SEEDS.start, obs_draws: int = OBS_DRAWS,
+            first_seed: int = TUNING_SEEDS.start, obs_draws: int = OBS_DRAWS,
             cluster: ClusterConfig = IN_PROCESS, progress: bool = False) -> list[Comparison]:
     """Both levels on Monte Carlo walks ``seeds`` of each case, every walk a task (:mod:`dtmbnav.distributed`).
 
@@ -311,8 +311,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="segment from the capture start, s, standstill included (default 70)")
     parser.add_argument("--still", type=float, help="standstill before the walk, s (default: the scenario's)")
     parser.add_argument("--seeds", type=int, default=3, help="Monte Carlo walks per case (default 3)")
-    parser.add_argument("--first-seed", type=int, default=REPORTING_SEEDS.start,
-                        help=f"first Monte Carlo index (default {REPORTING_SEEDS.start}, the reporting range)")
+    parser.add_argument("--first-seed", type=int, default=TUNING_SEEDS.start,
+                        help=f"first Monte Carlo index (default {TUNING_SEEDS.start}, the tuning range: the calibration is chosen on it)")
     parser.add_argument("--cases", default=",".join(c.label for c in CASES),
                         help="comma-separated case labels (default: all)")
     parser.add_argument("--workers", type=int, help="local Dask workers (default: one per core; 0: this process)")

@@ -21,6 +21,7 @@ from fusion.run import FusionConfig
 
 TINY = str(Path(__file__).parent / "data" / "tiny-walk.toml")
 THREADS_2 = ClusterConfig(workers=2, processes=False)
+R0 = ev.REPORTING_SEEDS.start  # the first reporting index: a walk of the tiny scenario (seed 7) runs 7000 + R0
 
 
 def square_or_fail(x: int) -> int:
@@ -85,11 +86,11 @@ def test_a_failed_walk_is_reported_with_its_seed_and_the_command_that_reruns_it(
     argv = ["-q", "evaluate", str(bad), "--seeds", "1", "--filters", "ukf", "--no-vary-geometry", "--workers", "0"]
     assert main(argv) == EXIT_NO_RESULT
     err = capsys.readouterr().err
-    assert "tiny-walk walk k=0 (seed 7200) failed: ValueError: scenario receiver.clock: preset 'custom'" in err
+    assert f"tiny-walk walk k=0 (seed {7000 + R0}) failed: ValueError: scenario receiver.clock: preset 'custom'" in err
     rerun = err.split("re-run it alone: ")[1].splitlines()[0]
-    assert rerun.startswith(f"dtmbnav evaluate {bad} --seeds 1 --first-seed 200 ")
+    assert rerun.startswith(f"dtmbnav evaluate {bad} --seeds 1 --first-seed {R0} ")
     assert main(["-q", *rerun.split()[1:]]) == EXIT_NO_RESULT
-    assert "(seed 7200) failed:" in capsys.readouterr().err
+    assert f"(seed {7000 + R0}) failed:" in capsys.readouterr().err
 
 
 def test_evaluate_command_on_worker_processes(tmp_path, capsys):
@@ -99,14 +100,14 @@ def test_evaluate_command_on_worker_processes(tmp_path, capsys):
     assert main([*argv, "0", "--walks", str(tmp_path / "here.jsonl"), "--json", str(tmp_path / "table.json")]) \
         == EXIT_OK
     assert capsys.readouterr().out == on_workers
-    assert "Monte Carlo indices 200-201 (reporting range" in on_workers
+    assert f"Monte Carlo indices {R0}-{R0 + 1} (reporting range" in on_workers
     # --walks: a line per walk as it finishes (workers finish in any order), the walks the table averages.
     walks = {name: sorted((json.loads(line) for line in (tmp_path / name).read_text().splitlines()),
                           key=lambda r: r["k"]) for name in ("workers.jsonl", "here.jsonl")}
     assert walks["workers.jsonl"] == walks["here.jsonl"]
     here = walks["here.jsonl"]
-    assert [(r["k"], r["seed"], r["first_seed"], r["level"]) for r in here] == [(0, 7200, 200, "obs"),
-                                                                              (1, 7201, 200, "obs")]
+    assert [(r["k"], r["seed"], r["first_seed"], r["level"]) for r in here] == [(0, 7000 + R0, R0, "obs"),
+                                                                              (1, 7001 + R0, R0, "obs")]
     table = {r["filter"]: r for r in json.loads((tmp_path / "table.json").read_text())}
     for name in ("pdr", "pdr@fix", "ukf"):
         assert table[name]["p95_m"] == pytest.approx(sum(r["p95_m"][name] for r in here) / 2, rel=1e-12)
