@@ -40,6 +40,7 @@ from dtmbnav.receive import receive_capture
 from fusion.model import Geometry
 from fusion.pdr import PdrConfig, PdrResult, run_pdr
 from fusion.run import FusionConfig, FusionResult, fuse
+from fusion.transmit_delays import TransmitDelays
 from fusion.time_alignment import AlignmentConfig, TimeAlignment, align_range_to_pdr, coarse_offset_s
 from receiver.capture import open_capture
 from receiver.observables import observations_from_receiver, ranges_from_frames
@@ -149,16 +150,22 @@ def read_receiver_paths(path: str | os.PathLike) -> dict[str, np.ndarray] | None
     return read_columns(path, schema.RECEIVER_PATHS)
 
 
-def _recorded_towers(sensors_path: str | os.PathLike) -> list[dict[str, Any]]:
-    """The ``[[towers]]`` of the scenario recorded in ``/truth/frames`` (empty without a record or with one tower)."""
+def _recorded_scenario(sensors_path: str | os.PathLike) -> dict[str, Any]:
+    """The scenario recorded in ``/truth/frames``, parsed (empty without a record)."""
     with open_h5(sensors_path) as f:
         text = f[schema.TRUTH_FRAMES].attrs.get("scenario") if schema.TRUTH_FRAMES in f else None
     if text is None:
-        return []
+        return {}
     try:
-        sites = tomllib.loads(str(text)).get("towers", [])
+        return tomllib.loads(str(text))
     except tomllib.TOMLDecodeError:
-        sites = None
+        raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: unreadable scenario record; give --tower X,Y") \
+            from None
+
+
+def _recorded_towers(sensors_path: str | os.PathLike) -> list[dict[str, Any]]:
+    """The ``[[towers]]`` of the scenario recorded in ``/truth/frames`` (empty without a record or with one tower)."""
+    sites = _recorded_scenario(sensors_path).get("towers", [])
     if not isinstance(sites, list) or not all(isinstance(s, dict) for s in sites):
         raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: unreadable [[towers]] in the scenario record; "
                          "give --tower X,Y")
@@ -181,17 +188,32 @@ def read_other_towers(sensors_path: str | os.PathLike) -> tuple[tuple[float, flo
                          "give --tower X,Y") from None
 
 
-def read_transmit_delays(sensors_path: str | os.PathLike) -> tuple[float, ...] | None:
-    """Each tower's transmit delay offset of a simulated single-frequency network, s (the network plan's:
-    ``transmit_delay_s`` of the recorded ``[[towers]]``, 0 where a tower has none); None with one tower."""
+def read_transmit_delays(sensors_path: str | os.PathLike) -> TransmitDelays | None:
+    """What a simulated single-frequency network's user is taken to know of its towers' transmit delay offsets
+    (the recorded scenario's ``[network] known``): None where nothing (the fusion estimates them at the start
+    fix), or with one tower; the network plan's (``[[towers]] transmit_delay_s``, sigma ``[network]
+    plan_error_s``); or the walk's true offsets (``/truth/paths`` ``towers_transmit_delay_s``)."""
     sites = _recorded_towers(sensors_path)
-    if not sites:
+    network = _recorded_scenario(sensors_path).get("network", {})
+    known = network.get("known", "unknown") if isinstance(network, dict) else None
+    if not sites or known == "unknown":
         return None
-    try:
-        return tuple(float(s.get("transmit_delay_s", 0.0)) for s in sites)
-    except (TypeError, ValueError):
-        raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: unreadable transmit_delay_s in the scenario "
-                         "record's [[towers]]") from None
+    if known == "plan":
+        try:
+            sigma = float(network.get("plan_error_s", 0.0))
+            return TransmitDelays(tuple(float(s.get("transmit_delay_s", 0.0)) for s in sites),
+                                  (sigma,) * len(sites), "plan")
+        except (TypeError, ValueError):
+            raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: unreadable transmit delays in the scenario "
+                             "record") from None
+    if known == "exact":
+        true = read_attrs(sensors_path, schema.TRUTH_PATHS).get("towers_transmit_delay_s")
+        if true is None or len(true) != len(sites):
+            raise ValueError(f"{sensors_path}: [network] known = \"exact\" but /{schema.TRUTH_PATHS} has no "
+                             "towers_transmit_delay_s for every tower")
+        return TransmitDelays(tuple(float(d) for d in true), (0.0,) * len(sites), "exact")
+    raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: the scenario record's [network] known must be one "
+                     f"of unknown, plan, exact; got {known!r}")
 
 
 def resolve_pdr_config(config: PdrConfig, sensors_path: str | os.PathLike) -> PdrConfig:
@@ -272,7 +294,7 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
                start_xy_m: tuple[float, float] | None = None,
                config: FusionConfig = FusionConfig(), tower_height_m: float = 0.0,
                other_towers: tuple[tuple[float, float, float], ...] = (),
-               transmit_delays_s: tuple[float, ...] | None = None, time_offset_s: float | None = None,
+               transmit_delays: TransmitDelays | None = None, time_offset_s: float | None = None,
                alignment_config: AlignmentConfig = AlignmentConfig()) -> tuple[FusionResult, TimeAlignment]:
     """``dtmbnav fuse``: receiver range + PDR of the sensors file -> ``/pdr`` and ``/fusion/*``.
 
@@ -280,8 +302,9 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
     filters take the SI-carrier range and every filter setting (:class:`fusion.run.FusionConfig`).
     ``tower_height_m`` is the height of a given tower (``tower_xy_m``) above the receiver's antenna, m;
     ``other_towers`` the further towers of its network (x, y and height above the receiver's antenna,
-    m) and ``transmit_delays_s`` each tower's transmit delay offset, s (``fuse --towers``). Without
-    ``tower_xy_m`` all three come from a simulation's truth record.
+    m) and ``transmit_delays`` their transmit delay offsets as a network plan gives them (``fuse --towers``;
+    None: estimated at the start fix, :mod:`fusion.transmit_delays`). Without ``tower_xy_m`` all three come
+    from a simulation's truth record (:func:`read_transmit_delays`).
 
     Every input is read and checked first, including that both files are of
     one walk (:func:`check_same_walk`). A sensors file with a geodetic origin
@@ -314,7 +337,7 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
         *tower_xy, height_m = read_tower(sensors_path)
         tower_xy_m = (tower_xy[0], tower_xy[1])
         other_towers = read_other_towers(sensors_path)
-        transmit_delays_s = read_transmit_delays(sensors_path)
+        transmit_delays = read_transmit_delays(sensors_path)
     geometry = Geometry(start_xy_m[0], start_xy_m[1], tower_xy_m[0], tower_xy_m[1], height_m, other_towers)
     pdr = run_pdr(imu, pdr_config)
     if len(pdr.steps) == 0:
@@ -324,14 +347,16 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
         check_same_walk(receiver_path, rx_attrs, frames["t_s"], sensors_path, imu.t_s, alignment.offset_s)
     observed = observations_from_receiver(
         frames, read_receiver_paths(receiver_path), rx_attrs, geometry.n_towers, alignment.offset_s,
-        transmit_delays_s, geometry.start_ranges_m())
+        None if transmit_delays is None else transmit_delays.delays_s, geometry.start_ranges_m())
     result = fuse(pdr.steps, observed.ranges, start_xy_m, tower_xy_m, filters, tower_height_m=height_m,
-                  other_towers=other_towers, paths=observed.paths, config=config)
+                  other_towers=other_towers, paths=observed.paths, transmit_delays=transmit_delays, config=config)
     with atomic_h5(out_path) as h5:
         write_columns(h5, schema.RECEIVER_FRAMES, frames, rx_attrs)
         write_pdr(h5, pdr, pdr_config)
         write_fusion(h5, result)
         h5.require_group(schema.FUSION).attrs.update(alignment_attrs(alignment))
+        if result.code_offsets is not None and len(result.code_offsets.source):
+            h5[schema.FUSION].attrs.update(result.code_offsets.attrs())
         if origin is not None:
             write_geodetic(h5, sensors_path, origin, ((*tower_xy_m, height_m), *other_towers))
     return result, alignment

@@ -40,6 +40,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from dtmbnav_core.constants import TRANSMIT_DELAY_KNOWLEDGE
 from dtmbnav_core.phone import DEFAULT_CLOCK_DRIFT_PPM, DEFAULT_CLOCK_OFFSET_S, PHONE_LOG_FORMATS
 from dtmbnav_core.settings import parse_setting, with_settings
 from dtmbnav.errors import NoResult, UsageError
@@ -531,7 +532,7 @@ def cmd_fuse(args: argparse.Namespace) -> int:
 
         x_m, y_m, tower_height_m = tower_in_sensors_frame(args.sensors, args.tower_ll)
         tower = (x_m, y_m)
-    other_towers, transmit_delays_s = (), None
+    other_towers, transmit_delays = (), None
     if args.towers is not None:
         from dtmbnav.towers import towers_for_fuse
 
@@ -540,13 +541,15 @@ def cmd_fuse(args: argparse.Namespace) -> int:
             _warn(args, layout.note)
         print(f"towers: {', '.join(layout.names)} (ranging on {layout.names[0]})", file=sys.stderr)
         tower, tower_height_m = layout.tower_xy_m, layout.tower_height_m
-        other_towers, transmit_delays_s = layout.other_towers, layout.transmit_delays_s
+        other_towers, transmit_delays = layout.other_towers, layout.transmit_delays
     _say_pdr_choices(args)
     result, alignment = fuse_files(args.receiver, args.sensors, args.output, filters=args.filters,
                                    pdr_config=_pdr_config(args), tower_xy_m=tower, start_xy_m=args.start,
                                    config=config, tower_height_m=tower_height_m, other_towers=other_towers,
-                                   transmit_delays_s=transmit_delays_s, time_offset_s=args.time_offset)
+                                   transmit_delays=transmit_delays, time_offset_s=args.time_offset)
     print(f"time alignment: {alignment.describe()}", file=sys.stderr)
+    if result.code_offsets is not None and len(result.code_offsets.source):
+        print(f"transmit delay offsets: {result.code_offsets.describe()}", file=sys.stderr)
     if alignment.disagrees:
         _warn(args, f"the motion puts the capture's start {alignment.fine_offset_s - alignment.coarse_offset_s:+.3f} "
                     "s from where the two files' start times put it, more than their uncertainty: check both "
@@ -597,6 +600,8 @@ def _rerun_walk(args: argparse.Namespace, failure) -> str:
         options.append(f"--filter-seed {args.filter_seed}")
     if not args.vary_geometry:
         options.append("--no-vary-geometry")
+    if args.transmit_delays is not None:
+        options.append(f"--transmit-delays {args.transmit_delays}")
     options += [f"--set {name}={value}" for name, value in args.set]
     return f"dtmbnav evaluate {failure.argument} {' '.join(options)}"
 
@@ -652,7 +657,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                 walks.flush()
         outcome = evaluate.evaluate_many(scenarios, args.seeds, args.filters, level=args.level, config=config,
                                          first_seed=args.first_seed, vary_geometry=args.vary_geometry,
-                                         cluster=_cluster(args), progress=not args.quiet, on_walk=on_walk)
+                                         cluster=_cluster(args), progress=not args.quiet, on_walk=on_walk,
+                                         transmit_delays=args.transmit_delays)
     for f in outcome.failures:
         print(f"dtmbnav evaluate: {f.scenario} walk k={f.k} (seed {f.seed}) failed: {f.error}\n"
               f"  re-run it alone: {_rerun_walk(args, f)}", file=sys.stderr)
@@ -988,6 +994,10 @@ def _add_evaluate_command(subparsers: argparse._SubParsersAction, common: argpar
                         "with a perfect receiver)")
     p.add_argument("--vary-geometry", action=argparse.BooleanOptionalAction, default=True,
                    help="each walk gets its own scene orientation and tower bearing and distance (default on)")
+    p.add_argument("--transmit-delays", choices=TRANSMIT_DELAY_KNOWLEDGE, default=None,
+                   help="what the fusion is given of an SFN's transmit delay offsets: unknown (estimated at the "
+                        "start fix), plan (the network plan's, its error as sigma) or exact (the walk's true "
+                        "ones); default: the scenario's [network] known")
     _add_cluster_options(p)
     p.set_defaults(handler=cmd_evaluate)
 

@@ -58,6 +58,7 @@ from fusion.metrics import (PDR_AT_FIX, PDR_BASELINE, error_stats, heading_error
                             position_errors_m)
 from fusion.model import CLOCK_MODEL_PRESETS
 from fusion.pdr import PdrConfig, run_pdr
+from fusion.transmit_delays import TransmitDelays
 from fusion.run import FusionConfig, fuse
 from sim.gnss import simulate_start_fix
 from sim.imu import simulate_imu
@@ -151,6 +152,26 @@ def receiver_clock_model(scenario: Scenario) -> str:
     return "disciplined" if scenario.receiver.clock.preset == CLOCK_MODEL_PRESETS["disciplined"] else "free-running"
 
 
+def scenario_transmit_delays(scenario: Scenario) -> TransmitDelays | None:
+    """What the fusion is given of an SFN's transmit delay offsets (``[network] known``): None for unknown (and for
+    one tower), the network plan's with its error as sigma, or the walk's true offsets."""
+    sites, network = scenario.sites, scenario.network
+    if len(sites) < 2 or network.known == "unknown":
+        return None
+    if network.known == "plan":
+        return TransmitDelays(tuple(site.transmit_delay_s for site in sites), (network.plan_error_s,) * len(sites),
+                              "plan")
+    return TransmitDelays(tuple(float(d) for d in scenario.transmit_delays_s()), (0.0,) * len(sites), "exact")
+
+
+def with_transmit_delays(scenario: Scenario, known: str) -> Scenario:
+    """The scenario with the fusion given ``known`` of its transmit delay offsets (``[network] known``), named
+    ``"NAME (delays KNOWN)"`` where that differs from the scenario's own."""
+    if known == scenario.network.known:
+        return scenario
+    return scenario.replace(network={"known": known}, name=f"{scenario.name} (delays {known})")
+
+
 def calibrated_pdr_config(scenario: Scenario) -> PdrConfig:
     """PDR settings with the Weinberg K from the walker's calibration walk."""
     return PdrConfig(weinberg_k_m=calibration_walk_k_m(scenario))
@@ -213,7 +234,7 @@ def run_seed(scenario: Scenario, filters: tuple[str, ...], config: FusionConfig,
     config = dataclasses.replace(config, clock_model=receiver_clock_model(scenario))
     result = fuse(out.pdr, out.ranges, out.start_fix_xy_m, (tower.x_m, tower.y_m), fused,
                   tower_height_m=tower.height_m - antenna_m, other_towers=other_towers, paths=out.paths,
-                  config=config)
+                  transmit_delays=scenario_transmit_delays(scenario), config=config)
     baselines, true_heading = pdr_baselines(out.pdr, out.truth, out.walk_start_t_s, out.start_fix_xy_m,
                                             result.heading.heading_rad)
     tracks = {**baselines, **result.tracks}
@@ -369,7 +390,8 @@ def evaluate_many(scenarios: list[str | Scenario], seeds: int = 20, filters: tup
                   level: str = "obs", range_source: RangeSource | None = None, config: FusionConfig = FusionConfig(),
                   first_seed: int = REPORTING_SEEDS.start, chain: Chain = simulated_chain, vary_geometry: bool = True,
                   cluster: ClusterConfig = IN_PROCESS, progress: bool = False,
-                  on_walk: Callable[[dict[str, object]], None] | None = None) -> EvaluationOutcome:
+                  on_walk: Callable[[dict[str, object]], None] | None = None,
+                  transmit_delays: str | None = None) -> EvaluationOutcome:
     """Monte Carlo evaluation of several scenarios, every walk a task (:mod:`dtmbnav.distributed`).
 
     Parameters
@@ -399,6 +421,10 @@ def evaluate_many(scenarios: list[str | Scenario], seeds: int = 20, filters: tup
     on_walk : callable, optional
         Called with each walk's :func:`walk_record` as the walk finishes (in
         the order walks finish, in this process).
+    transmit_delays : {"unknown", "plan", "exact"}, optional
+        What the fusion is given of an SFN's transmit delay offsets, for
+        every scenario (:func:`with_transmit_delays`); None: each scenario's
+        own ``[network] known``.
 
     Returns
     -------
@@ -408,6 +434,8 @@ def evaluate_many(scenarios: list[str | Scenario], seeds: int = 20, filters: tup
     """
     _check(seeds, level, first_seed)
     loaded = [s if isinstance(s, Scenario) else load_scenario(s) for s in scenarios]
+    if transmit_delays is not None:
+        loaded = [with_transmit_delays(scn, transmit_delays) for scn in loaded]
     tasks = [Task(f"{scn.name} k={k} (seed {monte_carlo_seed(scn.seed, k, first_seed)})", run_walk,
                   (scn, k, first_seed, vary_geometry, filters, config, level, range_source, chain))
              for scn in loaded for k in range(seeds)]

@@ -11,7 +11,7 @@ field                       unit      what
 ``height_m``                m         the antenna's height above the WGS84 ellipsoid (-500..9000)
 ``channel_hz``              Hz        optional: centre of the DTMB channel the tower transmits on
 ``transmit_delay_s``        s         optional: the tower's transmit delay offset in the network plan
-``transmit_delay_sigma_s``  s         optional, with ``transmit_delay_s``: that offset's standard deviation
+``transmit_delay_sigma_s``  s         optional, with ``transmit_delay_s``: that offset's standard deviation (100 ns without)
 ==========================  ========  =====================================================================
 
 An empty CSV cell is a field not given. Every value is checked as it is read, and an error names the
@@ -35,6 +35,7 @@ from dtmbnav_core import schema
 from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ
 from dtmbnav_core.h5io import read_attrs
 from dtmbnav.geodetic import GeodeticPoint, tower_in_sensors_frame
+from fusion.transmit_delays import DEFAULT_PLAN_SIGMA_S, TransmitDelays
 
 #: The fields every tower needs, in the CSV header's order.
 REQUIRED_FIELDS = ("name", "lat_deg", "lon_deg", "height_m")
@@ -258,9 +259,10 @@ class TowerLayout:
         Tower 0's antenna height above the receiver's antenna, m.
     other_towers : tuple of (x_m, y_m, height_m)
         The network's other towers, same units.
-    transmit_delays_s : tuple of float or None
-        Each tower's transmit delay offset, s (0 where the file gives none); None where no tower
-        used has one.
+    transmit_delays : TransmitDelays or None
+        Each tower's transmit delay offset in the network plan and its sigma, s (0 where the file
+        gives no offset; :data:`fusion.transmit_delays.DEFAULT_PLAN_SIGMA_S` where it gives no
+        sigma); None where no tower used has an offset (the fusion then estimates them).
     note : str or None
         Which towers were left out for their channel, to tell the user; None where none.
     """
@@ -269,7 +271,7 @@ class TowerLayout:
     tower_xy_m: tuple[float, float]
     tower_height_m: float
     other_towers: tuple[tuple[float, float, float], ...]
-    transmit_delays_s: tuple[float, ...] | None
+    transmit_delays: TransmitDelays | None
     note: str | None
 
 
@@ -305,6 +307,9 @@ def towers_for_fuse(towers_path: str | os.PathLike, names: tuple[str, ...] | Non
     sites = [tower_in_sensors_frame(sensors_path, t.point()) for t in chosen]
     delays = None
     if any(t.transmit_delay_s is not None for t in chosen):
-        delays = tuple(t.transmit_delay_s or 0.0 for t in chosen)
+        delays = TransmitDelays(
+            tuple(t.transmit_delay_s or 0.0 for t in chosen),
+            tuple(DEFAULT_PLAN_SIGMA_S if t.transmit_delay_sigma_s is None else t.transmit_delay_sigma_s
+                  for t in chosen), "plan")
     return TowerLayout(names=tuple(t.name for t in chosen), tower_xy_m=sites[0][:2], tower_height_m=sites[0][2],
-                       other_towers=tuple(sites[1:]), transmit_delays_s=delays, note=note)
+                       other_towers=tuple(sites[1:]), transmit_delays=delays, note=note)

@@ -16,3 +16,7 @@ CLOCK_PRESETS = {"gnss-disciplined": (30.0, 1e-12), "free-running": (500.0, 1e-9
 #: carriers, which changes over a fraction of a wavelength of motion, and its own phase wanders by the gain
 #: times a frame's phase noise: a memory of 32 frames does both.
 SI_REFERENCE_GAIN = 1.0 / 32.0
+
+#: What the fusion can be given of a single-frequency network's transmit delay offsets: nothing (it estimates them
+#: at the start fix), the network plan's (with the plan's error as sigma), or the walk's true ones (simulation).
+TRANSMIT_DELAY_KNOWLEDGE = ("unknown", "plan", "exact")

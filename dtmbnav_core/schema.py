@@ -50,7 +50,8 @@ DROP_COLUMNS = ("receiver_sample", "capture_sample", "samples")
 #: Columns of a towers file as CSV (``towers.csv``, one row per transmitter of the network, header first): the
 #: tower's name, WGS84 latitude and longitude (deg), its antenna's height above the ellipsoid (m), the DTMB
 #: channel's centre (Hz) and the tower's fixed transmit delay of the network plan (s).
-TOWERS_CSV_COLUMNS = ("name", "lat_deg", "lon_deg", "height_m", "channel_hz", "transmit_delay_s")
+TOWERS_CSV_COLUMNS = ("name", "lat_deg", "lon_deg", "height_m", "channel_hz", "transmit_delay_s",
+                      "transmit_delay_sigma_s")
 #: Further /gnss columns of an imported phone log: up (m) in the ENU frame, the stated horizontal accuracy
 #: (m), and the fix as logged (WGS84 latitude and longitude, deg; height above the ellipsoid, m).
 GNSS_GEODETIC_COLUMNS = ("z_m", "accuracy_m", "lat_deg", "lon_deg", "height_m")

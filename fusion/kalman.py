@@ -33,7 +33,8 @@ filter is compared on the same equations:
   around a position still the fix's (docs/method.md §8).
 - A tower difference that carries its code range difference (docs/paths.md)
   re-anchors on the code instead: ``o_j = code - z_j``, of variance
-  ``ModelNoise.difference_code_sigma_m^2`` and independent of the state, and
+  ``ModelNoise.difference_code_sigma_m^2`` plus that of the transmit delay offsets taken out of
+  the code (:mod:`fusion.transmit_delays`), independent of the state, and
   the epoch's observation then weighs.
 
 Where the monitor drops a channel, the filter takes the monitor's open-loop
@@ -203,15 +204,16 @@ class RangeKalmanFilter(ABC):
         # A channel takes its origin from the code where it has to re-anchor, and where it has one but its
         # origin has not come from the code yet (its first epochs, a code that failed the gate before).
         anchors = observation.anchor_channels(self.layout.n_towers)
+        anchor_sigmas = observation.anchor_sigmas(self.noise.difference_code_sigma_m, self.layout.n_towers)
         on_code = (reanchor | (use & ~self._origin_from_code)) & self._code_anchors_pass(
-            anchors, predicted + x[self._origins], x, P)   # (a difference has no clock term)
+            anchors, anchor_sigmas, predicted + x[self._origins], x, P)   # (a difference has no clock term)
         for j in np.flatnonzero(reanchor & ~on_code):
             self._clone_origin(x, P, j, predicted[j] + x[origins[j]] - z[j], sigma[j])
         for j in np.flatnonzero(on_code):
             o = origins[j]
             x[o] = anchors[j] - z[j]
             P[o, :] = P[:, o] = 0.0
-            P[o, o] = self.noise.difference_code_sigma_m**2
+            P[o, o] = anchor_sigmas[j]**2
         self._origin_from_code = on_code | (self._origin_from_code & ~reanchor)
         self.replace_state(x, P)
         kalman = observation.kalman(self.noise, self.layout.n_towers, use & (~reanchor | on_code))
@@ -230,20 +232,20 @@ class RangeKalmanFilter(ABC):
         P[o, o] = row @ h + sigma_m**2
         x[o] = origin_m
 
-    def _code_anchors_pass(self, anchors: np.ndarray, geometric: np.ndarray, x: np.ndarray,
-                           P: np.ndarray) -> np.ndarray:
+    def _code_anchors_pass(self, anchors: np.ndarray, anchor_sigmas: np.ndarray, geometric: np.ndarray,
+                           x: np.ndarray, P: np.ndarray) -> np.ndarray:
         """Per range channel, whether its code value (:meth:`fusion.model.EpochObservation.anchor_channels`) can be
-        its origin: present, a finite ``ModelNoise.difference_code_sigma_m``, and within
-        :data:`fusion.model.CODE_ANCHOR_GATE_SIGMAS` of the state's value ``geometric`` (m; a late first path
-        fails)."""
-        code_sigma = self.noise.difference_code_sigma_m
-        if not np.isfinite(code_sigma) or not np.isfinite(anchors).any():
+        its origin: present, a finite ``anchor_sigmas`` (m; :meth:`fusion.model.EpochObservation.anchor_sigmas`),
+        and within :data:`fusion.model.CODE_ANCHOR_GATE_SIGMAS` of the state's value ``geometric`` (m; a late
+        first path fails)."""
+        usable = np.isfinite(anchors) & np.isfinite(anchor_sigmas)
+        if not usable.any():
             return np.zeros(len(anchors), dtype=bool)
         h = observation_jacobian(x[:self.core_size], self.geometry)[self.layout.rows()]
         core = P[:self.core_size, :self.core_size]
         spread = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", h, core, h), 0.0))
         with np.errstate(invalid="ignore"):
-            return np.abs(anchors - geometric) <= CODE_ANCHOR_GATE_SIGMAS * np.hypot(spread, code_sigma)
+            return usable & (np.abs(anchors - geometric) <= CODE_ANCHOR_GATE_SIGMAS * np.hypot(spread, anchor_sigmas))
 
     def estimate(self) -> np.ndarray:
         """The state estimate (a copy)."""

@@ -257,8 +257,10 @@ class ModelNoise:
         which would inherit the GNSS fix's error; the carrier then holds the
         walker on that hyperbola. 0.3 m by default: the per-frame scatter of
         the IQ receiver's code difference, which outweighs its bias over a
-        walk (docs/paths.md; docs/decisions.md, D15). ``inf``: the towers'
-        transmit delay offsets are not known (the code is not used).
+        walk (docs/paths.md; docs/decisions.md, D15). The uncertainty of the
+        towers' transmit delay offsets taken out of the code is added per
+        difference (:meth:`EpochObservation.anchor_sigmas`). ``inf``: the
+        code is not used.
     initial_position_m : float
         Spread of the initial position around P0 (GNSS fix error), m.
     initial_heading_rad : float
@@ -698,7 +700,12 @@ class EpochObservation:
         it; no filter weighs it).
     range_difference_code_m : ndarray
         Code range difference of tower k and tower 0 (index k - 1), m, with
-        no constant; NaN where none (:meth:`anchor_channels`).
+        the towers' transmit delay offsets taken out as far as they are
+        known; NaN where none (:meth:`anchor_channels`).
+    range_difference_code_sigma_m : ndarray
+        Standard deviation of the constant left in that code by the offsets'
+        uncertainty (index k - 1), m (:mod:`fusion.transmit_delays`); ``inf``
+        where the offsets are not known, so the code is not used.
     range_new_origin : bool
         Whether the SI-carrier range restarts from an unknown origin (a new
         lock segment, :mod:`fusion.observations`).
@@ -717,6 +724,7 @@ class EpochObservation:
     range_difference_new_origin: np.ndarray = field(default_factory=_empty)
     first_path_code_m: np.ndarray = field(default_factory=_empty)
     range_difference_code_m: np.ndarray = field(default_factory=_empty)
+    range_difference_code_sigma_m: np.ndarray = field(default_factory=_empty)
     range_new_origin: bool = False
 
     @property
@@ -759,6 +767,15 @@ class EpochObservation:
         """
         return np.concatenate([np.full(n_towers + 1, np.nan),
                                self._padded(self.range_difference_code_m, n_towers - 1, np.nan)]).astype(np.float64)
+
+    def anchor_sigmas(self, scatter_sigma_m: float, n_towers: int = 1) -> np.ndarray:
+        """Per range channel (as :meth:`anchor_channels`) the standard deviation of an origin taken from its code,
+        m: the code's own scatter ``scatter_sigma_m`` (``ModelNoise.difference_code_sigma_m``) and the
+        uncertainty of the transmit delay offsets taken out of it (``range_difference_code_sigma_m``) together;
+        NaN for the channels without a code, ``inf`` where the offsets are unknown."""
+        offsets = self._padded(self.range_difference_code_sigma_m, n_towers - 1, np.inf)
+        return np.concatenate([np.full(n_towers + 1, np.nan),
+                               np.hypot(scatter_sigma_m, offsets)]).astype(np.float64)
 
     def _padded(self, values: np.ndarray, n: int, fill: float | bool) -> np.ndarray:
         """Per-tower ``values`` padded with ``fill`` to ``n`` channels."""

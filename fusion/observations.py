@@ -191,6 +191,7 @@ class PathEpochs(ColumnRecord):
     range_difference_new_origin: np.ndarray
     first_path_code_m: np.ndarray
     range_difference_code_m: np.ndarray
+    range_difference_code_sigma_m: np.ndarray
 
 
 @dataclass
@@ -267,9 +268,13 @@ class FilterEpochs(ColumnRecord):
         monitor checks the first path against (:mod:`fusion.integrity`).
     range_difference_code_m : ndarray, shape (N, T - 1) or None
         Code range difference of tower k and tower 0 (column k - 1), m, with
-        no constant (NaN: none, or the towers' transmit delays unknown), on
-        which the filters anchor the difference's origin
+        the towers' transmit delay offsets taken out as far as they are
+        known (:mod:`fusion.transmit_delays`; NaN: none), on which the
+        filters anchor the difference's origin
         (:meth:`fusion.model.EpochObservation.anchor_channels`).
+    range_difference_code_sigma_m : ndarray, shape (N, T - 1) or None
+        Standard deviation of the constant the offsets' uncertainty leaves in
+        that code, m; ``inf`` where they are unknown (the code is not used).
     range_new_origin : ndarray of bool or None
         Where the range observation restarts from a new origin (a new
         segment, module rule 7); None: nowhere.
@@ -293,6 +298,7 @@ class FilterEpochs(ColumnRecord):
     range_difference_new_origin: np.ndarray | None = None
     first_path_code_m: np.ndarray | None = None
     range_difference_code_m: np.ndarray | None = None
+    range_difference_code_sigma_m: np.ndarray | None = None
     range_new_origin: np.ndarray | None = None
 
     def __post_init__(self) -> None:
@@ -304,7 +310,8 @@ class FilterEpochs(ColumnRecord):
         for name, fill in (("first_path_range_m", np.nan), ("first_path_sigma_m", np.nan),
                            ("first_path_new_origin", False), ("range_difference_m", np.nan),
                            ("range_difference_sigma_m", np.nan), ("range_difference_new_origin", False),
-                           ("first_path_code_m", np.nan), ("range_difference_code_m", np.nan)):
+                           ("first_path_code_m", np.nan), ("range_difference_code_m", np.nan),
+                           ("range_difference_code_sigma_m", np.inf)):
             if getattr(self, name) is None:
                 setattr(self, name, np.full((n, 0), fill))
         super().__post_init__()
@@ -339,6 +346,7 @@ class FilterEpochs(ColumnRecord):
                                 range_difference_new_origin=self.range_difference_new_origin[n],
                                 first_path_code_m=self.first_path_code_m[n],
                                 range_difference_code_m=self.range_difference_code_m[n],
+                                range_difference_code_sigma_m=self.range_difference_code_sigma_m[n],
                                 range_new_origin=bool(self.range_new_origin[n]))
 
 
@@ -565,8 +573,11 @@ def aggregate_paths(paths: PathRanges, epoch_t_s: np.ndarray, n_towers: int,
 
     first_path = columns(paths.first_path, 0, n_towers, "first_path")
     differences = columns(paths.differences, 1, n_towers - 1, "differences")
+    # The differences' codes still hold the towers' transmit delay offsets: unknown until
+    # fusion.transmit_delays.tie_code_differences takes them out.
     return PathEpochs(epoch_t_s, *first_path[:3], *differences[:3], first_path_code_m=first_path[3],
-                      range_difference_code_m=differences[3])
+                      range_difference_code_m=differences[3],
+                      range_difference_code_sigma_m=np.full_like(differences[3], np.inf))
 
 
 def standstill_times(step_t_s: np.ndarray, start_t_s: float,

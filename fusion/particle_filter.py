@@ -38,11 +38,12 @@ probability. A channel that restarts from a new origin (the data say so, or
 it returns after the integrity monitor dropped it) is re-anchored: each
 particle's offset is set so that the observation agrees with the particle,
 and the observation weighs nothing. A tower difference that carries its code
-range difference (the towers' transmit delays known; docs/paths.md) takes
-its origin from the code instead, one offset for every particle known to
-decimetres, and its observation then weighs the particles: the difference
-places the cloud on the towers' hyperbola, which the GNSS fix P0 knows only
-to its own error.
+range difference (docs/paths.md) takes its origin from the code instead, one
+offset for every particle, known to the code's scatter and the uncertainty
+of the towers' transmit delay offsets taken out of it
+(:mod:`fusion.transmit_delays`), and its observation then weighs the
+particles: with the offsets known, the difference places the cloud on the
+towers' hyperbola, which the GNSS fix P0 knows only to its own error.
 
 Algorithm 1 per epoch: propagate with the transition prior (eq. 17) ->
 weight by the likelihood in the log domain and normalise (eq. 20-21) ->
@@ -460,9 +461,10 @@ class ParticleFilter:
         # A channel takes its origin from the code where it has to re-anchor, and where it has one but its
         # origin has not come from the code yet (its first epochs, a code that failed the gate before).
         anchors = observation.anchor_channels(self.layout.n_towers)
+        anchor_sigmas = observation.anchor_sigmas(self.noise.difference_code_sigma_m, self.layout.n_towers)
         on_code = np.zeros(self.layout.n_channels, dtype=bool)   # anchored on its code now: its range still weighs
         for j in np.flatnonzero(reanchor | (use & ~self._origin_from_code & np.isfinite(anchors))):
-            on_code[j] = self._anchor_on_code(j, z[j], anchors[j])
+            on_code[j] = self._anchor_on_code(j, z[j], anchors[j], anchor_sigmas[j])
             if reanchor[j] and not on_code[j]:
                 self._reanchor(j, z[j], sigma[j])
             self._origin_from_code[j] = on_code[j] or (self._origin_from_code[j] and not reanchor[j])
@@ -513,16 +515,16 @@ class ParticleFilter:
             geometric -= tower_distance_m(self.particles, self._towers, int(self._subtracted[channel]))
         return geometric
 
-    def _anchor_on_code(self, channel: int, z: float, code_m: float) -> bool:
+    def _anchor_on_code(self, channel: int, z: float, code_m: float, code_sigma: float) -> bool:
         """Make ``z`` a new origin of ``channel`` taken from its code value ``code_m`` (a tower difference's,
         :meth:`fusion.model.EpochObservation.anchor_channels`): one offset for every particle, known to
-        ``ModelNoise.difference_code_sigma_m``, so that the epoch's range then weighs the particles.
+        ``code_sigma`` (m; :meth:`fusion.model.EpochObservation.anchor_sigmas`), so that the epoch's range then
+        weighs the particles.
 
-        Not done (False) without a code value, with an infinite sigma, or where the code lies outside
-        :data:`fusion.model.CODE_ANCHOR_GATE_SIGMAS` of the cloud's own value (a first path taken from a
-        reflection arrives late): the channel re-anchors on the particles instead.
+        Not done (False) without a code value, with an infinite sigma (the transmit delay offsets unknown), or
+        where the code lies outside :data:`fusion.model.CODE_ANCHOR_GATE_SIGMAS` of the cloud's own value (a
+        first path taken from a reflection arrives late): the channel re-anchors on the particles instead.
         """
-        code_sigma = self.noise.difference_code_sigma_m
         if not (np.isfinite(code_m) and np.isfinite(code_sigma)):
             return False
         geometric = self._geometric_m(channel)

@@ -35,6 +35,7 @@ from fusion.observations import AggregationConfig, FilterEpochs, PathAggregation
 from dtmbnav_core.records import PathRanges
 from fusion.particle_filter import run_particle_filter
 from fusion.rank_kf import run_rank_kf
+from fusion.transmit_delays import CodeOffsets, TransmitDelays, tie_code_differences
 from fusion.ukf import run_ukf
 from fusion.wt_ukf import run_wt_ukf
 
@@ -167,18 +168,23 @@ class FusionResult:
         The inputs the filters consumed.
     start_xy_m : (float, float)
         The start fix P0 every filter started from, ENU m.
+    code_offsets : CodeOffsets or None
+        The transmit delay offsets taken out of the tower differences' codes
+        (:func:`fusion.transmit_delays.tie_code_differences`); None without
+        path observations.
     """
 
     tracks: dict[str, Track]
     heading: HeadingSolution
     epochs: FilterEpochs
     start_xy_m: tuple[float, float]
+    code_offsets: CodeOffsets | None = None
 
 
 def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], tower_xy_m: tuple[float, float],
          filters: tuple[str, ...] = tuple(FILTERS), *, tower_height_m: float = 0.0,
          other_towers: tuple[tuple[float, float, float], ...] = (), paths: PathRanges | None = None,
-         config: FusionConfig = FusionConfig()) -> FusionResult:
+         transmit_delays: TransmitDelays | None = None, config: FusionConfig = FusionConfig()) -> FusionResult:
     """Run the requested filters on one recording's PDR and receiver output.
 
     Parameters
@@ -199,6 +205,10 @@ def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], to
         Further towers of a single-frequency network (:class:`fusion.model.Geometry`).
     paths : PathRanges, optional
         The receiver's first-path ranges and tower differences.
+    transmit_delays : TransmitDelays, optional
+        The towers' transmit delay offsets (a network plan's, with their
+        sigmas); None: unknown, estimated at the start fix
+        (:mod:`fusion.transmit_delays`).
     config : FusionConfig
 
     Returns
@@ -218,9 +228,14 @@ def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], to
     t_s = epoch_times(pdr.t_s, float(ranges.t_s[0]), standstills)
     range_epochs = aggregate_ranges(ranges, t_s, config.aggregation)
     at_steps = np.searchsorted(t_s, pdr.t_s)
-    path_epochs = None if paths is None else aggregate_paths(paths, t_s, geometry.n_towers, config.paths)
+    path_epochs, code_offsets = None, None
+    if paths is not None:
+        path_epochs, code_offsets = tie_code_differences(
+            aggregate_paths(paths, t_s, geometry.n_towers, config.paths), geometry, transmit_delays,
+            float(pdr.t_s[0]), config.noise.initial_position_m)
     heading = initial_heading(pdr, range_epochs, path_epochs, at_steps, geometry, config)
     epochs = build_epochs(pdr, si_range_epochs(range_epochs, path_epochs, config.si_range), heading.heading_rad,
                           path_epochs)
     tracks = {name: FILTERS[name](epochs, geometry, config) for name in filters}
-    return FusionResult(tracks=tracks, heading=heading, epochs=epochs, start_xy_m=(start_xy_m[0], start_xy_m[1]))
+    return FusionResult(tracks=tracks, heading=heading, epochs=epochs, start_xy_m=(start_xy_m[0], start_xy_m[1]),
+                        code_offsets=code_offsets)

@@ -183,7 +183,6 @@ def receiver_tower_order(first_path_delays_s: Sequence[np.ndarray], expected_del
 
 def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray] | None, n_towers: int,
                       time_offset_s: float = 0.0, attrs: dict[str, Any] | None = None,
-                      transmit_delays_s: Sequence[float] | None = None,
                       expected_delays_s: np.ndarray | None = None) -> PathRanges | None:
     """The path tracker's output of a receiver file -> the :class:`PathRanges` fusion consumes (docs/paths.md).
 
@@ -196,19 +195,17 @@ def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray]
     and for a difference also where it starts again after a gap. Frames
     flagged as a gap or low quality are invalid. Tower 0's first path
     carries its code range (:func:`first_path_code_range_m`) when the
-    receiver's ``attrs`` are given. With the towers' transmit delays
-    (``transmit_delays_s``, one per tower, s; the network plan's), a
-    difference carries its code range difference
-    (:func:`range_difference_code_m`). With the towers' expected delays
-    (``expected_delays_s``, :func:`expected_tower_delays_s`) the receiver's
-    further towers are put in the geometry's order
-    (:func:`receiver_tower_order`; without, the receiver's order is taken).
-    Returns None for a file without the first-path columns (path tracker off).
+    receiver's ``attrs`` are given; a difference, with the ``/receiver/paths``
+    rows, its code range difference (:func:`range_difference_code_m`), the
+    towers' transmit delay offsets still in it (the fusion takes them out).
+    With the towers' expected delays (``expected_delays_s``,
+    :func:`expected_tower_delays_s`) the receiver's further towers are put in
+    the geometry's order (:func:`receiver_tower_order`; without, the
+    receiver's order is taken). Returns None for a file without the
+    first-path columns (path tracker off).
     """
     if "first_path_range_change_m" not in frames:
         return None
-    if transmit_delays_s is not None and len(transmit_delays_s) < n_towers:
-        raise ValueError(f"transmit_delays_s: one per tower ({n_towers}), got {len(transmit_delays_s)}")
     t = frames["t_s"] + time_offset_s
     usable = (frames["flags"].astype(np.int64) & int(UNUSABLE_FLAGS)) == 0
     towers = [tower_first_paths(frames, rows, k) for k in range(n_towers)]
@@ -229,27 +226,23 @@ def paths_from_frames(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray]
         diff = frames[name]
         # A pair key: the difference restarts when either tower's first path changes.
         key = ids0 * (1 << 32) + ids_k if rows is not None else np.zeros(len(t), np.int64)
-        code = (None if transmit_delays_s is None or rows is None else
-                range_difference_code_m(delay0, delay_k, transmit_delays_s[0], transmit_delays_s[k]))
+        code = None if rows is None else range_difference_code_m(delay0, delay_k)
         differences[k] = PathRangeSeries.from_runs(t, diff, key, np.isfinite(diff), usable, np.fmin(snr0, snr_k),
                                                   slip0 | slip_k, code)
     return PathRanges(first_path=first, differences=differences)
 
 
-def range_difference_code_m(delay_0_s: np.ndarray, delay_k_s: np.ndarray, transmit_delay_0_s: float,
-                            transmit_delay_k_s: float) -> np.ndarray:
-    """Per frame, the range of tower k's first path minus tower 0's, from their delays, m (docs/paths.md).
+def range_difference_code_m(delay_0_s: np.ndarray, delay_k_s: np.ndarray) -> np.ndarray:
+    """Per frame, the code range difference of tower k's first path and tower 0's, m (docs/paths.md).
 
-    ``c ((delay_k - tx_k) - (delay_0 - tx_0))``: both delays are read in
-    the same frame on the same receiver clock, so its offset and drift
-    cancel; once the towers' transmit delay offsets (``tx``, the network
-    plan's, s) are taken out, what is left is the difference of the
-    distances, with no constant: where the walker stands on the hyperbola of
-    the two towers. NaN where either tower has no first path, or either
-    transmit delay is unknown (NaN).
+    ``c (delay_k - delay_0)``: both delays are read in the same frame on the
+    same receiver clock, so its offset and drift cancel; what is left is the
+    difference of the distances plus that of the towers' transmit delay
+    offsets, ``c (tx_k - tx_0)``, which the fusion takes out as far as it
+    knows them (:mod:`fusion.transmit_delays`). NaN where either tower has
+    no first path.
     """
-    return SPEED_OF_LIGHT_MPS * ((np.asarray(delay_k_s, dtype=np.float64) - transmit_delay_k_s)
-                                 - (np.asarray(delay_0_s, dtype=np.float64) - transmit_delay_0_s))
+    return SPEED_OF_LIGHT_MPS * (np.asarray(delay_k_s, dtype=np.float64) - np.asarray(delay_0_s, dtype=np.float64))
 
 
 def observations_from_receiver(frames: dict[str, np.ndarray], rows: dict[str, np.ndarray] | None,
@@ -273,7 +266,8 @@ def observations_from_receiver(frames: dict[str, np.ndarray], rows: dict[str, np
     time_offset_s : float
         Moves the receiver's times onto the IMU's time base, s.
     transmit_delays_s : sequence of float, optional
-        The towers' transmit delay offsets (the network plan's), s.
+        The towers' transmit delay offsets as the network plan gives them, s
+        (none: 0), to match the receiver's towers to the table.
     start_ranges_m : sequence of float, optional
         Distance from the start fix to each tower of the table, m: with it
         the receiver's towers are matched to the table
@@ -281,4 +275,4 @@ def observations_from_receiver(frames: dict[str, np.ndarray], rows: dict[str, np
     """
     expected = None if start_ranges_m is None else expected_tower_delays_s(start_ranges_m, transmit_delays_s)
     return Observations(ranges_from_frames(frames, time_offset_s),
-                        paths_from_frames(frames, rows, n_towers, time_offset_s, attrs, transmit_delays_s, expected))
+                        paths_from_frames(frames, rows, n_towers, time_offset_s, attrs, expected))

@@ -230,8 +230,10 @@ class _TowerPaths:
     """The paths from one tower of the scenario to the receiver along the track (module docstring)."""
 
     def __init__(self, site: TowerSite, channel: ChannelConfig, track: Track, rng: np.random.Generator,
-                 diffuse_taps: int) -> None:
+                 diffuse_taps: int, transmit_delay_s: float) -> None:
         self.site = site
+        #: The tower's true transmit delay offset on this walk, s (:meth:`sim.scenario.Scenario.transmit_delays_s`).
+        self.transmit_delay_s = transmit_delay_s
         self.gain = 10.0 ** (site.power_db / 20.0)
         ground = np.hypot(track.x_m - site.x_m, track.y_m - site.y_m)
         h_r = channel.antenna_height_m
@@ -272,14 +274,14 @@ class _TowerPaths:
         los_gain = 10.0 ** (-los_loss / 20.0)
         delays, gains = [], []
         for spline, (amp, los_blocked, scatterer) in zip(self.lengths, self.specular):
-            delays.append(spline(t_s) / SPEED_OF_LIGHT_MPS + site.transmit_delay_s)
+            delays.append(spline(t_s) / SPEED_OF_LIGHT_MPS + self.transmit_delay_s)
             if los_blocked:
                 gains.append(amp * los_gain)
             else:
                 loss = blocking_loss_db(x, y, scatterer[0], scatterer[1], buildings)
                 gains.append(amp * 10.0 ** (-loss / 20.0))
         for spline, wall in zip(self.lengths[len(self.specular):], self.walls):
-            delays.append(spline(t_s) / SPEED_OF_LIGHT_MPS + site.transmit_delay_s)
+            delays.append(spline(t_s) / SPEED_OF_LIGHT_MPS + self.transmit_delay_s)
             gains.append(wall.amplitude_at(x, y, buildings))
         for tap, excess in enumerate(self.diffuse_excess_s):
             delays.append(delays[0] + excess)
@@ -294,7 +296,8 @@ class Channel:
     Every tower of the scenario (``Scenario.sites``: one, or the towers of a
     single-frequency network) contributes its own paths, computed from its
     position with the same scene (buildings, walls, scatterers), scaled by its
-    ``power_db`` and delayed by its ``transmit_delay_s``; :meth:`state`
+    ``power_db`` and delayed by its true transmit delay offset
+    (:meth:`sim.scenario.Scenario.transmit_delays_s`); :meth:`state`
     returns them as one flat list, tower by tower (``path_tower``,
     ``path_kind`` say which is which).
 
@@ -320,7 +323,9 @@ class Channel:
         self._x = CubicSpline(track.t_s, track.x_m)
         self._y = CubicSpline(track.t_s, track.y_m)
         self._t_range = (float(track.t_s[0]), float(track.t_s[-1]))
-        self._towers = [_TowerPaths(site, scenario.channel, track, rng, diffuse_taps) for site in scenario.sites]
+        # Each site at its true transmit delay offset of this walk (the plan's plus its error).
+        self._towers = [_TowerPaths(site, scenario.channel, track, rng, diffuse_taps, float(delay))
+                        for site, delay in zip(scenario.sites, scenario.transmit_delays_s())]
         #: Tower index (0 = the first tower) and kind (:data:`PATH_KINDS`) of each path of :meth:`state`.
         self.path_tower = np.concatenate([np.full(len(t.kinds), i) for i, t in enumerate(self._towers)])
         self.path_kind = np.concatenate([np.asarray(t.kinds) for t in self._towers])

@@ -387,9 +387,9 @@ def simulate_obs_paths(scenario: Scenario, truth: Track, config: ObsPathConfig =
     smoothing = None
     held = np.tile(np.array([-1, 0], dtype=np.int64), (n_towers, 1))
     broken = np.zeros((n_towers, len(t_s)), dtype=bool)
-    # c x the delay of each tower's first path as the fit finds it, less the tower's transmit delay offset.
+    # c x the delay of each tower's first path as the fit finds it, the tower's transmit delay offset included
+    # (a receiver sees no other; the fusion takes the offsets out, fusion.transmit_delays).
     path_delay_m = np.full((n_towers, len(t_s)), np.nan)
-    transmit_delay_s = np.array([site.transmit_delay_s for site in scenario.sites])
     for lo in range(0, len(t_s), block_samples):
         hi = min(lo + block_samples, len(t_s))
         state = channel.state(t_s[lo:hi])
@@ -403,8 +403,8 @@ def simulate_obs_paths(scenario: Scenario, truth: Track, config: ObsPathConfig =
                 state.coef[rows], state.delay_s[rows] * gb20600.SYMBOL_RATE_HZ, seen[rows], survival, weak,
                 config.min_separation_chips, config.weak_separation_chips, pulse, held[k])
             found = anchor >= 0
-            path_delay_m[k, lo:hi][found] = SPEED_OF_LIGHT_MPS * (
-                state.delay_s[rows][anchor[found], np.flatnonzero(found)] - transmit_delay_s[k])
+            path_delay_m[k, lo:hi][found] = SPEED_OF_LIGHT_MPS * state.delay_s[rows][anchor[found],
+                                                                                     np.flatnonzero(found)]
 
     # Each tower's first-path range: its phase steps integrated where the first path stays the same path.
     wavelength_m = SPEED_OF_LIGHT_MPS / tower.carrier_hz

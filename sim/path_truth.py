@@ -81,7 +81,7 @@ def path_truth(generator: CaptureGenerator, rate_hz: float = PATH_TRUTH_RATE_HZ)
     ahead = channel.state(true_t + DOPPLER_HALF_STEP_S).delay_s
     behind = channel.state(true_t - DOPPLER_HALF_STEP_S).delay_s
     doppler = -generator.carrier_hz * (ahead - behind) / (2.0 * DOPPLER_HALF_STEP_S)
-    transmit_delay = np.array([generator.scenario.sites[t].transmit_delay_s for t in channel.path_tower])
+    transmit_delay = generator.scenario.transmit_delays_s()[channel.path_tower]
     n_paths, n_epochs = state.delay_s.shape
     with np.errstate(divide="ignore"):
         power = 20.0 * np.log10(np.abs(state.coef))
@@ -96,10 +96,12 @@ def path_truth(generator: CaptureGenerator, rate_hz: float = PATH_TRUTH_RATE_HZ)
 
 
 def path_truth_attributes(generator: CaptureGenerator, rate_hz: float = PATH_TRUTH_RATE_HZ) -> dict:
-    """Attributes of ``/truth/paths``: the rate, the kind names and every tower's site."""
+    """Attributes of ``/truth/paths``: the rate, the kind names and every tower's site (its true transmit delay
+    offset on this walk, and the plan's)."""
     sites = generator.scenario.sites
     return {"rate_hz": rate_hz, "kinds": ",".join(PATH_KINDS), "carrier_hz": generator.carrier_hz,
             "towers_x_m": np.array([s.x_m for s in sites]), "towers_y_m": np.array([s.y_m for s in sites]),
             "towers_height_m": np.array([s.height_m for s in sites]),
             "towers_power_db": np.array([s.power_db for s in sites]),
-            "towers_transmit_delay_s": np.array([s.transmit_delay_s for s in sites])}
+            "towers_transmit_delay_s": generator.scenario.transmit_delays_s(),
+            "towers_planned_transmit_delay_s": np.array([s.transmit_delay_s for s in sites])}

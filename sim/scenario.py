@@ -25,6 +25,9 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from dtmbnav_core.constants import TRANSMIT_DELAY_KNOWLEDGE
 from dtmbnav_core.geodetic import GeodeticPoint
 
 #: Short names that resolve to a packaged scenario.
@@ -85,7 +88,9 @@ class TowerSite:
         Power of its unobstructed direct path relative to that of the first
         tower (whose power sets ``receiver.cn_db``), dB.
     transmit_delay_s : float
-        Fixed transmit-delay offset of this tower (network planning), s, >= 0.
+        Transmit-delay offset of this tower in the network plan, s, >= 0; the
+        tower's true offset differs from it by ``[network] plan_error_s``
+        (:meth:`Scenario.transmit_delays_s`).
     """
 
     x_m: float = 2000.0
@@ -481,6 +486,36 @@ class OriginConfig:
         return GeodeticPoint(self.lat_deg, self.lon_deg, self.height_m)
 
 
+#: Random stream of the towers' true transmit delay offsets (:meth:`Scenario.transmit_delays_s`).
+STREAM_TRANSMIT_DELAY = 0x7D1
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """A single-frequency network's transmit delay offsets: how far the plan is off, and what the user knows.
+
+    Attributes
+    ----------
+    plan_error_s : float
+        Standard deviation of each tower's true transmit delay offset about
+        the plan's (``[[towers]] transmit_delay_s``), s, >= 0: every walk
+        draws its own from its seed (:meth:`Scenario.transmit_delays_s`).
+    known : {"unknown", "plan", "exact"}
+        What the fusion is given: nothing (it estimates the offsets at the
+        start fix), the plan with ``plan_error_s`` as its sigma, or the
+        walk's true offsets (``dtmbnav fuse`` and ``evaluate`` follow it).
+    """
+
+    plan_error_s: float = 0.0
+    known: str = "unknown"
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.plan_error_s) and self.plan_error_s >= 0.0):
+            raise ValueError(f"network.plan_error_s must be finite and >= 0, got {self.plan_error_s!r}")
+        if self.known not in TRANSMIT_DELAY_KNOWLEDGE:
+            raise ValueError(f"network.known must be one of {TRANSMIT_DELAY_KNOWLEDGE}, got {self.known!r}")
+
+
 @dataclass(frozen=True)
 class Scenario:
     """A complete simulation scenario (see the module docstring).
@@ -502,6 +537,7 @@ class Scenario:
     gnss: GnssConfig = field(default_factory=GnssConfig)
     towers: list[TowerSite] = field(default_factory=list)
     origin: OriginConfig = field(default_factory=OriginConfig)
+    network: NetworkConfig = field(default_factory=NetworkConfig)
 
     def __post_init__(self) -> None:
         towers = [t if isinstance(t, TowerSite) else _build(TowerSite, t, "towers") for t in self.towers]
@@ -517,6 +553,15 @@ class Scenario:
         if self.towers:
             return list(self.towers)
         return [TowerSite(**{key: getattr(self.tower, key) for key in SITE_KEYS})]
+
+    def transmit_delays_s(self) -> np.ndarray:
+        """Each site's true transmit delay offset on this walk, s: the plan's plus N(0, ``network.plan_error_s``),
+        drawn from the seed (the plan's exactly where that is 0)."""
+        plan = np.array([site.transmit_delay_s for site in self.sites], dtype=np.float64)
+        if self.network.plan_error_s == 0.0:
+            return plan
+        rng = np.random.default_rng([self.seed, STREAM_TRANSMIT_DELAY])
+        return plan + self.network.plan_error_s * rng.standard_normal(len(plan))
 
     def replace(self, **sections: dict[str, Any]) -> "Scenario":
         """Return a copy with fields of named sections changed.
@@ -620,6 +665,7 @@ def _to_dict(obj: Any) -> dict[str, Any]:
 _SECTIONS = {
     "tower": TowerConfig, "walk": WalkConfig, "receiver": FrontEndConfig,
     "channel": ChannelConfig, "imu": ImuConfig, "gnss": GnssConfig, "origin": OriginConfig,
+    "network": NetworkConfig,
 }
 
 

@@ -4,7 +4,8 @@ One row per transmitter (every site of a single-frequency network, tower 0 first
 :data:`dtmbnav_core.schema.TOWERS_CSV_COLUMNS`: the name ``tower<i>``, the site's WGS84 latitude and
 longitude (deg) and its antenna's height above the ellipsoid (m), all from its ENU position about the
 scenario's ``[origin]`` (its ``height_m`` is the up coordinate: the walker's plane is the origin's
-height), the channel's centre (``[tower] carrier_hz``, Hz) and the site's transmit delay (s). Numbers
+height), the channel's centre (``[tower] carrier_hz``, Hz), the site's transmit delay offset as the network
+plan has it (s) and the plan's error (``[network] plan_error_s``, s) as its sigma. Numbers
 are written as the shortest text that reads back to the same float, so the ENU position comes back
 to within rounding of the conversion.
 """
@@ -23,13 +24,14 @@ from sim.scenario import Scenario
 TOWERS_CSV = "towers.csv"
 
 
-def tower_rows(scenario: Scenario) -> list[tuple[str, float, float, float, float, float]]:
-    """The rows of the towers file (:data:`dtmbnav_core.schema.TOWERS_CSV_COLUMNS`), tower 0 first."""
+def tower_rows(scenario: Scenario) -> list[tuple[str, float, float, float, float, float, float]]:
+    """The rows of the towers file (:data:`dtmbnav_core.schema.TOWERS_CSV_COLUMNS`), tower 0 first: each
+    tower's transmit delay offset as the network plan has it, with the plan's error as its sigma."""
     sites = scenario.sites
     lat, lon, height = to_lat_lon_height([s.x_m for s in sites], [s.y_m for s in sites],
                                          [s.height_m for s in sites], scenario.origin.point)
     return [(f"tower{i}", float(lat[i]), float(lon[i]), float(height[i]), float(scenario.tower.carrier_hz),
-             float(site.transmit_delay_s)) for i, site in enumerate(sites)]
+             float(site.transmit_delay_s), float(scenario.network.plan_error_s)) for i, site in enumerate(sites)]
 
 
 def write_towers_csv(out_dir: str | Path, scenario: Scenario) -> Path:

@@ -12,6 +12,7 @@ from fusion.model import (CLOCK_STATE_SIZE, ClockModel, EpochObservation, Geomet
                           StepControl, observation_jacobian, observe, propagate, transition_jacobian)
 from fusion.observations import FilterEpochs, PathAggregationConfig, PathEpochs, RangeEpochs, StandstillConfig, aggregate_path, aggregate_paths, aggregate_ranges, build_epochs, epoch_times, si_range_epochs, standstill_times
 from dtmbnav_core.records import PathRanges
+from fusion.transmit_delays import TransmitDelays, tie_code_differences
 from fusion.run import FILTERS, FusionConfig, fuse
 
 SFN = Geometry(3.0, -2.0, 2000.0, 2200.0, 150.0, other_towers=((-1800.0, 1500.0, 100.0), (500.0, -2500.0, 60.0)))
@@ -225,7 +226,8 @@ def test_si_range_is_kept_only_where_no_first_path_is_observed():
                      np.array([True, False, False, True, False, False, False, False]))
     first = np.array([[nan, nan], [nan, 1.0], [2.0, nan], [3.0, 3.0], [4.0, nan], [nan, nan], [nan, nan], [nan, nan]])
     paths = PathEpochs(t, first, np.where(np.isfinite(first), 0.2, nan), np.zeros((8, 2), bool), np.empty((8, 0)),
-                       np.empty((8, 0)), np.empty((8, 0), bool), np.full((8, 2), np.nan), np.empty((8, 0)))
+                       np.empty((8, 0)), np.empty((8, 0), bool), np.full((8, 2), np.nan), np.empty((8, 0)),
+                       np.empty((8, 0)))
     kept = si_range_epochs(si, paths, "without-first-path")
     np.testing.assert_array_equal(np.isfinite(kept.range_change_m), [True, False, False, False, False, True, False, True])
     np.testing.assert_array_equal(np.isfinite(kept.sigma_m), np.isfinite(kept.range_change_m))
@@ -309,8 +311,10 @@ def test_a_code_range_difference_takes_out_the_fix_error_along_the_hyperbola(nam
     with_code = dataclasses.replace(paths, differences={1: dataclasses.replace(difference, code_range_m=code)})
 
     def along_error_m(path_ranges):
-        epochs = build_epochs(walk.pdr, aggregate_ranges(drifting, t), walk.initial_heading_rad,
-                              aggregate_paths(path_ranges, t, g.n_towers))
+        # The towers' transmit delay offsets known exactly (both 0 here): the code is the range difference.
+        tied, _ = tie_code_differences(aggregate_paths(path_ranges, t, g.n_towers), at_fix,
+                                       TransmitDelays((0.0, 0.0), (0.0, 0.0), "exact"), float(walk.pdr.t_s[0]), 1.5)
+        epochs = build_epochs(walk.pdr, aggregate_ranges(drifting, t), walk.initial_heading_rad, tied)
         track = FILTERS[name](epochs, at_fix, config)
         truth = (np.interp(track.t_s, walk.truth.t_s, walk.truth.x_m), np.interp(track.t_s, walk.truth.t_s,
                                                                                  walk.truth.y_m))
@@ -377,15 +381,14 @@ def test_receiver_path_columns_become_path_ranges():
     assert difference.slip[3] and difference.slip[4] and difference.slip[6]      # start, first-path change, slip
     np.testing.assert_allclose(difference.snr_db[3:], 12.0)                      # the weaker path's
     assert list(paths.differences) == [1]                                        # no tower 2 in a 2-tower geometry
-    assert np.isnan(difference.code_range_m).all()                              # transmit delays not known
-    # The delays of the two first paths and the towers' transmit delays: the range difference, no constant.
+    assert np.isnan(difference.code_range_m).all()                              # rows without delays
+    # The delays of the two first paths: c times their difference, the towers' transmit delay offsets still in
+    # it (fusion.transmit_delays takes them out).
     frames["first_path_delay_s"] = np.full(n, 2.0e-6)
     rows["delay_s"] = np.where(np.array(tower_id) == 1, 9.5e-6, 2.0e-6)
-    coded = paths_from_frames(frames, rows, n_towers=2, transmit_delays_s=(0.0, 0.5e-6)).differences[1]
-    np.testing.assert_allclose(coded.code_range_m[3:], 7.0e-6 * SPEED_OF_LIGHT_MPS)
+    coded = paths_from_frames(frames, rows, n_towers=2).differences[1]
+    np.testing.assert_allclose(coded.code_range_m[3:], 7.5e-6 * SPEED_OF_LIGHT_MPS)
     assert np.isnan(coded.code_range_m[:3]).all()                                # tower 1 not yet found
-    with pytest.raises(ValueError, match="one per tower"):
-        paths_from_frames(frames, rows, n_towers=2, transmit_delays_s=(0.0,))
     frames.pop("first_path_range_change_m")
     assert paths_from_frames(frames, rows, n_towers=2) is None                    # tracker off: SI range only
 

@@ -120,6 +120,7 @@ def test_the_towers_file_round_trips_to_the_scenario_enu(walk, tmp_path):
         np.testing.assert_allclose(up, [s.height_m for s in sites], rtol=0, atol=1e-3)
         assert [float(row["channel_hz"]) for row in rows] == [scenario.tower.carrier_hz] * len(sites)
         assert [float(row["transmit_delay_s"]) for row in rows] == [s.transmit_delay_s for s in sites]
+        assert [float(row["transmit_delay_sigma_s"]) for row in rows] == [scenario.network.plan_error_s] * len(sites)
 
 
 @pytest.mark.parametrize("phone_log", PHONE_LOG_FORMATS)

@@ -25,6 +25,7 @@ from dtmbnav.towers import FIELDS, HEIGHT_RANGE_M, MAX_TRANSMIT_DELAY_S, Tower, 
 from dtmbnav_core import schema
 from dtmbnav_core.h5io import read_attrs, read_columns
 from dtmbnav_core.sensors import read_tower
+from fusion.transmit_delays import DEFAULT_PLAN_SIGMA_S, TransmitDelays
 
 ORIGIN = (30.52, 114.36, 24.0)
 
@@ -210,17 +211,19 @@ def test_fuse_towers_hands_the_network_in_the_sensors_frame(tmp_path, monkeypatc
     assert seen["tower_xy_m"] == pytest.approx(first[:2], abs=1e-6)
     assert seen["tower_height_m"] == pytest.approx(first[2], abs=1e-6)
     assert np.allclose(seen["other_towers"], others, atol=1e-6)
-    assert seen["transmit_delays_s"] == (0.0, 2.5e-6, 0.0)
+    # A tower without an offset is taken at 0, one without a sigma at the default sigma.
+    assert seen["transmit_delays"] == TransmitDelays((0.0, 2.5e-6, 0.0), (1e-7, DEFAULT_PLAN_SIGMA_S,
+                                                                         DEFAULT_PLAN_SIGMA_S), "plan")
     assert "towers: Guishan, Hongshan, Hankou (ranging on Guishan)" in err
 
 
 def test_fuse_tower_name_picks_the_ranging_tower_and_a_channel_leaves_towers_out(tmp_path, monkeypatch, capsys):
     seen, _ = _fuse_arguments(tmp_path, monkeypatch, capsys, "--tower-name", "Hongshan")
     assert seen["tower_xy_m"] == pytest.approx(_enu(EXPECTED[1])[:2], abs=1e-6)
-    assert seen["other_towers"] == () and seen["transmit_delays_s"] == (2.5e-6,)
+    assert seen["other_towers"] == () and seen["transmit_delays"].delays_s == (2.5e-6,)
     seen, err = _fuse_arguments(tmp_path, monkeypatch, capsys, carrier_hz=674e6)
     assert seen["tower_xy_m"] == pytest.approx(_enu(EXPECTED[2])[:2], abs=1e-6)
-    assert seen["other_towers"] == () and seen["transmit_delays_s"] is None
+    assert seen["other_towers"] == () and seen["transmit_delays"] is None
     assert "warning" in err and "left out" in err and "Guishan" in err
 
 

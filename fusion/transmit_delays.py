@@ -1,0 +1,196 @@
+"""The towers' transmit delay offsets of a single-frequency network, and the tower differences' codes made absolute.
+
+A tower difference's code (docs/paths.md, "Tower differences from the
+code") measures ``c (tau_k - tau_0) = (r_k - r_0) + c (tx_k - tx_0)``: the
+difference of the two towers' distances plus that of their transmit delay
+offsets ``tx``, which a network plan sets and a user seldom knows to the
+nanosecond. Once ``c (tx_k - tx_0)`` is taken out, the code says on which
+hyperbola of the two towers the walker stands, and a filter re-anchoring the
+difference takes its origin from there (:meth:`fusion.model.EpochObservation.anchor_channels`).
+What is left of the offsets' uncertainty is a constant of the walk, carried
+as the standard deviation of every such origin
+(:meth:`fusion.model.EpochObservation.anchor_sigmas`); an anchor replaces the
+origin rather than adding to it, so the constant is never averaged down.
+
+Where ``c (tx_k - tx_0)`` comes from (:func:`tie_code_differences`):
+
+- ``"plan"`` / ``"exact"``: given (:class:`TransmitDelays`, e.g. a towers
+  file's ``transmit_delay_s`` and ``transmit_delay_sigma_s``, or a
+  simulation's truth), with its stated standard deviation.
+- ``"start fix"``: not given; estimated where the walk starts. While the
+  walker still stands at the start fix P0 (before the PDR's first step) the
+  difference's code minus the geometric difference at P0 is the offset. The
+  code is averaged over the whole first run of the difference's carrier
+  (no origin break), each epoch's code moved back to the run's first epoch by
+  the carrier's change since, so walking does not blur it. Its error is the
+  fix's, projected on the gradient of ``r_k - r_0`` at P0 (at most twice the
+  fix's), with the code's averaged scatter.
+- ``"unknown"``: neither: the difference is not tracked before the first
+  step, so nothing ties its code to P0; its code is not used.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
+from fusion.model import Geometry
+from fusion.observations import PathEpochs
+
+#: Standard deviation of a network plan's transmit delay offset given without one, s: a plan is taken to
+#: hold each tower's offset to about a tenth of a microsecond unless its file says better or worse.
+DEFAULT_PLAN_SIGMA_S = 100e-9
+
+
+@dataclass(frozen=True)
+class TransmitDelays:
+    """The towers' transmit delay offsets as given to the fusion.
+
+    Attributes
+    ----------
+    delays_s : tuple of float
+        Each tower's transmit delay offset, in the geometry's tower order, s.
+    sigmas_s : tuple of float
+        Each one's standard deviation, s (0: exact).
+    source : str
+        What they are, for the record: ``"plan"`` (a network plan) or
+        ``"exact"`` (a simulation's truth).
+    """
+
+    delays_s: tuple[float, ...]
+    sigmas_s: tuple[float, ...]
+    source: str = "plan"
+
+    def __post_init__(self) -> None:
+        if len(self.delays_s) != len(self.sigmas_s):
+            raise ValueError(f"TransmitDelays: {len(self.delays_s)} delays but {len(self.sigmas_s)} sigmas")
+        values = np.array([*self.delays_s, *self.sigmas_s], dtype=np.float64)
+        if not np.all(np.isfinite(values)) or min(self.sigmas_s, default=0.0) < 0.0:
+            raise ValueError(f"TransmitDelays: delays and sigmas must be finite, sigmas >= 0; got {self}")
+
+
+@dataclass(frozen=True)
+class CodeOffsets:
+    """What was taken out of each tower difference's code (difference k - 1 for tower k).
+
+    Attributes
+    ----------
+    offset_m : ndarray
+        ``c (tx_k - tx_0)``, m (NaN: unknown).
+    sigma_m : ndarray
+        Its standard deviation, m (``inf``: unknown).
+    source : tuple of str
+        ``"plan"``, ``"exact"``, ``"start fix"`` or ``"unknown"`` (module docstring).
+    """
+
+    offset_m: np.ndarray
+    sigma_m: np.ndarray
+    source: tuple[str, ...]
+
+    def describe(self) -> str:
+        """One line per difference, e.g. ``tower 1 - tower 0: +150.3 +- 2.1 m (start fix)``, joined by ``; ``."""
+        def one(k: int) -> str:
+            if not np.isfinite(self.offset_m[k]):
+                return f"tower {k + 1} - tower 0: unknown (not tracked at the start fix; its code is not used)"
+            return (f"tower {k + 1} - tower 0: {self.offset_m[k]:+.1f} +- {self.sigma_m[k]:.1f} m "
+                    f"({self.source[k]})")
+
+        return "; ".join(one(k) for k in range(len(self.source)))
+
+    def attrs(self) -> dict[str, np.ndarray]:
+        """``/fusion`` attributes: ``code_offset_m``, ``code_offset_sigma_m``, ``code_offset_source``."""
+        return {"code_offset_m": np.asarray(self.offset_m, dtype=np.float64),
+                "code_offset_sigma_m": np.asarray(self.sigma_m, dtype=np.float64),
+                "code_offset_source": ",".join(self.source)}
+
+
+def start_difference_gradient_m(geometry: Geometry, tower: int) -> float:
+    """Norm of the horizontal gradient of ``r_tower - r_0`` at P0 (dimensionless, 0..2): how much of a
+    horizontal error of P0 a range difference sees."""
+    towers = geometry.towers()
+    start = np.array([geometry.start_x_m, geometry.start_y_m])
+
+    def unit(k: int) -> np.ndarray:
+        return (start - towers[k, :2]) / geometry.start_range_m(k)
+
+    return float(np.linalg.norm(unit(tower) - unit(0)))
+
+
+def start_fix_offset_m(paths: PathEpochs, column: int, geometry: Geometry, first_step_t_s: float,
+                       fix_sigma_m: float) -> tuple[float, float]:
+    """``c (tx_k - tx_0)`` of difference ``column`` (tower ``column + 1``) from its code while the walker is at P0.
+
+    Returns
+    -------
+    offset_m, sigma_m : float
+        The offset and its standard deviation, m; NaN and ``inf`` where the
+        difference has no code and carrier together before ``first_step_t_s``.
+    """
+    code = paths.range_difference_code_m[:, column]
+    carrier = paths.range_difference_m[:, column]
+    valid = np.isfinite(code) & np.isfinite(carrier)
+    if not valid.any():
+        return np.nan, np.inf
+    first = int(np.argmax(valid))
+    if paths.t_s[first] > first_step_t_s:
+        return np.nan, np.inf
+    # The first run: up to the next new origin of the difference's carrier.
+    later_origins = np.flatnonzero(paths.range_difference_new_origin[first + 1:, column])
+    end = first + 1 + int(later_origins[0]) if len(later_origins) else len(code)
+    run = np.flatnonzero(valid[first:end]) + first
+    # Each epoch's code, moved back to the run's first epoch along the carrier's change since.
+    at_first = code[run] - (carrier[run] - carrier[first])
+    tower = column + 1
+    geometric = geometry.start_range_m(tower) - geometry.start_range_m(0)
+    offset = float(np.median(at_first)) - geometric
+    scatter = 1.4826 * float(np.median(np.abs(at_first - np.median(at_first)))) / np.sqrt(len(run))
+    return offset, float(np.hypot(fix_sigma_m * start_difference_gradient_m(geometry, tower), scatter))
+
+
+def tie_code_differences(paths: PathEpochs, geometry: Geometry, known: TransmitDelays | None,
+                         first_step_t_s: float, fix_sigma_m: float) -> tuple[PathEpochs, CodeOffsets]:
+    """Take the towers' transmit delay offsets out of every tower difference's code (module docstring).
+
+    Parameters
+    ----------
+    paths : PathEpochs
+        :func:`fusion.observations.aggregate_paths`'s epochs, whose
+        difference codes still hold the offsets.
+    geometry : Geometry
+        The towers and P0.
+    known : TransmitDelays or None
+        The offsets as given (one per tower of ``geometry``); None: estimated
+        at the start fix.
+    first_step_t_s : float
+        Time of the PDR's first step: until then the walker stands at P0, s.
+    fix_sigma_m : float
+        The start fix's 1-sigma error per axis, m.
+
+    Returns
+    -------
+    paths : PathEpochs
+        With ``range_difference_code_m`` less the offsets and
+        ``range_difference_code_sigma_m`` their standard deviations.
+    offsets : CodeOffsets
+    """
+    n_differences = geometry.n_towers - 1
+    if known is not None and len(known.delays_s) != geometry.n_towers:
+        raise ValueError(f"transmit delays: one per tower ({geometry.n_towers}), got {len(known.delays_s)}")
+    offset = np.full(n_differences, np.nan)
+    sigma = np.full(n_differences, np.inf)
+    source = []
+    for column in range(n_differences):
+        tower = column + 1
+        if known is not None:
+            offset[column] = SPEED_OF_LIGHT_MPS * (known.delays_s[tower] - known.delays_s[0])
+            sigma[column] = SPEED_OF_LIGHT_MPS * float(np.hypot(known.sigmas_s[tower], known.sigmas_s[0]))
+            source.append(known.source)
+        else:
+            offset[column], sigma[column] = start_fix_offset_m(paths, column, geometry, first_step_t_s, fix_sigma_m)
+            source.append("start fix" if np.isfinite(offset[column]) else "unknown")
+    code = paths.range_difference_code_m - offset[None, :]
+    tied = replace(paths, range_difference_code_m=np.where(np.isfinite(code), code, np.nan),
+                   range_difference_code_sigma_m=np.broadcast_to(sigma, code.shape).copy())
+    return tied, CodeOffsets(offset, sigma, tuple(source))
