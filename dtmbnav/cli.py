@@ -3,7 +3,8 @@
 Exit codes
 ----------
 0    success
-1    the job ran but found nothing usable (e.g. no DTMB lock in a capture)
+1    the job ran but found nothing usable (e.g. no DTMB lock in a capture),
+     or a check it ran failed (``results --check``: a regression)
 2    bad command-line usage, found before any work: an invalid option value,
      a missing option, an output path that names an input
 3    bad input: a file that is missing, truncated, malformed or inconsistent
@@ -690,6 +691,17 @@ def cmd_results(args: argparse.Namespace) -> int:
 
     config = ResultsConfig(iq_seeds=args.iq_seeds, obs_seeds=args.obs_seeds, first_seed=args.first_seed,
                            cluster=_cluster(args), progress=not args.quiet)
+    if args.check:
+        from dtmbnav.results_check import check_results
+
+        if args.readme is not None:
+            raise UsageError("--check writes nothing, so it cannot rewrite --readme")
+        report = check_results(args.output, args.sections, args.check_seeds, config)
+        print(report.table())
+        for note in report.notes:
+            print(f"dtmbnav results: {note}", file=sys.stderr)
+        print(f"dtmbnav {report.summary()}", file=sys.stderr)
+        return EXIT_NO_RESULT if report.failed else EXIT_OK
     write_results(args.output, args.sections, config, readme=args.readme)
     print(f"results written to {args.output}", file=sys.stderr)
     return EXIT_OK
@@ -1013,6 +1025,7 @@ def _add_bench_command(subparsers: argparse._SubParsersAction, common: argparse.
 def _add_results_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
     """``dtmbnav results`` and its options."""
     from dtmbnav.results import IQ_SEEDS, OBS_SEEDS, SECTIONS
+    from dtmbnav.results_check import CHECK_SEEDS
 
     p = _command(subparsers, common, "results", "every result table, generated into one Markdown file")
     p.add_argument("-o", "--output", type=Path, default=Path("docs/results.md"),
@@ -1027,6 +1040,12 @@ def _add_results_command(subparsers: argparse._SubParsersAction, common: argpars
                    help=f"first Monte Carlo index (default {REPORTING_SEEDS.start}, the reporting range)")
     p.add_argument("--readme", type=Path, metavar="FILE",
                    help="also rewrite the headline table between this README's results markers")
+    p.add_argument("--check", action="store_true",
+                   help="write nothing: run the first walks of each printed section again (the walks its header "
+                        "names; --first-seed, --iq-seeds and --obs-seeds do not apply) and compare with the file; "
+                        "exit 1 on a regression beyond the walks' spread (docs/evaluation.md)")
+    p.add_argument("--check-seeds", type=_positive_int, default=CHECK_SEEDS, metavar="N",
+                   help=f"with --check: walks of each scenario run again (default {CHECK_SEEDS})")
     _add_cluster_options(p)
     p.set_defaults(handler=cmd_results)
 

@@ -39,6 +39,12 @@ FUSION_SCENARIOS = ("park-loop-cw", "park-loop-ccw", "sfn-park", "sfn3-park", "s
 EXACT_SCENARIOS = ("park-loop-cw", "park-loop-ccw")
 #: Kalman-type filters in the order of the table's columns (with their column titles).
 KALMAN_COLUMNS = (("ukf", "UKF"), ("wt-ukf", "WT-UKF"), ("adaptive-kf", "adaptive KF"), ("rank-kf", "rank KF"))
+#: The PDR baselines (track names and column titles), the first figures of the fusion and the per-walk tables.
+BASELINE_COLUMNS = (("pdr", "PDR"), ("pdr@fix", "PDR@fix"))
+#: Title of the fusion table's PF column: its mean 95 % error, then its reductions in brackets.
+PF_COLUMN = "PF (vs PDR / vs PDR@fix)"
+#: Filters of the per-walk table, after the PDR baselines (each titled by its name in capitals).
+PER_WALK_FILTERS = ("pf", "ukf")
 #: Default Monte Carlo walks per scenario at the IQ and the observation level.
 IQ_SEEDS = 10
 OBS_SEEDS = 50
@@ -147,7 +153,8 @@ def fusion_table(rows: Sequence, walks: Sequence[dict[str, object]]) -> tuple[st
     for r in rows:
         by_scenario.setdefault(r.scenario, {})[r.filter] = r
     kalman_titles = [title for name, title in KALMAN_COLUMNS]
-    lines = ["| walk (clock) | walks | PDR | PDR@fix | PF (vs PDR / vs PDR@fix) | " + " | ".join(kalman_titles)
+    lines = ["| walk (clock) | walks | " + " | ".join(title for _, title in BASELINE_COLUMNS) + f" | {PF_COLUMN} | "
+             + " | ".join(kalman_titles)
              + " | PF worst@fix | walks > 5 % worse than PDR@fix (PF, " + ", ".join(kalman_titles)
              + ") | heading error (median) | paper PF reduction |",
              "|---" * (9 + len(kalman_titles)) + "|"]
@@ -173,9 +180,10 @@ def fusion_table(rows: Sequence, walks: Sequence[dict[str, object]]) -> tuple[st
     return "\n".join(lines), headline
 
 
-def per_walk_table(walks: Sequence[dict[str, object]], filters: Sequence[str] = ("pf", "ukf")) -> str:
+def per_walk_table(walks: Sequence[dict[str, object]], filters: Sequence[str] = PER_WALK_FILTERS) -> str:
     """Markdown table of each walk's 95 % error: the PDR baselines and ``filters``, and eq. 15's heading error."""
-    lines = ["| walk | index | seed | PDR | PDR@fix | " + " | ".join(f.upper() for f in filters) + " | heading error |",
+    lines = ["| walk | index | seed | " + " | ".join(title for _, title in BASELINE_COLUMNS) + " | "
+             + " | ".join(f.upper() for f in filters) + " | heading error |",
              "|---" * (6 + len(filters)) + "|"]
     for w in sorted(walks, key=lambda w: (FUSION_SCENARIOS.index(w["scenario"]) if w["scenario"] in FUSION_SCENARIOS
                                           else len(FUSION_SCENARIOS), w["scenario"], w["k"])):
@@ -192,9 +200,24 @@ def _walks_line(first_seed: int, seeds: int, level: str) -> str:
     return describe_seeds(first_seed, seeds, level, True)
 
 
-def fusion_section(name: str, title: str, scenarios: Sequence[str], level: str, seeds: int,
-                   config: ResultsConfig, per_walk: bool) -> Section:
-    """A fusion table: every filter on ``scenarios`` at ``level`` over ``seeds`` walks."""
+def fusion_walks(name: str, scenarios: Sequence[str], level: str, seeds: int, config: ResultsConfig
+                 ) -> tuple[list, list[dict[str, object]], float]:
+    """The walks of fusion section ``name``: ``seeds`` walks of each scenario at ``level`` from ``config.first_seed``.
+
+    Returns
+    -------
+    rows : list of dtmbnav.evaluate.EvaluationRow
+        The table's rows.
+    walks : list of dict
+        Each walk's record (:func:`dtmbnav.evaluate.walk_record`), in the order the walks finished.
+    wall_s : float
+        Wall time of the walks, s.
+
+    Raises
+    ------
+    RuntimeError
+        When a walk fails (the message names each failed walk).
+    """
     from dtmbnav.evaluate import evaluate_many
 
     walks: list[dict[str, object]] = []
@@ -205,7 +228,14 @@ def fusion_section(name: str, title: str, scenarios: Sequence[str], level: str, 
     if outcome.failures:
         failed = "; ".join(f"{f.scenario} k={f.k} (seed {f.seed}): {f.error}" for f in outcome.failures)
         raise RuntimeError(f"results {name}: walks failed: {failed}")
-    table, headline = fusion_table(outcome.rows, walks)
+    return outcome.rows, walks, wall_s
+
+
+def fusion_section(name: str, title: str, scenarios: Sequence[str], level: str, seeds: int,
+                   config: ResultsConfig, per_walk: bool) -> Section:
+    """A fusion table: every filter on ``scenarios`` at ``level`` over ``seeds`` walks."""
+    rows, walks, wall_s = fusion_walks(name, scenarios, level, seeds, config)
+    table, headline = fusion_table(rows, walks)
     body = f"Walks: {_walks_line(config.first_seed, seeds, level)}.\n\n{table}\n"
     if per_walk:
         body += f"\nPer walk, 95 % error, m:\n\n{per_walk_table(walks)}\n"

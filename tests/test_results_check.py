@@ -1,0 +1,229 @@
+"""``dtmbnav results --check``: the printed figures read back, a short re-run compared with them.
+
+The parser must read exactly what :mod:`dtmbnav.results` writes (a round
+trip through the writer), the check must pass where the re-run walks give
+the printed figures again and fail, naming the row, where the file claims
+better figures than the walks give by more than their spread; it must never
+write the results file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import stats
+
+from dtmbnav import results, results_check
+from dtmbnav.cli import EXIT_BAD_INPUT, EXIT_NO_RESULT, EXIT_OK, EXIT_USAGE, main
+from dtmbnav.evaluate import RunSettings, SeedResult, summarise, walk_record
+from dtmbnav.seeds import TUNING_SEEDS, monte_carlo_seed
+from fusion import FILTER_NAMES
+
+#: The campaign the tests print and check: a few exact-range walks of one scenario on the tuning range.
+CONFIG = results.ResultsConfig(first_seed=TUNING_SEEDS.start)
+SCENARIO = "park-loop-cw"
+WALKS = 3
+PRINTED_COMMIT = "0123456789"
+
+
+@pytest.fixture(scope="module")
+def campaign() -> tuple[list, list[dict[str, object]]]:
+    """The rows and walk records of the campaign (run once)."""
+    rows, walks, _ = results.fusion_walks("fusion-exact", (SCENARIO,), "exact", WALKS, CONFIG)
+    return rows, walks
+
+
+def _printed(rows: list, walks: list[dict[str, object]], per_walk: bool = True,
+             scenarios: tuple[str, ...] = (SCENARIO,), level: str = "exact", first_seed: int = CONFIG.first_seed
+             ) -> str:
+    """The results file :mod:`dtmbnav.results` prints from these rows and walks (one ``fusion-exact`` section)."""
+    seeds = len(walks) // len(scenarios)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(results, "fusion_walks", lambda *args: (rows, walks, 60.0))
+        section = results.fusion_section("fusion-exact", "Fusion with the exact range", scenarios, level, seeds,
+                                         dataclasses.replace(CONFIG, first_seed=first_seed), per_walk)
+    return results.merge_sections("", {"fusion-exact": results.render_section(section, PRINTED_COMMIT, "2000-01-01",
+                                                                              "a machine")})
+
+
+def _with_track(rows: list, walks: list[dict[str, object]], track: str, values: list[float]
+                ) -> tuple[list, list[dict[str, object]]]:
+    """The campaign as if ``track``'s 95 % error had been ``values[k]`` on walk k."""
+    walks = [{**w, "p95_m": {**w["p95_m"], track: float(values[w["k"]])}} for w in walks]
+    rows = [dataclasses.replace(r, p95_m=float(np.mean(values))) if r.filter == track else r for r in rows]
+    return rows, walks
+
+
+def _verdicts(comparisons: list[results_check.Comparison]) -> dict[str, str]:
+    return {c.row: c.verdict for c in comparisons}
+
+
+def _printed_verdicts(out: str) -> dict[str, str]:
+    """Row -> verdict of the table the check printed (columns: section, row, ..., verdict)."""
+    cells = [[cell.strip() for cell in line.strip().strip("|").split("|")] for line in out.splitlines()[2:]]
+    return {row[1]: row[-1] for row in cells}
+
+
+@st.composite
+def campaigns(draw) -> tuple[list, list[dict[str, object]], int]:
+    """Rows and walk records of a drawn campaign (:func:`dtmbnav.evaluate.summarise` and ``walk_record`` of drawn
+    errors), and its first Monte Carlo index."""
+    scenarios = draw(st.lists(st.sampled_from(results.FUSION_SCENARIOS), min_size=1, max_size=2, unique=True))
+    filters = draw(st.lists(st.sampled_from(FILTER_NAMES), max_size=len(FILTER_NAMES), unique=True))
+    seeds = draw(st.integers(1, 4))
+    first_seed = draw(st.integers(TUNING_SEEDS.start, TUNING_SEEDS.stop - seeds))
+    errors = st.lists(st.floats(0.01, 60.0), min_size=1, max_size=4).map(np.array)
+    settings_ = RunSettings(first_seed, "exact")
+    rows, walks = [], []
+    for scenario in scenarios:
+        results_ = [SeedResult(truth=None, tracks={}, heading_error_rad=draw(st.floats(-0.5, 0.5)),
+                               errors_m={track: draw(errors) for track in ("pdr", "pdr@fix", *filters)})
+                    for _ in range(seeds)]
+        rows += summarise(scenario, results_, settings_)
+        walks += [walk_record(scenario, k, monte_carlo_seed(7, k, first_seed), r, settings_)
+                  for k, r in enumerate(results_)]
+    return rows, walks, first_seed
+
+
+@settings(max_examples=25, deadline=None)
+@given(campaigns(), st.booleans())
+def test_the_parser_reads_every_figure_the_writer_prints(campaign_, per_walk):
+    rows, walks, first_seed = campaign_
+    scenarios = tuple(dict.fromkeys(r.scenario for r in rows))
+    text = _printed(rows, walks, per_walk, scenarios, first_seed=first_seed)
+    section = results_check.parse_sections(text)["fusion-exact"]
+    assert section.commit == PRINTED_COMMIT and "--first-seed" in section.options
+    figures = results_check.parse_fusion(section)
+    assert (figures.level, figures.first_seed, figures.walks) == ("exact", first_seed, len(walks) // len(scenarios))
+    assert figures.scenarios == list(scenarios)
+    # Every mean the table prints, to its printed rounding, and nothing it does not print.
+    assert figures.means == {(r.scenario, r.filter): results_check.Figure(float(f"{r.p95_m:.2f}"), 0.005)
+                             for r in rows}
+    printed_walks = {(w["scenario"], w["first_seed"] + w["k"], track): float(f"{value:.2f}") for w in walks
+                     for track, value in w["p95_m"].items()
+                     if track in ("pdr", "pdr@fix", *results.PER_WALK_FILTERS)} if per_walk else {}
+    assert {key: f.value for key, f in figures.per_walk.items()} == printed_walks
+    assert figures.seeds == ({(w["scenario"], w["first_seed"] + w["k"]): w["seed"] for w in walks} if per_walk else {})
+
+
+def test_a_check_of_the_printed_walks_passes_and_writes_nothing(campaign, tmp_path, monkeypatch, capsys):
+    path = tmp_path / "results.md"
+    path.write_text(_printed(*campaign))
+    before = path.read_bytes()
+    # As if this checkout's code were the printing commit's: the same walks must then give the same figures.
+    monkeypatch.setattr(results_check, "code_unchanged_since", lambda commit: commit == PRINTED_COMMIT)
+    assert main(["-q", "results", "--check", "-o", str(path), "--sections", "fusion-exact,bench",
+                 "--workers", "0"]) == EXIT_OK
+    out, err = capsys.readouterr()
+    assert path.read_bytes() == before
+    verdicts = _printed_verdicts(out)
+    # Every track of the table, and each printed walk of the per-walk table's tracks.
+    assert len(verdicts) == len(campaign[0]) + WALKS * (2 + len(results.PER_WALK_FILTERS))
+    assert set(verdicts.values()) == {"ok"}
+    assert "bench: not in" in err and "none failed" in err
+
+
+def test_a_printed_figure_better_than_the_walks_give_is_a_regression(campaign, tmp_path, monkeypatch, capsys):
+    rows, walks = campaign
+    path = tmp_path / "results.md"
+    # The file claims a PF of 0.50 m on every walk (no spread among the printed walks), far below what they give.
+    path.write_text(_printed(*_with_track(rows, walks, "pf", [0.5] * WALKS)))
+    before = path.read_bytes()
+    monkeypatch.setattr(results, "fusion_walks", lambda *args: (rows, walks, 0.0))  # the re-run: the real walks
+    assert main(["-q", "results", "--check", "-o", str(path), "--sections", "fusion-exact"]) == EXIT_NO_RESULT
+    out, err = capsys.readouterr()
+    assert path.read_bytes() == before
+    verdicts = _printed_verdicts(out)
+    assert verdicts[f"{SCENARIO} pf"] == "REGRESSION" and verdicts[f"{SCENARIO} ukf"] == "ok"
+    # Against the printed figures of the same walks, whose spread is that of the printed walks (none here).
+    rerun = np.mean([w["p95_m"]["pf"] for w in walks])
+    last = CONFIG.first_seed + WALKS - 1
+    assert (f"| fusion-exact | {SCENARIO} pf | {CONFIG.first_seed}-{last} (same walks) | 0.50 m | {rerun:.2f} m "
+            "| 0.00 m | REGRESSION |") in out
+    # Another commit printed it: its walks moved, which alone fails nothing.
+    assert {verdicts[f"{SCENARIO} walk {CONFIG.first_seed + k} pf"] for k in range(WALKS)} == {"moved"}
+    assert f"fusion-exact {SCENARIO} pf REGRESSION" in err
+
+
+@pytest.mark.parametrize("side, margin, verdict", [(-1, 0.02, "REGRESSION"), (-1, -0.02, "ok"), (0, 0.0, "ok"),
+                                                   (1, -0.02, "ok"), (1, 0.02, "better")])
+def test_the_spread_of_the_rerun_walks_decides_where_no_walk_is_printed(campaign, side, margin, verdict):
+    rows, walks = campaign
+    pf = np.array([w["p95_m"]["pf"] for w in sorted(walks, key=lambda w: w["k"])])
+    # The documented spread: a 95 % interval of the mean of the re-run walks, from their own scatter; the printed
+    # figure's rounding is allowed on top. The file claims a PF mean just beyond (margin > 0) or just inside it.
+    spread = stats.t.ppf(0.975, WALKS - 1) * np.std(pf, ddof=1) / np.sqrt(WALKS)
+    claim = pf.mean() + side * (spread + 0.005 + margin)
+    assert claim > 0.1
+    doctored = [claim + (value - pf.mean()) for value in pf]  # the printed mean is the claim
+    figures = results_check.parse_fusion(results_check.parse_sections(
+        _printed(*_with_track(rows, walks, "pf", doctored), per_walk=False))["fusion-exact"])
+    assert figures.per_walk == {} and figures.means[(SCENARIO, "pf")].value == pytest.approx(claim, abs=0.005)
+    comparisons = results_check.compare_fusion("fusion-exact", figures, walks, same_code=False)
+    assert _verdicts(comparisons)[f"{SCENARIO} pf"] == verdict
+
+
+def test_the_same_walks_on_the_printing_commit_must_give_the_printed_figures(campaign):
+    rows, walks = campaign
+    figures = results_check.parse_fusion(results_check.parse_sections(
+        _printed(*_with_track(rows, walks, "ukf", [w["p95_m"]["ukf"] + 0.02 for w in sorted(
+            walks, key=lambda w: w["k"])])))["fusion-exact"])
+    verdicts = _verdicts(results_check.compare_fusion("fusion-exact", figures, walks, same_code=True))
+    # A walk 2 cm off its printed figure is not a regression beyond the spread, but the same code must reproduce it.
+    assert verdicts[f"{SCENARIO} ukf"] == "NOT REPRODUCED"
+    assert {verdicts[f"{SCENARIO} walk {CONFIG.first_seed + k} ukf"] for k in range(WALKS)} == {"NOT REPRODUCED"}
+    assert verdicts[f"{SCENARIO} pf"] == "ok"
+    verdicts = _verdicts(results_check.compare_fusion("fusion-exact", figures, walks, same_code=False))
+    assert verdicts[f"{SCENARIO} ukf"] == "ok"
+    # A walk that ran another seed is not the printed walk: refused rather than compared.
+    other = [{**w, "seed": w["seed"] + 1} for w in walks]
+    with pytest.raises(ValueError, match="not the same walk"):
+        results_check.compare_fusion("fusion-exact", figures, other, same_code=False)
+
+
+RECEIVER_BODY = """Each scenario file's walk.
+
+| case | velocity RMSE | range error 95 % / max | f_s error | found | seconds |
+|---|---|---|---|---|---|
+| park-loop | 0.025 m/s | 0.069 m / 0.125 m | +0.005 Hz | 100.0 % | 93 s |
+| sfn-park | 2.997 m/s | (one tower) | -0.006 Hz | 99.0 % | 93 s |
+"""
+
+
+def test_a_row_section_is_compared_figure_by_figure(tmp_path, monkeypatch):
+    rerun = (RECEIVER_BODY.replace("0.125 m", "0.131 m").replace("+0.005 Hz", "-0.005 Hz")
+             .replace("99.0 %", "98.0 %").replace("2.997", "2.990").replace("93 s |\n", "94 s |\n", 1))
+    verdicts = _verdicts(results_check.compare_tables("receiver", RECEIVER_BODY, rerun, same_code=False))
+    # An error grew: regression; the same magnitude of a signed offset: ok; a share fell: regression; an error
+    # shrank: better; the scored stretch changed: moved; a cell without figures: not compared.
+    assert verdicts == {"park-loop: velocity RMSE": "ok", "park-loop: range error 95 % / max": "REGRESSION",
+                        "park-loop: f_s error": "ok", "park-loop: found": "ok", "park-loop: seconds": "moved",
+                        "sfn-park: velocity RMSE": "better", "sfn-park: f_s error": "ok",
+                        "sfn-park: found": "REGRESSION", "sfn-park: seconds": "ok"}
+    assert set(_verdicts(results_check.compare_tables("receiver", RECEIVER_BODY, RECEIVER_BODY, True)).values()) \
+        == {"ok"}
+    with pytest.raises(ValueError, match="tables changed"):
+        results_check.compare_tables("receiver", RECEIVER_BODY, RECEIVER_BODY.replace("| seconds |", "| s |"), False)
+    # Through check_results: the section is run again whole (here a stand-in for the receiver cases).
+    path = tmp_path / "results.md"
+    section = results.Section("receiver", "Receiver against truth", "--sections receiver", RECEIVER_BODY, 60.0)
+    path.write_text(results.merge_sections("", {"receiver": results.render_section(section, PRINTED_COMMIT,
+                                                                                   "2000-01-01", "a machine")}))
+    monkeypatch.setattr(results, "receiver_section", lambda config: dataclasses.replace(section, body=rerun))
+    report = results_check.check_results(path, ["receiver", "pdr"])
+    assert [c.row for c in report.failed] == ["park-loop: range error 95 % / max", "sfn-park: found"]
+    assert report.notes == [f"pdr: not in {path}, nothing to check"]
+
+
+def test_nothing_to_check_and_a_readme_are_refused(tmp_path):
+    path = tmp_path / "results.md"
+    section = results.Section("bench", "Throughput", "--sections bench", "```text\n1 s\n```\n", 1.0)
+    path.write_text(results.merge_sections("", {"bench": results.render_section(section, PRINTED_COMMIT,
+                                                                                "2000-01-01", "a machine")}))
+    assert main(["-q", "results", "--check", "-o", str(path), "--sections", "bench"]) == EXIT_BAD_INPUT
+    assert main(["-q", "results", "--check", "-o", str(path), "--readme", str(tmp_path / "README.md")]) == EXIT_USAGE
+    assert main(["-q", "results", "--check", "-o", str(tmp_path / "missing.md")]) == EXIT_BAD_INPUT
