@@ -41,6 +41,7 @@ walks on the reporting seeds (``--first-seed 100`` for the tuning seeds);
 from __future__ import annotations
 
 import dataclasses
+import re
 import json
 from dataclasses import asdict, dataclass
 from typing import Callable
@@ -166,10 +167,19 @@ def scenario_transmit_delays(scenario: Scenario) -> TransmitDelays | None:
 
 def with_transmit_delays(scenario: Scenario, known: str) -> Scenario:
     """The scenario with the fusion given ``known`` of its transmit delay offsets (``[network] known``), named
-    ``"NAME (delays KNOWN)"`` where that differs from the scenario's own."""
+    ``"NAME (delays KNOWN)"`` where that differs from the scenario's own (:func:`load_evaluation_scenario` reads
+    the name back)."""
     if known == scenario.network.known:
         return scenario
     return scenario.replace(network={"known": known}, name=f"{scenario.name} (delays {known})")
+
+
+def load_evaluation_scenario(name: str) -> Scenario:
+    """A scenario by name or file, or a variant :func:`with_transmit_delays` named, ``"NAME (delays KNOWN)"``."""
+    variant = re.fullmatch(r"(?P<name>.+) \(delays (?P<known>\w+)\)", name)
+    if variant is None:
+        return load_scenario(name)
+    return with_transmit_delays(load_scenario(variant["name"]), variant["known"])
 
 
 def calibrated_pdr_config(scenario: Scenario) -> PdrConfig:
@@ -433,7 +443,7 @@ def evaluate_many(scenarios: list[str | Scenario], seeds: int = 20, filters: tup
         filters), for the scenarios whose walks all ran; the failed walks.
     """
     _check(seeds, level, first_seed)
-    loaded = [s if isinstance(s, Scenario) else load_scenario(s) for s in scenarios]
+    loaded = [s if isinstance(s, Scenario) else load_evaluation_scenario(s) for s in scenarios]
     if transmit_delays is not None:
         loaded = [with_transmit_delays(scn, transmit_delays) for scn in loaded]
     tasks = [Task(f"{scn.name} k={k} (seed {monte_carlo_seed(scn.seed, k, first_seed)})", run_walk,
@@ -472,7 +482,7 @@ def run_seeds(scenario: str | Scenario, seeds: int = 20, filters: tuple[str, ...
     Arguments as :func:`evaluate_many`.
     """
     _check(seeds, level, first_seed)
-    scn = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    scn = scenario if isinstance(scenario, Scenario) else load_evaluation_scenario(scenario)
     return scn.name, [run_walk(scn, k, first_seed, vary_geometry, filters, config, level, range_source, chain)
                       for k in range(seeds)]
 

@@ -34,7 +34,12 @@ from dtmbnav.distributed import IN_PROCESS, ClusterConfig
 from dtmbnav.seeds import REPORTING_SEEDS
 
 #: Scenarios of the fusion tables, in the order they are printed.
-FUSION_SCENARIOS = ("park-loop-cw", "park-loop-ccw", "sfn-park", "sfn3-park", "street-out", "street-back")
+FUSION_SCENARIOS = ("park-loop-cw", "park-loop-ccw", "sfn-park", "sfn3-park", "street-out", "street-back",
+                    "street-out-sfn")
+#: Further rows of the observation-level table: the SFN walks with the network plan's transmit delay offsets,
+#: and with the walks' true ones (the fusion's bound; the rows above know nothing of them).
+SFN_DELAY_ROWS = ("sfn-park (delays plan)", "sfn-park (delays exact)", "sfn3-park (delays plan)",
+                  "sfn3-park (delays exact)")
 #: Scenarios of the exact-range table (the filters' bound with a perfect single-tower receiver).
 EXACT_SCENARIOS = ("park-loop-cw", "park-loop-ccw")
 #: Kalman-type filters in the order of the table's columns (with their column titles).
@@ -134,10 +139,9 @@ def machine_description() -> str:
 
 
 def _clock_of(scenario_name: str) -> str:
-    from dtmbnav.evaluate import receiver_clock_model
-    from sim.scenario import load_scenario
+    from dtmbnav.evaluate import load_evaluation_scenario, receiver_clock_model
 
-    return receiver_clock_model(load_scenario(scenario_name))
+    return receiver_clock_model(load_evaluation_scenario(scenario_name))
 
 
 def fusion_table(rows: Sequence, walks: Sequence[dict[str, object]]) -> tuple[str, list[dict[str, object]]]:
@@ -356,7 +360,8 @@ def _sections(config: ResultsConfig) -> dict[str, Callable[[], Section]]:
     return {
         "fusion-iq": lambda: fusion_section("fusion-iq", "Fusion at IQ level", FUSION_SCENARIOS, "iq",
                                             config.iq_seeds, config, per_walk=True),
-        "fusion-obs": lambda: fusion_section("fusion-obs", "Fusion at the observation level", FUSION_SCENARIOS,
+        "fusion-obs": lambda: fusion_section("fusion-obs", "Fusion at the observation level",
+                                             FUSION_SCENARIOS + SFN_DELAY_ROWS,
                                              "obs", config.obs_seeds, config, per_walk=False),
         "fusion-exact": lambda: fusion_section("fusion-exact", "Fusion with the exact range (the filters' bound)",
                                                EXACT_SCENARIOS, "exact", config.obs_seeds, config, per_walk=False),
@@ -423,7 +428,7 @@ def headline_table(results_text: str) -> str:
              "| walk | level | walks | PDR | PDR@fix | PF | PF vs PDR / vs PDR@fix | walks > 5 % worse than PDR@fix "
              "| paper PF reduction |", "|---" * 9 + "|"]
     for level in ("iq", "obs"):
-        for scenario in FUSION_SCENARIOS:
+        for scenario in FUSION_SCENARIOS + SFN_DELAY_ROWS:
             row = rows.get((scenario, level))
             if row is None or row["pf"] is None:
                 continue

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from fusion_synth import exact_paths, park_like_walk
 
-from dtmbnav.evaluate import scenario_transmit_delays, with_transmit_delays
+from dtmbnav.evaluate import load_evaluation_scenario, scenario_transmit_delays, with_transmit_delays
 from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
 from fusion.observations import aggregate_paths, epoch_times
 from fusion.run import FusionConfig
@@ -111,6 +111,9 @@ def test_what_the_fusion_is_given_follows_the_scenarios_network_knowledge():
     assert exact.name == "sfn-park (delays exact)"
     assert scenario_transmit_delays(exact).delays_s == tuple(scenario.transmit_delays_s())
     assert scenario_transmit_delays(load_scenario("park-loop-cw")) is None          # one tower
+    named = load_evaluation_scenario("sfn-park (delays plan)")                    # a results table's row name
+    assert named.name == "sfn-park (delays plan)" and named.network.known == "plan"
+    assert load_evaluation_scenario("sfn-park") == load_scenario("sfn-park")
     with pytest.raises(ValueError, match="network.known"):
         scenario.replace(network={"known": "guess"})
 
