@@ -12,6 +12,12 @@ the other lags. The taps also give the SNR, the share of the window power they
 capture (``peak_metric``) and the power centroid (sub-sample timing for the
 tracker).
 
+For the path tracker's guard-interval span (``docs/paths.md``, "The CIR") the
+same correlation is also taken on core-period windows shifted by whole
+samples ("views", :meth:`ChannelEstimator.view_taps`): a view shifted by s
+sees the paths at lags ``s - postamble .. s + preamble`` as cleanly as the
+frame's own window sees those around its start.
+
 The hot loops are numba kernels over a whole batch of frames; the reference
 path (FFT correlation) is used by the tests and the benchmark.
 """
@@ -26,6 +32,7 @@ from numba import njit
 
 from dtmbnav_core import gb20600
 from dtmbnav_core.gb20600 import PnMode
+from receiver.derotate import derotate_segments
 
 #: Default delay span of the estimate before and after the frame's window start, samples.
 #: Symmetric because the frame timing follows the taps' power centroid: in a
@@ -38,6 +45,18 @@ TAPS_BEFORE = 48
 TAPS_AFTER = 48
 #: Default tap power over the noise floor needed to keep a tap.
 TAP_THRESHOLD = 10.0
+
+
+def view_first_lag(mode: PnMode) -> int:
+    """Lag of a view's first column relative to its shift (:meth:`ChannelEstimator.view_taps`; PN420/PN945).
+
+    A view reads all P lags of its circular correlation: the header's cyclic
+    extension around its shift (``-postamble .. preamble - 1``), where a path
+    has all of its header chips in the window, and the rest of the period
+    split evenly before and after it.
+    """
+    m = mode.value
+    return -(m.postamble + (m.period - m.postamble - m.preamble) // 2)
 
 
 @dataclass
@@ -122,6 +141,13 @@ class ChannelEstimator:
             self._windows = np.zeros((batch, m.period), dtype=np.complex64)
             self._corr = np.empty((batch, m.period), dtype=np.complex64)
             self._hadamard_work = np.empty(m.period + 1, dtype=np.complex64)
+            # Views (view_taps): their own window and correlation buffers, the frame's stay for span_taps.
+            self._view_windows = np.zeros((batch, m.period), dtype=np.complex64)
+            self._view_corr = np.empty((batch, m.period), dtype=np.complex64)
+            self._view_power = np.empty(batch)
+            first = view_first_lag(mode)
+            self._view_bins = (first + np.arange(m.period)) % m.period
+            self._view_span = (-m.postamble - first, m.preamble - first)
         else:
             # Rows n + taps_after - 1 + i only see header chips i .. i + n_taps - 1.
             self.window_offset, self.window_length = taps_after - 1, m.header_length - self.n_taps + 1
@@ -201,6 +227,49 @@ class ChannelEstimator:
         noise_tap = np.empty(count)
         deconvolve_kernel(self._corr[:count], tap_bins, noise_bins, raw, noise_tap)
         return raw, noise_tap
+
+    def view_taps(self, count: int, buf: np.ndarray, buf_start: int, starts: np.ndarray, shifts: tuple[int, ...],
+                  phases: np.ndarray, cfo_cycles_per_sample: float, rot: np.ndarray, out: np.ndarray) -> None:
+        """Raw taps of ``count`` frames over views shifted by ``shifts`` samples (PN420/PN945; into ``out``).
+
+        View s correlates the core period that starts s samples after the
+        frame's own window (:attr:`window_offset`) with the frame's
+        m-sequence phase, so a path at lag l lands on correlation lag
+        ``l - s`` (mod P). All P lags are read, as lags
+        ``s + view_first_lag .. s + view_first_lag + P - 1``; the m-sequence
+        sidelobes are removed as in :meth:`span_taps`, with the header's
+        cyclic extension around s as the span (:func:`view_readout_kernel`).
+        Shift 0 reuses the correlations of the last :meth:`estimate`.
+
+        Parameters
+        ----------
+        buf, buf_start
+            Stream samples and the index of ``buf[0]``; they must hold every view's window.
+        starts : (count,) int64
+            Window start of each frame, stream index.
+        shifts : tuple of int
+            The views' shifts, samples.
+        phases : (count,) int64
+            Header phase of each frame.
+        cfo_cycles_per_sample, rot
+            Coarse CFO and its rotation table (:func:`receiver.derotate.derotate_segments`).
+        out : (>= count, len(shifts), P) complex64
+            Column ``j`` of view ``v`` is lag ``shifts[v] + view_first_lag(mode) + j``.
+        """
+        m = self.mode.value
+        if not self.cyclic:
+            raise ValueError(f"{self.mode.name}: views need a cyclic header")
+        shift_slots = (np.asarray(phases, dtype=np.int64) + m.preamble) % m.period
+        for v, shift in enumerate(shifts):
+            corr = self._corr
+            if shift != 0:
+                corr = self._view_corr
+                derotate_segments(buf, buf_start, starts + self.window_offset + shift, m.period, cfo_cycles_per_sample,
+                                  rot, self._view_windows)
+                m_sequence_correlation_kernel(self._view_windows[:count], shift_slots, self._sample_slot,
+                                              self._shift_slot, self._hadamard_scale, self._hadamard_work, corr,
+                                              self._view_power)
+            view_readout_kernel(corr[:count], self._view_bins, *self._view_span, out[:count, v])
 
     def _span_bins(self, taps_before: int, taps_after: int) -> tuple[np.ndarray, np.ndarray]:
         """Correlation lags of a span and the noise lags outside it (:meth:`span_taps`; made once per span)."""
@@ -406,6 +475,25 @@ def deconvolve_kernel(corr: np.ndarray, tap_bins: np.ndarray, noise_bins: np.nda
             v = corr[b, i] * scale + offset
             acc += v.real * v.real + v.imag * v.imag
         noise_tap[b] = acc / noise_bins.shape[0]
+
+
+@njit(cache=True, fastmath=True, nogil=True)
+def view_readout_kernel(corr: np.ndarray, bins: np.ndarray, span_from: int, span_to: int, out: np.ndarray) -> None:
+    """Taps of a batch over every correlation lag, in the order ``bins`` (into ``out``).
+
+    :func:`deconvolve_kernel`'s sidelobe removal with the sum of the channel
+    taken over ``bins[span_from:span_to]`` (a view's cyclic extension), applied to all lags.
+    """
+    p = corr.shape[1]
+    n_span = span_to - span_from
+    scale = p / (p + 1.0)
+    for b in range(corr.shape[0]):
+        total = 0j
+        for j in range(span_from, span_to):
+            total += corr[b, bins[j]]
+        offset = total / (1.0 - (n_span - 1.0) / p) / (p + 1.0)
+        for j in range(bins.shape[0]):
+            out[b, j] = corr[b, bins[j]] * scale + offset
 
 
 @njit(cache=True, fastmath=True, nogil=True)

@@ -2,7 +2,7 @@
 
 Once the frame windows of a batch are placed (:meth:`receiver.tracking.FrameTracker.predict`),
 each frame's header-window derotation, channel estimate (:mod:`receiver.channel_estimate`,
-and the path tracker's wider span of it when asked for), body recovery
+and the path tracker's wider span of it, or its views, when asked for), body recovery
 (:mod:`receiver.body`) and SI carriers (:mod:`receiver.ofdm`) depend on that frame's
 samples only; the timing loop, the estimators and the path tracker
 (:mod:`receiver.paths`), which link consecutive frames, run afterwards, in order, on
@@ -61,6 +61,10 @@ class BatchWindows:
         Coarse CFO, cycles per sample.
     rot : ndarray, complex64
         :func:`receiver.derotate.rotation_table` of the coarse CFO.
+    first_sample : int
+        First stream index ``samples`` holds: the path tracker's views
+        (:meth:`FrameWorkers.run`) may reach before it at the start of the
+        stream, where they read zeros.
     """
 
     samples: Callable[[int, int], np.ndarray]
@@ -69,6 +73,7 @@ class BatchWindows:
     headers: np.ndarray
     cfo_cycles_per_sample: float
     rot: np.ndarray
+    first_sample: int = 0
 
 
 @dataclass
@@ -81,10 +86,13 @@ class SpanTaps:
         Column ``j`` is delay ``j - taps_before`` samples.
     noise_tap : ndarray, (B,)
         Mean tap power on the lags outside the span.
+    views : ndarray, complex64, (B, V, P) or None
+        The taps of the views asked for (:meth:`receiver.channel_estimate.ChannelEstimator.view_taps`).
     """
 
     raw_taps: np.ndarray
     noise_tap: np.ndarray
+    views: np.ndarray | None = None
 
 
 @dataclass
@@ -146,15 +154,18 @@ class FrameWorkers:
         return estimators[mode]
 
     def run(self, mode: PnMode, windows: BatchWindows, keep_bodies: bool = False,
-            span: tuple[int, int] | None = None) -> BatchFrames:
+            span: tuple[int, int] | None = None, views: tuple[int, ...] = ()) -> BatchFrames:
         """Channel estimates, SI carriers (and bodies when ``keep_bodies``) of every frame of a batch.
 
         ``span`` = ``(taps_before, taps_after)``: also the raw taps over that delay span (the path
-        tracker's, :mod:`receiver.paths`; PN420 and PN945 only).
+        tracker's, :mod:`receiver.paths`; PN420 and PN945 only), and with ``views`` (shifts,
+        samples) the taps of those views.
         """
         count = len(windows.starts)
         blocks = [(lo, min(lo + FRAME_BLOCK, count)) for lo in range(0, count, FRAME_BLOCK)]
-        work = partial(self._block, mode, windows, keep_bodies=keep_bodies, span=span)
+        views_out = np.empty((count, len(views), mode.value.period), np.complex64) if views else None
+        work = partial(self._block, mode, windows, keep_bodies=keep_bodies, span=span, views=views,
+                       views_out=views_out)
 
         def run_share(share: list[tuple[int, int]]) -> list[tuple]:
             return [work(*block) for block in share]
@@ -171,7 +182,7 @@ class FrameWorkers:
         si = np.concatenate([p[1] for p in parts])
         bodies = np.concatenate([p[2] for p in parts]) if keep_bodies else None
         spans = SpanTaps(np.concatenate([p[3][0] for p in parts]),
-                         np.concatenate([p[3][1] for p in parts])) if span is not None else None
+                         np.concatenate([p[3][1] for p in parts]), views_out) if span is not None else None
         seconds = {stage: sum(p[4][i] for p in parts) for i, stage in enumerate(BLOCK_STAGES)}
         return BatchFrames(channel, si, bodies, spans, seconds)
 
@@ -188,21 +199,31 @@ class FrameWorkers:
         return local.estimators, local.ofdm
 
     def _block(self, mode: PnMode, w: BatchWindows, lo: int, hi: int, keep_bodies: bool,
-               span: tuple[int, int] | None) -> tuple[ChannelEstimates, np.ndarray, np.ndarray | None,
-                                                      tuple[np.ndarray, np.ndarray] | None, tuple[float, ...]]:
-        """Frames ``lo:hi`` of a batch, on this thread's buffers."""
+               span: tuple[int, int] | None, views: tuple[int, ...] = (),
+               views_out: np.ndarray | None = None) -> tuple[ChannelEstimates, np.ndarray, np.ndarray | None,
+                                                             tuple[np.ndarray, np.ndarray] | None, tuple[float, ...]]:
+        """Frames ``lo:hi`` of a batch, on this thread's buffers (the views' taps into ``views_out[lo:hi]``)."""
         est, ofdm = self._estimator(mode), self._buffers()[1]
         taps_before, taps_after = self._taps[:2]
         ng = mode.value.header_length
         starts = w.starts[lo:hi]
         t0 = time.perf_counter()
-        # A frame reads from taps_before before its header to the next header's first taps_after samples.
-        buf_start = int(starts[0]) - taps_before
-        buf = w.samples(buf_start, int(starts[-1]) + mode.value.frame_length + taps_after + 1)
+        # A frame reads from taps_before before its header (or from its earliest view's window) to the next
+        # header's first taps_after samples.
+        buf_start = int(starts[0]) - max(taps_before, -est.window_offset - min(views, default=0))
+        buf_stop = int(starts[-1]) + mode.value.frame_length + taps_after + 1
+        if buf_start < w.first_sample:
+            # The stream's first frames: the earliest views reach before its first sample.
+            buf = np.concatenate([np.zeros(w.first_sample - buf_start, np.complex64), w.samples(w.first_sample, buf_stop)])
+        else:
+            buf = w.samples(buf_start, buf_stop)
         derotate_segments(buf, buf_start, starts + est.window_offset, est.window_length, w.cfo_cycles_per_sample,
                           w.rot, est.windows)
         ch = est.estimate(hi - lo, w.phases[lo:hi])
         span_taps = est.span_taps(hi - lo, *span) if span is not None else None
+        if views_out is not None:
+            est.view_taps(hi - lo, buf, buf_start, starts, views, w.phases[lo:hi], w.cfo_cycles_per_sample, w.rot,
+                          views_out[lo:hi])
         t1 = time.perf_counter()
         phase = body_phases(starts, ng, taps_before, w.cfo_cycles_per_sample)
         recover_bodies(buf, buf_start, starts, ng, w.rot, phase, ch.taps, taps_before, w.headers[lo:hi],

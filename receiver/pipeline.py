@@ -685,9 +685,9 @@ class Receiver:
         if self.config.track_paths and acq.mode.value.cyclic_length > 0:
             if self._path_tracker is None:
                 self._path_tracker = PathTracker(acq.mode, self.carrier_hz, self.config.paths,
-                                                 (self.resampler.up, self.resampler.down))
+                                                 (self.resampler.up, self.resampler.down), acq.rotating)
             elif self._coast is None or acq.mode != self._path_tracker.mode:
-                self._path_tracker.new_lock(acq.mode)
+                self._path_tracker.new_lock(acq.mode, acq.rotating)
             # else the lock's first batch decides: the paths go on across a drop (_after_loss)
         if self._si_detector is None:
             self._si_detector = SiWordDetector(self.config.taps_before, self.config.taps_before + self.config.taps_after,
@@ -699,7 +699,9 @@ class Receiver:
         if self._lock is None:
             keep = self._search_from
         else:
-            keep = int(np.floor(self._lock.tracker.tau)) - self.config.taps_before - 64
+            # The path tracker's views may read further before a frame than its channel estimate.
+            lead = max(self.config.taps_before, 0 if self._path_tracker is None else self._path_tracker.view_lead)
+            keep = int(np.floor(self._lock.tracker.tau)) - lead - 64
         if self._orientation_pending and self._restart is not None:
             keep = min(keep, self._restart[0])   # the held lock may have to be made again
         self._queue.drop_before(keep)
@@ -725,9 +727,10 @@ class Receiver:
         if tracker is not None and lock.mode != tracker.mode:
             tracker = None
         frames = self._workers.run(lock.mode, BatchWindows(self._queue.view, starts, phases, lock.header_symbols(phases),
-                                                           lock.cfo_cycles_per_sample, lock.rot),
+                                                           lock.cfo_cycles_per_sample, lock.rot, self._queue.start),
                                    keep_bodies=cfg.inspects("body"),
-                                   span=None if tracker is None else (tracker.taps_before, tracker.taps_after))
+                                   span=None if tracker is None else (tracker.taps_before, tracker.taps_after),
+                                   views=() if tracker is None else tracker.plan_views())
         ch, si = frames.channel, frames.si
         for name, dt in frames.seconds.items():
             self.stage_seconds[name] += dt
@@ -797,7 +800,8 @@ class Receiver:
             # The paths' delays are kept on the real clock: the window starts plus the samples dropped so far.
             real_starts = starts + self._stream_samples(self._lost_input) if self._lost_input else starts
             found = tracker.update(frames.span.raw_taps, frames.span.noise_tap, real_starts, frame_index,
-                                   periods / lock.tracker.nominal_period - 1.0, rows.t_s, lock.acq.coarse_cfo_hz)
+                                   periods / lock.tracker.nominal_period - 1.0, rows.t_s, lock.acq.coarse_cfo_hz,
+                                   frames.span.views)
             rows = replace(rows, **found.first_path)
             # A frame without a header (a fade, the frames before a loss of lock) has no path phase to trust.
             rows.first_path_cfo_hz[~strong] = np.nan
@@ -877,7 +881,7 @@ class Receiver:
         else:
             self._segment += 1
             if tracker is not None and tracker.mode == lock.mode:
-                tracker.new_lock(lock.mode)
+                tracker.new_lock(lock.mode, lock.acq.rotating)
 
     def _estimate(self, lock: _Lock, starts: np.ndarray, smoothed: np.ndarray, periods: np.ndarray, si: np.ndarray,
                   ch: ChannelEstimates, frame_index: np.ndarray, phases: np.ndarray) -> tuple[FrameBatch, np.ndarray]:

@@ -5,7 +5,9 @@ the strongest reflection. The PN header gives, every frame, the channel
 impulse response (CIR) over the header's cyclic extension
 (:meth:`receiver.channel_estimate.ChannelEstimator.span_taps`: inside it no
 previous body and no header tail reach the correlation window, so nothing
-needs removing); this package separates the paths in it and tracks each one:
+needs removing), or with ``PathConfig.guard_span`` over shifted windows up to
+the guard interval (:mod:`receiver.paths.tracking`, step 5); this package
+separates the paths in it and tracks each one:
 
 1. **Fit** (:mod:`receiver.paths.fit`). The CIR is a sum of known pulses (the
    GB 20600 SRRC through the header correlation and the resampler), one per
@@ -38,6 +40,8 @@ from receiver.paths.fit import (
     PULSE_OVERSAMPLING,
     fit_paths_kernel,
     fit_paths_reference,
+    fit_views_kernel,
+    model_residual_kernel,
     pulse_tables,
     resampler_response,
     srrc_spectrum,
@@ -63,6 +67,8 @@ __all__ = [
     "erlang_log_survival",
     "fit_paths_kernel",
     "fit_paths_reference",
+    "fit_views_kernel",
+    "model_residual_kernel",
     "pulse_tables",
     "resampler_response",
     "slip_kernel",

@@ -110,7 +110,33 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
                      max_step: np.ndarray, table: np.ndarray, dtable: np.ndarray, oversampling: int,
                      block_frames: int, gain: float, rate_gain: float, max_run_move: float, amplitudes: np.ndarray,
                      lags: np.ndarray, variance: np.ndarray, residual_power: np.ndarray) -> None:
+    """:func:`fit_views_kernel` on one CIR over the contiguous lags ``lag0 .. lag0 + L - 1``, every pulse at full scale.
+
+    The path tracker's CIR over the header's cyclic extension
+    (:meth:`receiver.channel_estimate.ChannelEstimator.span_taps`); the
+    parameters are those of :func:`fit_views_kernel`.
+    """
+    lag_axis = lag0 + np.arange(taps.shape[1]).astype(np.float64)
+    fit_views_kernel(taps, offsets, lag_axis, np.zeros(taps.shape[1], np.int64), np.ones((1, delay.shape[0])),
+                     delay, rate, max_step, table, dtable, oversampling, block_frames, gain, rate_gain, max_run_move,
+                     amplitudes, lags, variance, residual_power)
+
+
+@njit(cache=True, fastmath=True)
+def fit_views_kernel(taps: np.ndarray, offsets: np.ndarray, lag_axis: np.ndarray, column_view: np.ndarray,
+                     scale: np.ndarray, delay: np.ndarray, rate: np.ndarray, max_step: np.ndarray, table: np.ndarray,
+                     dtable: np.ndarray, oversampling: int, block_frames: int, gain: float, rate_gain: float,
+                     max_run_move: float, amplitudes: np.ndarray, lags: np.ndarray, variance: np.ndarray,
+                     residual_power: np.ndarray) -> None:
     """Least-squares path amplitudes and delay-loop updates over a batch (module docstring).
+
+    The columns of ``taps`` may come from several header-correlation windows
+    ("views", :meth:`receiver.channel_estimate.ChannelEstimator.view_taps`):
+    path i adds ``scale[v, i] a_i g(lag - lambda_i)`` to a column of view v,
+    where ``scale`` holds the share of the path's header chips inside that
+    view's window (the rest of the window holds body data, noise here) over
+    the view's noise standard deviation, by which its columns have been
+    divided too (a weighted least-squares fit).
 
     The frames are fitted in runs with one window offset, each run's pulses
     at the paths' lags in its middle frame; a run ends before its fastest
@@ -123,12 +149,16 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
     Parameters
     ----------
     taps : (F, L) complex64
-        Raw CIR of each frame; column j is lag ``lag0 + j``.
+        Raw CIR of each frame; column j is lag ``lag_axis[j]`` of view ``column_view[j]``.
     offsets : (F,) float64
         Each frame's window start on the path-delay grid: path i sits at lag
         ``delay_i - offsets[k]``.
-    lag0 : int
-        Lag of column 0 (``-taps_before``).
+    lag_axis : (L,) float64
+        Lag of each column, samples after the frame's window start.
+    column_view : (L,) int64
+        View of each column (row of ``scale``).
+    scale : (V, n) float64
+        Scale of path i's pulse in the columns of view v.
     delay, rate : (n,) float64
         Grid delay of each path at the batch's first frame and its drift per
         frame, samples; updated in place to the frame after the batch.
@@ -182,9 +212,10 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
         for i in range(n):
             lam[i] = delay[i] + rate[i] * mid - offsets[start]
             for j in range(n_lags):
-                x = lag0 + j - lam[i]
-                both[i, j] = _table_at(table, x, period, oversampling)
-                both[n + i, j] = _table_at(dtable, x, period, oversampling)
+                x = lag_axis[j] - lam[i]
+                c = scale[column_view[j], i]
+                both[i, j] = c * _table_at(table, x, period, oversampling)
+                both[n + i, j] = c * _table_at(dtable, x, period, oversampling)
         gram2 = both @ both.T
         ridge = 1e-6 * np.trace(gram2[:n, :n]) / max(n, 1)
         for i in range(2 * n):
@@ -262,14 +293,61 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
         start = stop
 
 
+@njit(cache=True, fastmath=True)
+def model_residual_kernel(taps: np.ndarray, lag_axis: np.ndarray, column_view: np.ndarray, scale: np.ndarray,
+                          amplitudes: np.ndarray, lags: np.ndarray, table: np.ndarray, oversampling: int,
+                          block_frames: int, max_run_move: float, residual_power: np.ndarray) -> None:
+    """Per column, the power left in ``taps`` once the paths' fitted pulses are taken out, summed over the frames.
+
+    Column j of frame k loses ``scale[column_view[j], i] amplitudes[k, i]
+    g(lag_axis[j] - lags[k, i])`` for every path i (the model of
+    :func:`fit_views_kernel`, with the amplitudes and lags it fitted on
+    other columns); the power left is added to ``residual_power[j]``. As in
+    the fit, the pulses are made once per run of at most ``block_frames``
+    frames over which no path's lag moves by more than ``max_run_move``, at
+    the lags of the run's middle frame.
+    """
+    n_frames, n_lags = taps.shape
+    n = amplitudes.shape[1]
+    period = (table.shape[0] - 1) // oversampling
+    pulse = np.zeros((n, n_lags))
+    start = 0
+    while start < n_frames:
+        stop = start + 1
+        while stop < n_frames and stop - start < block_frames:
+            moved = 0.0
+            for i in range(n):
+                moved = max(moved, abs(lags[stop, i] - lags[start, i]))
+            if moved > max_run_move:
+                break
+            stop += 1
+        mid = (start + stop - 1) // 2
+        for i in range(n):
+            for j in range(n_lags):
+                c = scale[column_view[j], i]
+                pulse[i, j] = c * _table_at(table, lag_axis[j] - lags[mid, i], period, oversampling) if c != 0.0 else 0.0
+        for k in range(start, stop):
+            for j in range(n_lags):
+                left_re = taps[k, j].real
+                left_im = taps[k, j].imag
+                for i in range(n):
+                    a = amplitudes[k, i]
+                    left_re -= a.real * pulse[i, j]
+                    left_im -= a.imag * pulse[i, j]
+                residual_power[j] += left_re * left_re + left_im * left_im
+        start = stop
+
+
 def fit_paths_reference(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np.ndarray, rate: np.ndarray,
                         max_step: np.ndarray, table: np.ndarray, dtable: np.ndarray, oversampling: int,
-                        block_frames: int, gain: float, rate_gain: float,
-                        max_run_move: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                        block_frames: int, gain: float, rate_gain: float, max_run_move: float,
+                        lag_axis: np.ndarray | None = None, column_view: np.ndarray | None = None,
+                        scale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Plain-numpy :func:`fit_paths_kernel` (vectorised over the frames of each run).
 
-    Returns ``amplitudes, lags, variance, residual_power``; ``delay`` and
-    ``rate`` are updated in place.
+    With ``lag_axis``, ``column_view`` and ``scale`` given (``lag0`` is then
+    unused) it is :func:`fit_views_kernel`'s twin. Returns ``amplitudes,
+    lags, variance, residual_power``; ``delay`` and ``rate`` are updated in place.
     """
     n_frames, n_lags = taps.shape
     n = len(delay)
@@ -279,7 +357,9 @@ def fit_paths_reference(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay:
     lags = np.zeros((n_frames, n))
     variance = np.zeros((n_frames, n))
     residual_power = np.zeros(n_lags)
-    lag_axis = lag0 + np.arange(n_lags)
+    if lag_axis is None:
+        lag_axis = lag0 + np.arange(n_lags)
+    column_scale = np.ones((n_lags, n)) if scale is None else np.asarray(scale)[column_view]
     hess, grad, pending = np.zeros((n, n)), np.zeros(n), 0
     start = 0
     while start < n_frames:
@@ -291,8 +371,8 @@ def fit_paths_reference(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay:
         count, mid = stop - start, 0.5 * (stop - start - 1)
         lam = delay + rate * mid - offsets[start]
         x = np.mod(lag_axis[:, None] - lam[None, :], period)
-        g = np.interp(x, grid, table[:-1], period=period)
-        dg = np.interp(x, grid, dtable[:-1], period=period)
+        g = np.interp(x, grid, table[:-1], period=period) * column_scale
+        dg = np.interp(x, grid, dtable[:-1], period=period) * column_scale
         ridge = 1e-6 * np.trace(g.T @ g) / max(n, 1)
         inverse = np.linalg.inv(g.T @ g + ridge * np.eye(n))
         cross = dg.T @ g

@@ -30,11 +30,30 @@ and keeps each path's state between batches:
    :class:`receiver.delay_doppler.FirstPathDoppler` maps the CIR around tower
    0's first path in delay and Doppler and moves the first-path frequency to
    the Doppler line whose super-resolved earliest path comes first.
+5. **Guard-interval span** (``guard_span``, an option). The CIR of the
+   header's cyclic extension sees paths within -postamble..preamble of the
+   window start; an SFN's towers may arrive up to the guard interval (the
+   header's length) apart. With ``guard_span`` the tracker reads the header
+   correlation on views (:meth:`receiver.channel_estimate.ChannelEstimator.view_taps`):
+   core-period windows shifted so that a group of paths lies inside the
+   view's cyclic extension. Each path lives in one view; every view of a
+   batch is fitted at once (:func:`receiver.paths.fit.fit_views_kernel`), a
+   path's pulse scaled in each view by the share of its header chips in that
+   window (the rest is body data, noise there) and each view weighted by its
+   noise, so a tower's aliases in the others' views are explained and never
+   taken for paths. One further view per batch, in turn, scans the lags no
+   view covers. A path found at lag l may be an alias of one at ``l + k P``
+   (the m-sequence period); in the batch after its birth a view centred on
+   each such candidate checks it: where the path really is, its own view
+   holds all of its header chips, the others at most a third, so the
+   residual there stands out and the path moves to that candidate.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from numba import njit
@@ -44,13 +63,36 @@ from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ, PnMode
 from dtmbnav_core.records import PathBatch, PathFlag
 from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH
 from receiver.cfo import cfo_from_theta
+from receiver.channel_estimate import view_first_lag
 from receiver.delay_doppler import DopplerConfig, FirstPathDoppler
 from receiver.paths.detection import detect_paths, detection_threshold
-from receiver.paths.fit import PULSE_OVERSAMPLING, _pulse_tables_cached, fit_paths_kernel
+from receiver.paths.fit import (
+    PULSE_OVERSAMPLING,
+    _pulse_tables_cached,
+    fit_paths_kernel,
+    fit_views_kernel,
+    model_residual_kernel,
+)
 from receiver.ranging import held_doppler
 
 #: Towers whose clock-free range differences go to ``/receiver/frames`` (towers 1 and 2 against tower 0).
 RANGE_DIFFERENCE_TOWERS = 2
+#: Guard-interval span: a view's detection threshold is at least this many standard deviations of its
+#: residual's spread across lags beyond what white noise gives (:meth:`PathTracker._view_limit`). A path
+#: whose header only partly lies in a view's window leaves a residual there that does not average out over
+#: a batch (the partial m-sequence sums of neighbouring header phases are alike), with peaks several of
+#: those standard deviations above the median (docs/paths.md, "The guard-interval span").
+STRUCTURE_SIGMAS = 8.0
+#: Guard-interval span: a path moves to an alias candidate whose power in the view centred there exceeds
+#: this share of its power where it was found (:meth:`PathTracker._resolve_aliases`). Were the path at the
+#: candidate, that view would hold all of its header chips and the view it was found in at most 0.65 of
+#: them (at least 0.4 of its power there, read between two columns); were it not, at most a third (0.11).
+ALIAS_SHARE = 0.5
+#: Guard-interval span: a view that holds at least this share of a path's header chips fits the path's
+#: amplitude; one that holds less takes out a nuisance pulse of its own amplitude in its place. The partial
+#: m-sequence sums of a share c bend the fit by about sqrt(c (1 - c) / P) of the path's amplitude, while
+#: the view adds c^2 of its information (docs/decisions.md, D44).
+FULL_COVERAGE = 0.5
 
 
 @dataclass(frozen=True)
@@ -117,6 +159,12 @@ class PathConfig:
         the path ranges (eq. 9): the first path's own, or that of the path
         whose phase stays closest to a straight line there
         (:meth:`receiver.ranging.PathRanging.steadiest_path_offset_hz`).
+    guard_span : bool
+        Track paths up to the guard interval (the header's length) before
+        and after the window start, on views of the header correlation, with
+        the m-sequence period's ambiguity resolved (module docstring, step 5),
+        where the header phase rotates; off, or with a constant header phase:
+        the header's cyclic extension (``taps_before``, ``taps_after``).
     """
 
     taps_before: int | None = None
@@ -145,6 +193,7 @@ class PathConfig:
     frequency_time_s: float = 0.1
     doppler: DopplerConfig = field(default_factory=DopplerConfig)
     clock_path: str = DEFAULT_CLOCK_PATH
+    guard_span: bool = False
 
     def __post_init__(self) -> None:
         if self.clock_path not in CLOCK_PATHS:
@@ -279,7 +328,11 @@ class _Path:
     ``smooth_hz``, ``run_cycles`` and ``run_s`` are the slip detector's state; ``power``
     and ``noise`` its mean amplitude power and amplitude noise over the last
     batch; ``born`` until its first row is written; ``first`` while it is
-    its tower's first path.
+    its tower's first path. With the guard-interval span, ``view`` is the
+    shift of the view the path lives in, and ``pending`` maps each alias
+    candidate ``k`` (the path at ``delay + k P``) to the index of the view
+    that checks it in the next batch (module docstring, step 5); a pending path has no
+    tower yet (``tower_id`` -1).
     """
 
     path_id: int
@@ -299,6 +352,8 @@ class _Path:
     noise: float = 0.0
     born: bool = True
     first: bool = False
+    view: int = 0
+    pending: dict[int, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -336,10 +391,16 @@ class PathTracker:
     config : PathConfig
     resample : (up, down)
         The receiver's resampling ratio (the resampler shapes the pulse).
+    rotating : bool
+        Whether the lock's header phase changes from frame to frame. The
+        guard-interval span needs it: with a constant phase a view's partial
+        m-sequence sums are the same every frame, so they neither average out
+        over a batch nor bend a path's phase at random; the tracker then
+        keeps to the header's cyclic extension (:attr:`guard`).
     """
 
     def __init__(self, mode: PnMode, carrier_hz: float, config: PathConfig | None = None,
-                 resample: tuple[int, int] = (1, 1)) -> None:
+                 resample: tuple[int, int] = (1, 1), rotating: bool = True) -> None:
         self.config = config or PathConfig()
         self.wavelength_m = SPEED_OF_LIGHT_MPS / carrier_hz
         self._resample = resample
@@ -348,14 +409,20 @@ class PathTracker:
         self._difference_hz = np.zeros(RANGE_DIFFERENCE_TOWERS)
         self._difference_started = np.zeros(RANGE_DIFFERENCE_TOWERS, dtype=bool)
         self._last_t_s: float | None = None
-        self.new_lock(mode)
+        self.new_lock(mode, rotating)
 
-    def new_lock(self, mode: PnMode) -> None:
-        """Forget the paths and towers (a new acquisition); keep ids and range differences counting."""
+    def new_lock(self, mode: PnMode, rotating: bool = True) -> None:
+        """Forget the paths and towers (a new acquisition); keep ids and range differences counting.
+
+        ``rotating``: whether the new lock's header phase changes from frame to frame.
+        """
         m = mode.value
         if m.cyclic_length == 0:
             raise ValueError(f"{mode.name}: path tracking needs a cyclic header (PN420 or PN945)")
         self.mode = mode
+        #: Whether the tracker follows paths up to the guard interval (``guard_span`` with a rotating header).
+        self.guard = self.config.guard_span and rotating
+        self.__dict__.pop("_scan_shifts", None)      # the scan's views are the mode's
         self.taps_before, self.taps_after = self.config.span(mode)
         if not (0 <= self.taps_before <= m.postamble and 0 <= self.taps_after <= m.preamble
                 and self.taps_before + self.taps_after > 0):
@@ -371,6 +438,79 @@ class PathTracker:
         self._index_ref = 0
         self._next_index: int | None = None    # frame after the last batch
         self._loop_batches = 0               # batches since the timing loop (re)started
+        # Guard-interval span (module docstring, step 5): the views of the next batch, the scan's turn, each
+        # view's tap noise power from its last batch, the last frame's window start on the delay grid.
+        self._views: tuple[int, ...] = (0,)
+        self._groups: list[int] = [0]
+        self._scan_index: int | None = None
+        self._checks: dict[int, int] = {}
+        self._scan_turn = 0
+        self._view_floor: dict[int, float] = {}
+        self._last_offset = 0.0
+
+    @property
+    def view_lead(self) -> int:
+        """Samples before a frame's window start that its views may read (0 without ``guard_span``)."""
+        m = self.mode.value
+        return m.header_length - m.preamble + 1 if self.guard else 0
+
+    def _clean_span(self, shift: int) -> tuple[int, int]:
+        """Lags a view sees with all of a path's header chips in its window: its cyclic extension."""
+        m = self.mode.value
+        return shift - m.postamble, shift + m.preamble
+
+    def _group_of(self, lag: float, groups: list[int]) -> int | None:
+        """The view among ``groups`` whose cyclic extension holds ``lag`` (the nearest shift of several), or None."""
+        inside = [g for g in groups if self._clean_span(g)[0] <= lag < self._clean_span(g)[1]]
+        return min(inside, key=lambda g: abs(lag - g)) if inside else None
+
+    @cached_property
+    def _scan_shifts(self) -> np.ndarray:
+        """Shifts of the views that scan, in turn, the lags up to the guard interval on either side (of the mode).
+
+        On each side the views' cyclic extensions tile the lags from the
+        frame's own view's edge to the guard interval (the header's length).
+        """
+        m = self.mode.value
+        width = m.preamble + m.postamble
+        guard = m.header_length
+        after = np.linspace(width, guard - m.preamble, max(int(np.ceil((guard - m.preamble) / width)), 1))
+        before = np.linspace(-width, -(guard - m.postamble), max(int(np.ceil((guard - m.postamble) / width)), 1))
+        return np.rint(np.ravel(np.column_stack([after, before]))).astype(np.int64)
+
+    def _alias_candidates(self, lag: float) -> list[int]:
+        """Whole m-sequence periods k != 0 with ``lag + k P`` within the guard interval."""
+        m = self.mode.value
+        reach = m.header_length // m.period + 1
+        return [k for k in range(-reach, reach + 1) if k != 0 and abs(lag + k * m.period) <= m.header_length]
+
+    def plan_views(self) -> tuple[int, ...]:
+        """The views (shifts, samples) the next batch needs: () without the guard-interval span (:attr:`guard`).
+
+        Every view a path lives in (and the frame's own, shift 0), in order
+        of shift; the scan's next view (unless a path lives there); for every
+        path born in the last batch a view centred on each of its alias
+        candidates.
+        """
+        if not self.guard:
+            return ()
+        groups = sorted({0} | {p.view for p in self.paths})
+        views = list(groups)
+        scan = int(self._scan_shifts[self._scan_turn % len(self._scan_shifts)])
+        self._scan_turn += 1
+        self._scan_index = None if scan in groups else len(views)
+        if self._scan_index is not None:
+            views.append(scan)
+        self._checks = {}
+        for i, p in enumerate(self.paths):
+            lag = p.delay - self._last_offset
+            for k in p.pending:
+                p.pending[k] = len(views)
+                self._checks[len(views)] = i
+                views.append(round(lag + k * self.mode.value.period))
+        self._groups = groups
+        self._views = tuple(views)
+        return self._views
 
     def break_phase(self) -> None:
         """The next frame's phase does not follow from the last one (samples were dropped between them).
@@ -394,7 +534,7 @@ class PathTracker:
         return -self.taps_before
 
     def update(self, taps: np.ndarray, noise_tap: np.ndarray, starts: np.ndarray, frame_index: np.ndarray,
-               eta: np.ndarray, t_s: np.ndarray, coarse_cfo_hz: float) -> PathUpdate:
+               eta: np.ndarray, t_s: np.ndarray, coarse_cfo_hz: float, views: np.ndarray | None = None) -> PathUpdate:
         """Fit, track and report the paths of a batch of frames.
 
         Parameters
@@ -413,6 +553,9 @@ class PathTracker:
             Frame times, s.
         coarse_cfo_hz : float
             The coarse CFO removed from the CIR.
+        views : (F, V, P) complex64, optional
+            With the guard-interval span (:attr:`guard`): the taps of the views :meth:`plan_views` named
+            for this batch (``taps`` then serves the Doppler check only).
         """
         cfg = self.config
         count = len(starts)
@@ -431,18 +574,17 @@ class PathTracker:
         n = len(paths)
         delay = np.array([p.delay for p in paths], dtype=np.float64)
         rate = np.array([p.rate for p in paths], dtype=np.float64)
-        amplitudes = np.zeros((count, n), np.complex128)
-        lags = np.zeros((count, n))
-        variance = np.zeros((count, n))
-        residual = np.zeros(taps.shape[1])
         # A path that has held still moves no faster than a path can (walking: hundredths of a chip per
         # second): a spurious neighbour cannot drag it away.
         max_step = np.array([cfg.steady_delay_step if p.confirmed else cfg.max_delay_step for p in paths])
-        fit_paths_kernel(taps, offsets, self.lag0, delay, rate, max_step, self.table, self.dtable,
-                         PULSE_OVERSAMPLING, cfg.block_frames, cfg.delay_gain, cfg.rate_gain, cfg.max_run_move,
-                         amplitudes, lags, variance, residual)
-        noise = np.maximum(noise_tap.astype(np.float64), 1e-30)
-        noise_floor = float(np.mean(noise))
+        if self.guard:
+            if views is None:
+                raise ValueError("PathTracker.update: guard_span needs the views of plan_views")
+            amplitudes, lags, amp_variance, tap_noise, path_noise, found_in = self._fit_views(
+                views, offsets, delay, rate, max_step)
+        else:
+            amplitudes, lags, amp_variance, tap_noise, path_noise, found_in = self._fit_span(
+                taps, noise_tap, offsets, delay, rate, max_step)
         dt = np.diff(np.concatenate([[t_s[0] if self._last_t_s is None else self._last_t_s], t_s]))
         power = np.abs(amplitudes) ** 2
         step = np.diff(np.concatenate([[starts[0]], starts]))
@@ -453,11 +595,10 @@ class PathTracker:
         path_step = np.repeat(step[:, None], n, axis=1)
         path_step[0] = starts[0] - np.array([p.prev_start for p in paths], dtype=np.int64)
         cfo = cfo_from_theta(np.conj(amplitudes) * prev, np.maximum(path_step, 1), eta[:, None], coarse_cfo_hz)
-        sigma = np.sqrt(variance * noise[:, None] / np.maximum(power, 1e-30)) / (2.0 * np.pi)
+        sigma = np.sqrt(amp_variance / np.maximum(power, 1e-30)) / (2.0 * np.pi)
         bridged = np.empty((count, n))
         slips = np.zeros((count, n), dtype=bool)
         mean_power = power.mean(axis=0)
-        mean_variance = variance.mean(axis=0)
         alpha = 1.0 / cfg.frequency_time_s
         survival = 10.0 ** (cfg.survival_snr_db / 10.0)
         for i, p in enumerate(paths):
@@ -469,14 +610,16 @@ class PathTracker:
                                                              column, flags)
             bridged[:, i], slips[:, i] = column, flags
             p.prev_amplitude, p.prev_start = complex(amplitudes[-1, i]), int(starts[-1])
-            p.power, p.noise = float(mean_power[i]), noise_floor * float(mean_variance[i])
+            p.power, p.noise = float(mean_power[i]), float(path_noise[i])
             # A path is confirmed once it has held still, above the survival SNR, for confirm_batches batches.
             p.steady = p.steady + 1 if abs(moved) < cfg.steady_move and p.power >= survival * p.noise else 0
             p.confirmed = p.confirmed or p.steady >= cfg.confirm_batches
 
+        if self.guard:
+            self._resolve_aliases(count, offsets)
         first_of = self._choose_first_paths(paths, lags)
-        rows = self._rows(paths, amplitudes, lags, rate, bridged, slips, noise, t_s, frame_index)
-        first = self._first_paths(paths, first_of, lags, bridged, power, noise, t_s, dt)
+        rows = self._rows(paths, amplitudes, lags, rate, bridged, slips, tap_noise, t_s, frame_index)
+        first = self._first_paths(paths, first_of, lags, bridged, power, tap_noise, t_s, dt)
         if self._doppler is not None:
             # The first path of tower 0 may be a pair under a third of a chip: its frequency is the stronger one's.
             i = first_of.get(0)
@@ -487,8 +630,230 @@ class PathTracker:
         # The timing loop's period settles during the first batch after an acquisition: no drift from it there.
         loop_drift = float(np.mean(eta)) * nominal if self._loop_batches > 0 else 0.0
         self._loop_batches += 1
-        self._maintain(residual / (noise_floor * count), noise_floor, offsets, count, loop_drift)
+        self._last_offset = float(offsets[-1])
+        self._maintain(found_in, offsets, count, loop_drift)
         return PathUpdate(rows, first)
+
+    # ---- the fit over the span or the views ------------------------------------------------
+
+    def _fit_span(self, taps: np.ndarray, noise_tap: np.ndarray, offsets: np.ndarray, delay: np.ndarray,
+                  rate: np.ndarray, max_step: np.ndarray) -> tuple:
+        """The fit over the header's cyclic extension (:func:`fit_paths_kernel`).
+
+        Returns the amplitudes and lags ``(F, n)``, each amplitude's noise
+        variance ``(F, n)``, the tap noise each path's SNR is taken against
+        ``(F, n)``, each path's mean amplitude noise ``(n,)`` and the births
+        of the batch as a function of ``(strongest, offset, existing,
+        settled)`` (:meth:`_maintain`); ``delay`` and ``rate`` are updated.
+        """
+        cfg = self.config
+        count, n = len(offsets), len(delay)
+        amplitudes = np.zeros((count, n), np.complex128)
+        lags = np.zeros((count, n))
+        variance = np.zeros((count, n))
+        residual = np.zeros(taps.shape[1])
+        fit_paths_kernel(taps, offsets, self.lag0, delay, rate, max_step, self.table, self.dtable,
+                         PULSE_OVERSAMPLING, cfg.block_frames, cfg.delay_gain, cfg.rate_gain, cfg.max_run_move,
+                         amplitudes, lags, variance, residual)
+        noise = np.maximum(noise_tap.astype(np.float64), 1e-30)
+        noise_floor = float(np.mean(noise))
+        power = residual / (noise_floor * count)
+
+        def found_in(strongest: float, offset: float, existing: np.ndarray,
+                     settled: np.ndarray) -> list[tuple[float, int]]:
+            limit = max(detection_threshold(count, cfg.false_alarm),
+                        10.0 ** (cfg.relative_floor_db / 10.0) * strongest / noise_floor)
+            return [(lag, 0) for lag in detect_paths(power, self.lag0, limit, existing, settled, cfg.min_separation,
+                                                     cfg.settle_guard,
+                                                     min(cfg.max_births, cfg.max_paths - len(self.paths)))]
+
+        return (amplitudes, lags, variance * noise[:, None], np.broadcast_to(noise[:, None], (count, n)),
+                noise_floor * variance.mean(axis=0), found_in)
+
+    def _coverage(self, shifts: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """Share of each path's header chips inside each view's window, ``(V, n)``.
+
+        A path at lag ``lam`` holds its header in samples ``lam .. lam + Ng``;
+        view s correlates the P samples from ``preamble + s`` on.
+        """
+        m = self.mode.value
+        start = m.preamble + np.asarray(shifts, dtype=np.float64)[:, None]
+        overlap = np.minimum(start + m.period, lam[None, :] + m.header_length) - np.maximum(start, lam[None, :])
+        return np.clip(overlap, 0.0, m.period) / m.period
+
+    def _fit_views(self, views: np.ndarray, offsets: np.ndarray, delay: np.ndarray, rate: np.ndarray,
+                   max_step: np.ndarray) -> tuple:
+        """The fit over the views paths live in, at once (:func:`fit_views_kernel`; module docstring, step 5).
+
+        A path's amplitude comes from the views that hold at least
+        :data:`FULL_COVERAGE` of its header chips, its pulse scaled by their
+        share. In a view that holds less, that part is a pulse with an
+        amplitude of its own (a nuisance): its partial m-sequence sums would
+        bend the path's phase more than the view's information helps. The scan's and the alias checks' views are not fitted:
+        every path's pulse, at its share of header chips, is taken out of
+        them with the fitted amplitudes (:func:`model_residual_kernel`), so a
+        path that is not where the fit has it stands out there. Each view is
+        weighted by its tap noise power: its last batch's, or for a new view
+        the median of its taps' power (its paths fill a few of its P lags).
+        Afterwards each view's noise is the median of its residual, which a
+        path's SNR, slip threshold and survival, and the detection in that
+        view, are measured against. Returns what :meth:`_fit_span` does.
+        """
+        cfg = self.config
+        m = self.mode.value
+        count, n, period = len(offsets), len(delay), m.period
+        shifts = np.asarray(self._views, dtype=np.int64)
+        n_views = len(shifts)
+        if views.shape[1:] != (n_views, period):
+            raise ValueError(f"PathTracker.update: views of shape {views.shape[1:]}, planned {(n_views, period)}")
+        floor = np.maximum([self._view_floor[int(s)] if int(s) in self._view_floor else
+                            float(np.median(np.mean(views[:, v].real ** 2 + views[:, v].imag ** 2, axis=0)))
+                            for v, s in enumerate(shifts)], 1e-30)
+        weight = 1.0 / np.sqrt(floor)
+        coverage = self._coverage(shifts, delay + rate * 0.5 * (count - 1) - offsets[count // 2]) * weight[:, None]
+        full = coverage >= FULL_COVERAGE * weight[:, None]
+        lag_axis = shifts[:, None] + view_first_lag(self.mode) + np.arange(period)[None, :]
+        fitted = np.arange(n_views) < len(self._groups)
+        # The fitted views: each path at full coverage, plus a nuisance pulse per view that holds part of it.
+        part_view, part_path = np.nonzero(fitted[:, None] & (coverage > 0.0) & ~full)
+        scale = np.zeros((n_views, n + len(part_view)))
+        scale[:, :n] = np.where(full, coverage, 0.0)
+        scale[part_view, n + np.arange(len(part_view))] = weight[part_view]
+        delay_all, rate_all = np.concatenate([delay, delay[part_path]]), np.concatenate([rate, rate[part_path]])
+        amplitudes = np.zeros((count, len(delay_all)), np.complex128)
+        lags = np.zeros((count, len(delay_all)))
+        variance = np.zeros((count, len(delay_all)))
+        residual = np.zeros((n_views, period))
+        on = np.flatnonzero(fitted)
+        fit_residual = np.zeros(len(on) * period)
+        fit_views_kernel((views[:, on] * weight[on].astype(np.float32)[None, :, None]).reshape(count, -1), offsets,
+                         lag_axis[on].ravel().astype(np.float64), np.repeat(on, period), scale, delay_all, rate_all,
+                         np.concatenate([max_step, np.zeros(len(part_view))]), self.table, self.dtable,
+                         PULSE_OVERSAMPLING, cfg.block_frames, cfg.delay_gain, cfg.rate_gain, cfg.max_run_move,
+                         amplitudes, lags, variance, fit_residual)
+        delay[:], rate[:] = delay_all[:n], rate_all[:n]
+        residual[on] = fit_residual.reshape(len(on), period)
+        off = np.flatnonzero(~fitted)
+        if len(off):
+            # A check view keeps the pulse of the path it checks (the evidence for its candidate).
+            for v, i in self._checks.items():
+                coverage[v, i] = 0.0
+            left = np.zeros(len(off) * period)
+            model_residual_kernel((views[:, off] * weight[off].astype(np.float32)[None, :, None]).reshape(count, -1),
+                                  lag_axis[off].ravel().astype(np.float64), np.repeat(off, period), coverage,
+                                  amplitudes[:, :n], lags[:, :n], self.table, PULSE_OVERSAMPLING, cfg.block_frames,
+                                  cfg.max_run_move, left)
+            residual[off] = left.reshape(len(off), period)
+        residual /= count
+        ratio = np.maximum(np.median(residual, axis=1), 1e-30)       # each view's noise over the assumed one
+        tap_floor = floor * ratio
+        # The next batch's weights; of two views at one shift the first's (a check keeps its path's pulse in).
+        self._view_floor = dict(zip(shifts.tolist()[::-1], tap_floor.tolist()[::-1]))
+        self._view_power = residual / ratio[:, None]                  # residual over each view's noise, per lag
+        self._view_noise = tap_floor
+        # The spread of each view's residual across its lags beyond white noise's (1 / sqrt(F)).
+        spread = 1.4826 * np.median(np.abs(self._view_power - 1.0), axis=1)
+        self._view_structure = np.sqrt(np.maximum(spread ** 2 - 1.0 / count, 0.0))
+        own = np.array([self._groups.index(p.view) for p in self.paths], dtype=np.int64)
+        variance = variance[:, :n]
+
+        def found_in(strongest: float, offset: float, existing: np.ndarray,
+                     settled: np.ndarray) -> list[tuple[float, int]]:
+            return self._views_found(count, strongest, existing, settled)
+
+        return (amplitudes[:, :n], lags[:, :n], variance * ratio[own][None, :],
+                np.broadcast_to(tap_floor[own][None, :], (count, n)), variance.mean(axis=0) * ratio[own], found_in)
+
+    def _view_limit(self, count: int, strongest: float, view: int) -> float:
+        """Detection threshold in view ``view``'s noise units.
+
+        That of the cyclic span (false alarm, relative floor), or
+        :data:`STRUCTURE_SIGMAS` times the excess spread of the view's
+        residual across its lags above its median, if higher: where a path's
+        header lies partly in the window, the residual has peaks no noise
+        floor predicts. In a view without such paths the excess is nil.
+        """
+        cfg = self.config
+        return max(detection_threshold(count, cfg.false_alarm),
+                   10.0 ** (cfg.relative_floor_db / 10.0) * strongest / self._view_noise[view],
+                   1.0 + STRUCTURE_SIGMAS * self._view_structure[view])
+
+    def _views_found(self, count: int, strongest: float, existing: np.ndarray,
+                     settled: np.ndarray) -> list[tuple[float, int]]:
+        """New paths in the views' residuals: ``(lag, view)`` of the strongest, at most ``max_births``.
+
+        A view in which paths live detects on the lags of its cyclic
+        extension that are nearer its shift than any other such view's; the
+        scan's view on those of its cyclic extension that no such view covers,
+        within the guard interval, and a path it finds gets a view centred on it.
+        """
+        cfg = self.config
+        first = view_first_lag(self.mode)
+        candidates: list[tuple[float, float, int]] = []
+        for v, shift in enumerate(self._views):
+            group = v < len(self._groups)
+            if not group and v != self._scan_index:
+                continue
+            power = self._view_power[v]
+            lo, hi = self._clean_span(shift)
+            for lag in detect_paths(power, shift + first, self._view_limit(count, strongest, v), existing, settled,
+                                    cfg.min_separation, cfg.settle_guard, len(power)):
+                owner = self._group_of(lag, self._groups)
+                if group and owner == shift:
+                    candidates.append((float(power[round(lag) - shift - first]), lag, shift))
+                elif not group and owner is None and lo <= lag < hi and abs(lag) <= self.mode.value.header_length:
+                    candidates.append((float(power[round(lag) - shift - first]), lag, round(lag)))
+        births: list[tuple[float, int]] = []
+        for _, lag, view in sorted(candidates, reverse=True):
+            if len(births) >= min(cfg.max_births, cfg.max_paths - len(self.paths)):
+                break
+            if all(abs(lag - b) >= 1.0 for b, _ in births):
+                births.append((lag, view))
+        return births
+
+    def _resolve_aliases(self, count: int, offsets: np.ndarray) -> None:
+        """Move each path born in the last batch to the alias candidate its views show (module docstring, step 5).
+
+        The fit took the path where it was found, at lag l of its own view.
+        The view centred on a candidate ``l + k P`` keeps the path's pulse;
+        at the candidate it holds the path with all of its header chips if
+        the path is there, else with the third or less of them that window
+        holds of a path at l (and with the same share of whatever else lies
+        around l unfitted). The path moves to the candidate whose power there
+        crosses the view's detection threshold and exceeds the view's noise by
+        :data:`ALIAS_SHARE` of the path's power at l (its fitted power and
+        the residual around it); the strongest such candidate wins, and
+        without one the path stays. Then it joins a tower.
+        """
+        period = self.mode.value.period
+        first = view_first_lag(self.mode)
+        offset = float(np.mean(offsets))
+        strongest = max((p.power for p in self.paths), default=0.0)
+
+        def around(view: int, lag: float) -> float:
+            """Tap power of the residual at the column nearest ``lag`` or a neighbour, in view ``view``."""
+            column = round(lag) - self._views[view] - first
+            return float(np.max(self._view_power[view, max(column - 1, 0): column + 2])) * self._view_noise[view]
+
+        for p in self.paths:
+            if not p.pending:
+                continue
+            lag = p.delay - 0.5 * count * p.rate - offset
+            here = p.power + around(self._groups.index(p.view), lag)
+            best, best_k = 0.0, 0
+            for k, v in p.pending.items():
+                level = around(v, lag + k * period)
+                floor = self._view_noise[v]
+                if level > max(best, floor + ALIAS_SHARE * here, self._view_limit(count, strongest, v) * floor):
+                    best, best_k = level, k
+            if best_k:
+                moved = lag + best_k * period
+                p.delay += best_k * period
+                owner = self._group_of(moved, self._groups)
+                p.view = round(moved) if owner is None else owner
+                p.steady = 0
+            p.pending = {}
+            p.tower_id = self._tower_of(p.delay)
 
     # ---- per-batch bookkeeping -------------------------------------------------------------
 
@@ -532,7 +897,7 @@ class PathTracker:
             if p.born:
                 flags[0] |= np.uint8(PathFlag.BORN)
             with np.errstate(divide="ignore"):
-                snr = 10.0 * np.log10(np.abs(amplitudes[:, i]) ** 2 / noise_sample)
+                snr = 10.0 * np.log10(np.abs(amplitudes[:, i]) ** 2 / noise_sample[:, i])
             cols["t_s"].append(t_s)
             cols["frame_index"].append(frame_index)
             cols["path_id"].append(np.full(count, p.path_id))
@@ -560,7 +925,7 @@ class PathTracker:
         if 0 in first:
             i = first[0]
             with np.errstate(divide="ignore"):
-                snr = 10.0 * np.log10(power[:, i] / (noise * self.header_gain))
+                snr = 10.0 * np.log10(power[:, i] / (noise[:, i] * self.header_gain))
             out.update(first_path_cfo_hz=bridged[:, i].copy(), first_path_delay_s=lags[:, i] / SYMBOL_RATE_HZ,
                        first_path_snr_db=snr.astype(np.float32), first_path_id=np.full(count, paths[i].path_id, np.int32))
         for slot in range(RANGE_DIFFERENCE_TOWERS):
@@ -587,13 +952,14 @@ class PathTracker:
             out[f"range_difference_change_{tower}_m"] = column
         return out
 
-    def _maintain(self, residual: np.ndarray, noise_floor: float, offsets: np.ndarray, count: int,
-                  loop_drift: float) -> None:
+    def _maintain(self, found_in: Callable[[float, float, np.ndarray, np.ndarray], list[tuple[float, int]]],
+                  offsets: np.ndarray, count: int, loop_drift: float) -> None:
         """Ages, fading and merging of the paths (module docstring, step 1), then births (:func:`detect_paths`).
 
-        ``loop_drift`` is the grid drift per frame the timing loop's period
-        gives over the batch (the sampling offset times the frame length),
-        samples per frame.
+        ``found_in(strongest, offset, existing, settled)`` gives the births,
+        ``(lag, view)`` (:meth:`_fit_span`); ``loop_drift`` is the grid drift
+        per frame the timing loop's period gives over the batch (the
+        sampling offset times the frame length), samples per frame.
         """
         cfg = self.config
         survival = 10.0 ** (cfg.survival_snr_db / 10.0)
@@ -621,9 +987,7 @@ class PathTracker:
         offset = float(np.mean(offsets))
         existing = np.array([p.delay - 0.5 * count * p.rate - offset for p in self.paths])
         settled = np.array([p.age >= cfg.settle_batches for p in self.paths], dtype=bool)
-        limit = max(detection_threshold(count, cfg.false_alarm), relative * strongest / noise_floor)
-        found = detect_paths(residual, self.lag0, limit, existing, settled, cfg.min_separation, cfg.settle_guard,
-                             min(cfg.max_births, cfg.max_paths - len(self.paths)))
+        found = found_in(strongest, offset, existing, settled)
         # Every path's delay drifts with the receiver clock (the sampling offset): a new path starts with the
         # drift the confirmed paths agree on. Without them it starts still, unless the timing loop's drift is
         # more than half what a path's delay loop can follow (max_delay_step per update): a crystal tens of ppm
@@ -632,9 +996,17 @@ class PathTracker:
         rates = [p.rate for p in self.paths if p.confirmed]
         followable = cfg.max_delay_step / cfg.block_frames
         drift = float(np.median(rates)) if rates else (loop_drift if abs(loop_drift) > 0.5 * followable else 0.0)
-        for lag in sorted(found):
+        for lag, view in sorted(found):
             delay = lag + offset + 0.5 * count * drift
-            self.paths.append(_Path(self._next_id, self._tower_of(delay), delay, drift))
+            # With the guard-interval span a new path may be an alias: it joins a tower once it is resolved. One
+            # found within tower_gap of a resolved path of its view is that tower's (a street's multipath): the
+            # view checking its candidate would hold that tower's own alias there, at a third of its power,
+            # with the residual a strong path leaves around it.
+            near = any(p.view == view and p.tower_id >= 0 and abs(p.delay - delay) <= cfg.tower_gap
+                       for p in self.paths)
+            pending = dict.fromkeys(self._alias_candidates(lag), -1) if self.guard and not near else {}
+            self.paths.append(_Path(self._next_id, -1 if pending else self._tower_of(delay), delay, drift, view=view,
+                                    pending=pending))
             self._next_id += 1
         self.paths.sort(key=lambda p: p.delay)
         self._update_towers()
@@ -645,7 +1017,7 @@ class PathTracker:
         best, best_distance = -1, np.inf
         for p in self.paths:
             distance = abs(p.delay - delay)
-            if distance <= gap and distance < best_distance:
+            if p.tower_id >= 0 and distance <= gap and distance < best_distance:
                 best, best_distance = p.tower_id, distance
         if best >= 0:
             return best
