@@ -13,6 +13,7 @@ import pytest
 
 from dtmbnav import results
 from dtmbnav.evaluate import EvaluationRow
+from dtmbnav.seeds import BURNED_SEEDS, REPORTING_SEEDS
 from dtmbnav.report import RANGE_CHANNELS, direct_path_ranges, plot_ranges, true_channel_m
 
 
@@ -44,11 +45,12 @@ def test_the_fusion_table_counts_the_walks_a_filter_made_worse():
 
 
 def test_a_section_run_alone_keeps_the_others_and_fills_the_readme(tmp_path):
-    def section(name: str, pf_95: float) -> str:
+    def section(name: str, pf_95: float, first_seed: int = REPORTING_SEEDS.start) -> str:
         level = "iq" if name == "fusion-iq" else "obs"
         table, headline = results.fusion_table(_rows("park-loop-cw", level, pf_95), _walks("park-loop-cw", (2.0,)))
-        return results.render_section(results.Section(name, name, f"--sections {name}", table + "\n", 61.0,
-                                                      headline), "abc", "2026-01-01", "a machine")
+        return results.render_section(results.Section(name, name, f"--sections {name} --first-seed {first_seed}",
+                                                      table + "\n", 61.0, headline), "abc", "2026-01-01",
+                                      "a machine")
 
     both = results.merge_sections("", {"fusion-obs": section("fusion-obs", 2.5),
                                        "fusion-iq": section("fusion-iq", 3.5)})
@@ -65,6 +67,11 @@ def test_a_section_run_alone_keeps_the_others_and_fills_the_readme(tmp_path):
     assert "old" not in text and text.startswith("intro\n") and text.endswith(f"{results.HEADLINE_END}\noutro\n")
     iq_line, obs_line = [line for line in text.splitlines() if line.startswith("| park-loop-cw")]
     assert "| iq |" in iq_line and "3.50 m" in iq_line and "| obs |" in obs_line and "2.00 m" in obs_line
+    # A section printed on a burned range is named as left out of the README, its rows not shown.
+    burned = results.merge_sections(again, {"fusion-iq": section("fusion-iq", 3.5, first_seed=BURNED_SEEDS[-1].start)})
+    headline = results.headline_table(burned)
+    assert [line for line in headline.splitlines() if line.startswith("| park-loop-cw")] == [obs_line]
+    assert "Not here until printed again on the reporting range" in headline and "`fusion-iq`" in headline
 
 
 def test_a_readme_without_the_markers_is_refused(tmp_path):
