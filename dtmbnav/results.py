@@ -432,7 +432,9 @@ def headline_table(results_text: str) -> str:
             rows[(row["scenario"], row["level"])] = row
     omitted = (f" Not here until printed again on the reporting range {REPORTING_SEEDS.start}-{REPORTING_SEEDS[-1]}: "
                f"{', '.join(left_out)}." if left_out else "")
-    lines = ["Printed by " + "; ".join(sources) + f" (docs/results.md has every filter, walk and table).{omitted}", "",
+    printed = ("Printed by " + "; ".join(sources) + " (docs/results.md has every filter, walk and table)." if sources
+               else "No fusion section is printed on the reporting range yet.")
+    lines = [printed + omitted, "",
              "| walk | level | walks | PDR | PDR@fix | PF | PF vs PDR / vs PDR@fix | walks > 5 % worse than PDR@fix "
              "| paper PF reduction |", "|---" * 9 + "|"]
     for level in ("iq", "obs"):
