@@ -41,6 +41,10 @@ CHUNK_SAMPLES = 1 << 20
 MIN_STATIC_WINDOW_S = 0.5
 
 
+class NoSignal(RuntimeError):
+    """The receiver found no DTMB signal in a simulated capture: no lock, no frame (a weak enough signal)."""
+
+
 def simulated_receiver_config(scenario: Scenario) -> ReceiverConfig:
     """Receiver settings for a simulated capture: the static window is the walker's standstill less the guard."""
     guard_s = ObsRangeConfig().calibration_guard_s
@@ -79,13 +83,13 @@ def iq_ranges(scenario: Scenario, track: Track, seconds: float | None = None) ->
 
     Raises
     ------
-    RuntimeError
+    NoSignal
         When the receiver finds no DTMB signal in the capture.
     """
     parts = [ranges_from_frames(batch.columns()) for batch in iq_frame_batches(scenario, track, seconds)]
     if not parts:
-        raise RuntimeError(f"{scenario.name} (seed {scenario.seed}): the receiver found no DTMB signal in the "
-                           "simulated capture")
+        raise NoSignal(f"{scenario.name} (seed {scenario.seed}): the receiver found no DTMB signal in the "
+                       "simulated capture")
     return RangeSeries(**{name: np.concatenate([getattr(p, name) for p in parts])
                           for name in RangeSeries.__dataclass_fields__})
 
@@ -99,7 +103,7 @@ def iq_observations(scenario: Scenario, track: Track, seconds: float | None = No
 
     Raises
     ------
-    RuntimeError
+    NoSignal
         When the receiver finds no DTMB signal in the capture.
     """
     generator = CaptureGenerator(scenario, track, seconds=seconds)
@@ -117,8 +121,8 @@ def iq_observations(scenario: Scenario, track: Track, seconds: float | None = No
     frames += receiver.finish()
     keep_first_paths()
     if not frames:
-        raise RuntimeError(f"{scenario.name} (seed {scenario.seed}): the receiver found no DTMB signal in the "
-                           "simulated capture")
+        raise NoSignal(f"{scenario.name} (seed {scenario.seed}): the receiver found no DTMB signal in the "
+                       "simulated capture")
     columns = FrameBatch.concatenate(frames).columns()
     if not receiver.config.track_paths:
         return Observations(ranges_from_frames(columns))

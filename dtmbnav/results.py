@@ -340,6 +340,19 @@ def field_section(config: ResultsConfig) -> Section:
                    time.perf_counter() - start)
 
 
+def weak_signal_section(config: ResultsConfig) -> Section:
+    """Lock, ranges and fusion as the C/N falls, at IQ level (:mod:`dtmbnav.weak_signal`)."""
+    from dtmbnav.weak_signal import WALKS, cases, check, describe, per_walk_table, summarise, weak_signal_table
+
+    start = time.perf_counter()
+    walks = check(cases(), config.first_seed, cluster=config.cluster, progress=config.progress)
+    table, _ = weak_signal_table(summarise(walks))
+    body = (f"{describe(config.first_seed, WALKS)} (`python -m dtmbnav.weak_signal --first-seed "
+            f"{config.first_seed}`)\n\n{table}\n\nPer walk:\n\n{per_walk_table(walks)}\n")
+    return Section("weak-signal", "Weak signals: lock, ranges and fusion against C/N",
+                   f"--sections weak-signal --first-seed {config.first_seed}", body, time.perf_counter() - start)
+
+
 def bench_section(config: ResultsConfig) -> Section:
     """Throughput of every kernel next to its numpy reference (``dtmbnav bench``); every figure is a timing."""
     import contextlib
@@ -370,12 +383,14 @@ def _sections(config: ResultsConfig) -> dict[str, Callable[[], Section]]:
         "paths": lambda: paths_section(config),
         "frontends": lambda: frontends_section(config),
         "field": lambda: field_section(config),
+        "weak-signal": lambda: weak_signal_section(config),
         "bench": lambda: bench_section(config),
     }
 
 
 #: Every section, in the file's order.
-SECTIONS = ("fusion-iq", "fusion-obs", "fusion-exact", "receiver", "paths", "frontends", "field", "pdr", "bench")
+SECTIONS = ("fusion-iq", "fusion-obs", "fusion-exact", "receiver", "paths", "frontends", "field", "weak-signal", "pdr",
+            "bench")
 
 
 def render_section(section: Section, commit: str, date: str, machine: str) -> str:
