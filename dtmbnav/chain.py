@@ -29,6 +29,7 @@ import h5py
 import numpy as np
 
 from dtmbnav_core import schema
+from dtmbnav_core.constants import TRANSMIT_DELAY_KNOWLEDGE
 from dtmbnav_core.h5io import atomic_folder, atomic_h5, open_h5, read_attrs, read_columns, write_columns
 from dtmbnav_core.records import ImuLog, Track
 from dtmbnav_core.sensors import (read_capture_start_s, read_gnss, read_has_magnetometer, read_imu, read_tower,
@@ -163,9 +164,10 @@ def _recorded_scenario(sensors_path: str | os.PathLike) -> dict[str, Any]:
             from None
 
 
-def _recorded_towers(sensors_path: str | os.PathLike) -> list[dict[str, Any]]:
-    """The ``[[towers]]`` of the scenario recorded in ``/truth/frames`` (empty without a record or with one tower)."""
-    sites = _recorded_scenario(sensors_path).get("towers", [])
+def _recorded_towers(sensors_path: str | os.PathLike, record: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+    """The ``[[towers]]`` of the scenario recorded in ``/truth/frames`` (empty without a record or with one tower);
+    ``record``: that scenario already read (:func:`_recorded_scenario`)."""
+    sites = (_recorded_scenario(sensors_path) if record is None else record).get("towers", [])
     if not isinstance(sites, list) or not all(isinstance(s, dict) for s in sites):
         raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: unreadable [[towers]] in the scenario record; "
                          "give --tower X,Y")
@@ -193,8 +195,9 @@ def read_transmit_delays(sensors_path: str | os.PathLike) -> TransmitDelays | No
     (the recorded scenario's ``[network] known``): None where nothing (the fusion estimates them at the start
     fix), or with one tower; the network plan's (``[[towers]] transmit_delay_s``, sigma ``[network]
     plan_error_s``); or the walk's true offsets (``/truth/paths`` ``towers_transmit_delay_s``)."""
-    sites = _recorded_towers(sensors_path)
-    network = _recorded_scenario(sensors_path).get("network", {})
+    record = _recorded_scenario(sensors_path)
+    sites = _recorded_towers(sensors_path, record)
+    network = record.get("network", {})
     known = network.get("known", "unknown") if isinstance(network, dict) else None
     if not sites or known == "unknown":
         return None
@@ -213,7 +216,7 @@ def read_transmit_delays(sensors_path: str | os.PathLike) -> TransmitDelays | No
                              "towers_transmit_delay_s for every tower")
         return TransmitDelays(tuple(float(d) for d in true), (0.0,) * len(sites), "exact")
     raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: the scenario record's [network] known must be one "
-                     f"of unknown, plan, exact; got {known!r}")
+                     f"of {', '.join(TRANSMIT_DELAY_KNOWLEDGE)}; got {known!r}")
 
 
 def resolve_pdr_config(config: PdrConfig, sensors_path: str | os.PathLike) -> PdrConfig:

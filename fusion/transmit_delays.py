@@ -190,7 +190,7 @@ def tie_code_differences(paths: PathEpochs, geometry: Geometry, known: TransmitD
         else:
             offset[column], sigma[column] = start_fix_offset_m(paths, column, geometry, first_step_t_s, fix_sigma_m)
             source.append("start fix" if np.isfinite(offset[column]) else "unknown")
-    code = paths.range_difference_code_m - offset[None, :]
-    tied = replace(paths, range_difference_code_m=np.where(np.isfinite(code), code, np.nan),
+    code = paths.range_difference_code_m - offset[None, :]   # NaN throughout where the offset is unknown
+    tied = replace(paths, range_difference_code_m=code,
                    range_difference_code_sigma_m=np.broadcast_to(sigma, code.shape).copy())
     return tied, CodeOffsets(offset, sigma, tuple(source))
