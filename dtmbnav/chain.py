@@ -41,7 +41,7 @@ from dtmbnav.receive import receive_capture
 from fusion.model import Geometry
 from fusion.pdr import PdrConfig, PdrResult, run_pdr
 from fusion.run import FusionConfig, FusionResult, fuse
-from fusion.transmit_delays import TransmitDelays
+from fusion.transmit_delays import TransmitDelays, given_transmit_delays
 from fusion.time_alignment import AlignmentConfig, TimeAlignment, align_range_to_pdr, coarse_offset_s
 from receiver.capture import open_capture
 from receiver.observables import observations_from_receiver, ranges_from_frames
@@ -199,24 +199,26 @@ def read_transmit_delays(sensors_path: str | os.PathLike) -> TransmitDelays | No
     sites = _recorded_towers(sensors_path, record)
     network = record.get("network", {})
     known = network.get("known", "unknown") if isinstance(network, dict) else None
-    if not sites or known == "unknown":
+    if not sites:
         return None
-    if known == "plan":
-        try:
-            sigma = float(network.get("plan_error_s", 0.0))
-            return TransmitDelays(tuple(float(s.get("transmit_delay_s", 0.0)) for s in sites),
-                                  (sigma,) * len(sites), "plan")
-        except (TypeError, ValueError):
-            raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: unreadable transmit delays in the scenario "
-                             "record") from None
-    if known == "exact":
+    if known not in TRANSMIT_DELAY_KNOWLEDGE:
+        raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: the scenario record's [network] known must be "
+                         f"one of {', '.join(TRANSMIT_DELAY_KNOWLEDGE)}; got {known!r}")
+    try:
+        plan_s = [float(site.get("transmit_delay_s", 0.0)) for site in sites]
+        plan_error_s = float(network.get("plan_error_s", 0.0))
+    except (TypeError, ValueError):
+        raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: unreadable transmit delays in the scenario "
+                         "record") from None
+
+    def true_s() -> list[float]:
         true = read_attrs(sensors_path, schema.TRUTH_PATHS).get("towers_transmit_delay_s")
         if true is None or len(true) != len(sites):
             raise ValueError(f"{sensors_path}: [network] known = \"exact\" but /{schema.TRUTH_PATHS} has no "
                              "towers_transmit_delay_s for every tower")
-        return TransmitDelays(tuple(float(d) for d in true), (0.0,) * len(sites), "exact")
-    raise ValueError(f"{sensors_path}: /{schema.TRUTH_FRAMES}: the scenario record's [network] known must be one "
-                     f"of {', '.join(TRANSMIT_DELAY_KNOWLEDGE)}; got {known!r}")
+        return list(true)
+
+    return given_transmit_delays(known, plan_s, plan_error_s, true_s)
 
 
 def resolve_pdr_config(config: PdrConfig, sensors_path: str | os.PathLike) -> PdrConfig:

@@ -59,7 +59,7 @@ from fusion.metrics import (PDR_AT_FIX, PDR_BASELINE, error_stats, heading_error
                             position_errors_m)
 from fusion.model import CLOCK_MODEL_PRESETS
 from fusion.pdr import PdrConfig, run_pdr
-from fusion.transmit_delays import TransmitDelays
+from fusion.transmit_delays import TransmitDelays, given_transmit_delays
 from fusion.run import FusionConfig, fuse
 from sim.gnss import simulate_start_fix
 from sim.imu import simulate_imu
@@ -156,13 +156,8 @@ def receiver_clock_model(scenario: Scenario) -> str:
 def scenario_transmit_delays(scenario: Scenario) -> TransmitDelays | None:
     """What the fusion is given of an SFN's transmit delay offsets (``[network] known``): None for unknown (and for
     one tower), the network plan's with its error as sigma, or the walk's true offsets."""
-    sites, network = scenario.sites, scenario.network
-    if len(sites) < 2 or network.known == "unknown":
-        return None
-    if network.known == "plan":
-        return TransmitDelays(tuple(site.transmit_delay_s for site in sites), (network.plan_error_s,) * len(sites),
-                              "plan")
-    return TransmitDelays(tuple(float(d) for d in scenario.transmit_delays_s()), (0.0,) * len(sites), "exact")
+    return given_transmit_delays(scenario.network.known, [site.transmit_delay_s for site in scenario.sites],
+                                 scenario.network.plan_error_s, scenario.transmit_delays_s)
 
 
 def with_transmit_delays(scenario: Scenario, known: str) -> Scenario:

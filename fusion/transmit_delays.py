@@ -31,6 +31,7 @@ Where ``c (tx_k - tx_0)`` comes from (:func:`tie_code_differences`):
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -69,6 +70,21 @@ class TransmitDelays:
         values = np.array([*self.delays_s, *self.sigmas_s], dtype=np.float64)
         if not np.all(np.isfinite(values)) or min(self.sigmas_s, default=0.0) < 0.0:
             raise ValueError(f"TransmitDelays: delays and sigmas must be finite, sigmas >= 0; got {self}")
+
+
+def given_transmit_delays(known: str, plan_s: Sequence[float], plan_error_s: float,
+                          true_s: Callable[[], Sequence[float]]) -> TransmitDelays | None:
+    """What the fusion is given of a network's transmit delay offsets, by what its user knows (``known``, one of
+    :data:`dtmbnav_core.constants.TRANSMIT_DELAY_KNOWLEDGE`): None for ``"unknown"`` and for a single tower
+    (estimated at the start fix); the plan's ``plan_s`` (s) with ``plan_error_s`` (s) as each one's sigma; or
+    the true ones, ``true_s()`` (s, asked for only then), exact."""
+    if len(plan_s) < 2 or known == "unknown":
+        return None
+    if known == "plan":
+        return TransmitDelays(tuple(float(d) for d in plan_s), (float(plan_error_s),) * len(plan_s), "plan")
+    if known == "exact":
+        return TransmitDelays(tuple(float(d) for d in true_s()), (0.0,) * len(plan_s), "exact")
+    raise ValueError(f"transmit delays: known must be one of unknown, plan, exact; got {known!r}")
 
 
 @dataclass(frozen=True)
