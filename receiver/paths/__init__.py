@@ -53,6 +53,7 @@ from receiver.paths.tracking import (
     PathUpdate,
     slip_kernel,
     slip_reference,
+    step_paths_kernel,
 )
 
 __all__ = [
@@ -74,4 +75,5 @@ __all__ = [
     "slip_kernel",
     "slip_reference",
     "srrc_spectrum",
+    "step_paths_kernel",
 ]

@@ -315,6 +315,50 @@ def slip_reference(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarra
     return bridged, slips, smooth_hz, run_cycles, run_s
 
 
+@njit(cache=True)
+def step_paths_kernel(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarray, smooth_hz: np.ndarray,
+                      run_cycles: np.ndarray, run_s: np.ndarray, alpha: float, sigmas: float, min_cycles: float,
+                      moved: np.ndarray, power: np.ndarray, noise: np.ndarray, steady_move: float, survival: float,
+                      confirm_batches: int, steady: np.ndarray, confirmed: np.ndarray, bridged: np.ndarray,
+                      slips: np.ndarray) -> None:
+    """One batch of every path in one call: :func:`slip_kernel` per path, then its steadiness (module docstring).
+
+    Parameters
+    ----------
+    cfo_hz, sigma_cycles : (F, n) float64
+        Each path's frequency per frame (Hz) and phase-step noise (cycles), as in :func:`slip_kernel`.
+    dt_s : (F,) float64
+        Time to the previous frame, s.
+    smooth_hz, run_cycles, run_s : (n,) float64, in/out
+        Each path's slip-detector state (:func:`slip_kernel`), carried to the next batch.
+    alpha, sigmas, min_cycles : float
+        As in :func:`slip_kernel`.
+    moved : (n,) float64
+        Each path's delay-loop correction over the batch, samples.
+    power, noise : (n,) float64
+        Each path's mean amplitude power and amplitude noise over the batch.
+    steady_move, survival : float
+        A path holds still when it moved less than ``steady_move`` samples with
+        ``power >= survival * noise``.
+    confirm_batches : int
+        Steady batches in a row that confirm a path.
+    steady : (n,) int64, in/out
+        Steady batches in a row.
+    confirmed : (n,) bool, in/out
+        Confirmed paths (a confirmed path stays confirmed).
+    bridged : (F, n) float64, out
+        ``cfo_hz`` with each path's outliers bridged.
+    slips : (F, n) bool, out
+        Each path's frames flagged as a cycle slip.
+    """
+    for i in range(cfo_hz.shape[1]):
+        smooth_hz[i], run_cycles[i], run_s[i] = slip_kernel(
+            cfo_hz[:, i], dt_s, sigma_cycles[:, i], smooth_hz[i], run_cycles[i], run_s[i], alpha, sigmas,
+            min_cycles, bridged[:, i], slips[:, i])
+        steady[i] = steady[i] + 1 if abs(moved[i]) < steady_move and power[i] >= survival * noise[i] else 0
+        confirmed[i] = confirmed[i] or steady[i] >= confirm_batches
+
+
 # ---- the tracker ---------------------------------------------------------------------------
 
 @dataclass
@@ -577,6 +621,7 @@ class PathTracker:
         # A path that has held still moves no faster than a path can (walking: hundredths of a chip per
         # second): a spurious neighbour cannot drag it away.
         max_step = np.array([cfg.steady_delay_step if p.confirmed else cfg.max_delay_step for p in paths])
+        delay_before, rate_before = delay.copy(), rate.copy()    # the fit updates delay and rate in place
         if self.guard:
             if views is None:
                 raise ValueError("PathTracker.update: guard_span needs the views of plan_views")
@@ -599,21 +644,24 @@ class PathTracker:
         bridged = np.empty((count, n))
         slips = np.zeros((count, n), dtype=bool)
         mean_power = power.mean(axis=0)
-        alpha = 1.0 / cfg.frequency_time_s
-        survival = 10.0 ** (cfg.survival_snr_db / 10.0)
-        for i, p in enumerate(paths):
-            moved = delay[i] - (p.delay + p.rate * count)
-            p.delay, p.rate = float(delay[i]), float(rate[i])
-            column, flags = np.empty(count), np.zeros(count, dtype=np.bool_)
-            p.smooth_hz, p.run_cycles, p.run_s = slip_kernel(cfo[:, i], dt, sigma[:, i], p.smooth_hz, p.run_cycles,
-                                                             p.run_s, alpha, cfg.slip_sigmas, cfg.slip_min_cycles,
-                                                             column, flags)
-            bridged[:, i], slips[:, i] = column, flags
-            p.prev_amplitude, p.prev_start = complex(amplitudes[-1, i]), int(starts[-1])
-            p.power, p.noise = float(mean_power[i]), float(path_noise[i])
-            # A path is confirmed once it has held still, above the survival SNR, for confirm_batches batches.
-            p.steady = p.steady + 1 if abs(moved) < cfg.steady_move and p.power >= survival * p.noise else 0
-            p.confirmed = p.confirmed or p.steady >= cfg.confirm_batches
+        moved = delay - (delay_before + rate_before * count)
+        smooth_hz = np.array([p.smooth_hz for p in paths], dtype=np.float64)
+        run_cycles = np.array([p.run_cycles for p in paths], dtype=np.float64)
+        run_s = np.array([p.run_s for p in paths], dtype=np.float64)
+        steady = np.array([p.steady for p in paths], dtype=np.int64)
+        confirmed = np.array([p.confirmed for p in paths], dtype=np.bool_)
+        # Every path's slips and steadiness in one call; a path is confirmed once it has held still, above the
+        # survival SNR, for confirm_batches batches.
+        step_paths_kernel(cfo, dt, sigma, smooth_hz, run_cycles, run_s, 1.0 / cfg.frequency_time_s, cfg.slip_sigmas,
+                          cfg.slip_min_cycles, moved, mean_power, path_noise, cfg.steady_move,
+                          10.0 ** (cfg.survival_snr_db / 10.0), cfg.confirm_batches, steady, confirmed, bridged, slips)
+        last_start = int(starts[-1])
+        for p, *state in zip(paths, delay.tolist(), rate.tolist(), smooth_hz.tolist(), run_cycles.tolist(),
+                             run_s.tolist(), amplitudes[-1].tolist(), mean_power.tolist(),
+                             path_noise.tolist(), steady.tolist(), confirmed.tolist()):
+            (p.delay, p.rate, p.smooth_hz, p.run_cycles, p.run_s, p.prev_amplitude, p.power, p.noise, p.steady,
+             p.confirmed) = state
+            p.prev_start = last_start
 
         if self.guard:
             self._resolve_aliases(count, offsets)
@@ -876,43 +924,29 @@ class PathTracker:
     def _rows(self, paths: list[_Path], amplitudes: np.ndarray, lags: np.ndarray, rate: np.ndarray,
               bridged: np.ndarray, slips: np.ndarray, noise: np.ndarray, t_s: np.ndarray,
               frame_index: np.ndarray) -> PathBatch:
-        """One row per frame and confirmed path."""
-        confirmed = [i for i, p in enumerate(paths) if p.confirmed]
-        count = len(t_s)
-        if len(confirmed) == 0:
+        """One row per frame and confirmed path, frame-major (all paths of a frame together)."""
+        confirmed = np.flatnonzero(np.array([p.confirmed for p in paths], dtype=np.bool_))
+        count, c = len(t_s), len(confirmed)
+        if c == 0:
             return PathBatch.concatenate([])
-        noise_sample = noise * self.header_gain
-        cols = {name: [] for name in ("t_s", "frame_index", "path_id", "tower_id", "delay_s", "delay_rate", "cfo_hz",
-                                      "snr_db", "flags")}
-        nominal = self.mode.value.frame_length
-        for i in confirmed:
-            p = paths[i]
-            flags = np.zeros(count, np.uint8)
-            flags[slips[:, i]] |= np.uint8(PathFlag.CYCLE_SLIP)
-            if p.first:
-                flags |= np.uint8(PathFlag.FIRST_PATH)
-            if p.fading:
-                flags |= np.uint8(PathFlag.FADING)
-            cfo_i = bridged[:, i]
-            if p.born:
-                flags[0] |= np.uint8(PathFlag.BORN)
-            with np.errstate(divide="ignore"):
-                snr = 10.0 * np.log10(np.abs(amplitudes[:, i]) ** 2 / noise_sample[:, i])
-            cols["t_s"].append(t_s)
-            cols["frame_index"].append(frame_index)
-            cols["path_id"].append(np.full(count, p.path_id))
-            cols["tower_id"].append(np.full(count, p.tower_id))
-            cols["delay_s"].append(lags[:, i] / SYMBOL_RATE_HZ)
-            cols["delay_rate"].append(np.full(count, rate[i] / nominal))
-            cols["cfo_hz"].append(cfo_i)
-            cols["snr_db"].append(snr)
-            cols["flags"].append(flags)
+        kept = [paths[i] for i in confirmed]
+        # (F, c) columns, raveled in C order: frame k's rows are k * c .. k * c + c - 1, in path order.
+        flags = np.where(slips[:, confirmed], np.uint8(PathFlag.CYCLE_SLIP), np.uint8(0))
+        flags |= np.array([(PathFlag.FIRST_PATH if p.first else 0) | (PathFlag.FADING if p.fading else 0)
+                           for p in kept], dtype=np.uint8)
+        flags[0] |= np.array([PathFlag.BORN if p.born else 0 for p in kept], dtype=np.uint8)
+        with np.errstate(divide="ignore"):
+            snr = 10.0 * np.log10(np.abs(amplitudes[:, confirmed]) ** 2 / (noise * self.header_gain)[:, confirmed])
+        for p in kept:
             p.born = False
-        # Frame-major order: all paths of a frame together.
-        order = np.argsort(np.tile(np.arange(count), len(confirmed)), kind="stable")
-        out = {k: np.concatenate(v)[order] for k, v in cols.items()}
-        nan = np.full(len(order), np.nan)
-        return PathBatch(doppler_hz=nan, range_change_m=nan.copy(), **out)
+        nan = np.full(count * c, np.nan)
+        return PathBatch(t_s=np.repeat(t_s, c), frame_index=np.repeat(frame_index, c),
+                         path_id=np.tile(np.array([p.path_id for p in kept]), count),
+                         tower_id=np.tile(np.array([p.tower_id for p in kept]), count),
+                         delay_s=(lags[:, confirmed] / SYMBOL_RATE_HZ).ravel(),
+                         delay_rate=np.tile(rate[confirmed] / self.mode.value.frame_length, count),
+                         cfo_hz=bridged[:, confirmed].ravel(), snr_db=snr.ravel(), flags=flags.ravel(),
+                         doppler_hz=nan, range_change_m=nan.copy())
 
     def _first_paths(self, paths: list[_Path], first: dict[int, int], lags: np.ndarray, bridged: np.ndarray,
                      power: np.ndarray, noise: np.ndarray, t_s: np.ndarray, dt: np.ndarray) -> dict[str, np.ndarray]:
