@@ -268,6 +268,7 @@ def write_fusion(h5: h5py.File, result: FusionResult) -> None:
     for name, track in result.tracks.items():
         write_columns(h5, schema.fusion_group(name), track, {
             schema.INITIAL_HEADING_ATTR: heading.heading_rad, "initial_heading_confidence": heading.confidence,
+            "initial_heading_sigma_rad": heading.sigma_rad, "initial_heading_uncertain": heading.uncertain(),
             **dict(zip(schema.FUSION_START_ATTRS, result.start_xy_m)),
             "initial_heading_minima_rad": heading.minima_rad, "initial_heading_costs_m": heading.costs_m})
 

@@ -12,7 +12,11 @@ observation (a gap, a fade, a multipath stretch: :mod:`fusion.observations`)
 the integrated range may carry an error it picked up there, so each later
 run of observed epochs gets a free offset (its median mismatch, the L1
 optimum); only the run that starts at P0 is tied to zero. A coarse 1-degree grid finds the minima;
-each is then refined to a fraction of a degree.
+each is then refined to a fraction of a degree. The chosen minimum carries a
+standard uncertainty (:func:`heading_sigma`: the residuals, the start fix's
+error and the PDR's heading drift), and a solution that may be more than a
+few degrees off says so (:meth:`HeadingSolution.uncertain`); the filters
+start with at least that spread (:func:`fusion.run.with_heading_spread`).
 
 In a single-frequency network the same equations hold for the difference of
 two towers' ranges (``difference_tower``, docs/paths.md): it changes with the
@@ -34,6 +38,13 @@ COARSE_STEP_RAD = np.deg2rad(1.0)
 
 #: Costs closer than this are indistinguishable for the confidence, m.
 COST_FLOOR_M = 0.05
+
+#: A heading whose two-sigma interval is wider than this, or whose mirror is nearly as good, is reported as
+#: uncertain (:meth:`HeadingSolution.uncertain`), rad.
+UNCERTAIN_HEADING_RAD = np.deg2rad(5.0)
+
+#: Confidence below which the mirror minimum is nearly as good as the chosen one (:func:`solve_initial_heading`).
+MIN_CONFIDENCE = 0.3
 
 #: Epochs a window needs beyond the free offsets of its runs (each run after a gap spends one on its offset);
 #: with no more of them than solved parameters the window's solution has no confidence.
@@ -67,6 +78,10 @@ class HeadingSolution:
         lower, the mirror as often as not (180 deg off).
     n_used : int
         Number of epochs with a range observation that entered the cost.
+    sigma_rad : float
+        Standard uncertainty of the chosen heading about its own minimum
+        (:func:`heading_sigma`), rad; it does not cover the mirror minimum,
+        which ``confidence`` speaks for.
     """
 
     minima_rad: np.ndarray
@@ -75,13 +90,23 @@ class HeadingSolution:
     heading_rad: float
     confidence: float
     n_used: int
+    sigma_rad: float = 0.0
+
+    def uncertain(self, limit_rad: float = UNCERTAIN_HEADING_RAD, min_confidence: float = MIN_CONFIDENCE) -> bool:
+        """Whether the heading may be more than ``limit_rad`` off: twice its sigma past it, or a near-equal mirror."""
+        return 2.0 * self.sigma_rad > limit_rad or self.confidence < min_confidence
 
     def describe(self) -> str:
         """One line for a person: chosen heading, confidence and the other minima, degrees."""
         others = ", ".join(f"{np.rad2deg(h):.1f} deg ({c:.2f} m)"
                            for h, c in zip(self.minima_rad[1:], self.costs_m[1:]))
-        return (f"{np.rad2deg(self.heading_rad):.1f} deg (cost {self.costs_m[0]:.2f} m, confidence "
-                f"{self.confidence:.2f}" + (f"; other minima: {others})" if others else ")"))
+        line = (f"{np.rad2deg(self.heading_rad):.1f} +- {np.rad2deg(self.sigma_rad):.1f} deg (cost "
+                f"{self.costs_m[0]:.2f} m, confidence {self.confidence:.2f}"
+                + (f"; other minima: {others})" if others else ")"))
+        if self.uncertain():
+            line += (f"; WARNING: the range may leave this heading more than "
+                     f"{np.rad2deg(UNCERTAIN_HEADING_RAD):.0f} deg off")
+        return line
 
 
 def rotate_pdr(x_m: np.ndarray, y_m: np.ndarray, heading_rad: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -136,8 +161,9 @@ def free_offset_runs(observed: np.ndarray) -> list[np.ndarray]:
 def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.ndarray,
                           range_change_m: np.ndarray, geometry: Geometry, *,
                           scale_bounds: tuple[float, float] | None = (0.8, 1.25),
-                          max_duration_s: float | None = 45.0, min_confidence: float = 0.3,
-                          difference_tower: int = 0) -> HeadingSolution:
+                          max_duration_s: float | None = 45.0, min_confidence: float = MIN_CONFIDENCE,
+                          difference_tower: int = 0, start_sigma_m: float = 0.0,
+                          heading_rate_sigma_radps: float = 0.0) -> HeadingSolution:
     """Solve eq. 15 for the initial heading.
 
     Three options extend the paper's eq. 15, aimed at the PDR errors that
@@ -173,6 +199,12 @@ def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.
         0: ``range_change_m`` is the range to tower 0 (eq. 14-15); k > 0:
         it is the change of the range difference tower k minus tower 0
         (module docstring).
+    start_sigma_m : float
+        Standard deviation of the start fix P0 per axis, m, for the
+        solution's ``sigma_rad`` (:func:`heading_sigma`).
+    heading_rate_sigma_radps : float
+        Standard deviation of the PDR heading's rate error, rad/s, for the
+        same.
 
     Returns
     -------
@@ -203,7 +235,7 @@ def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.
             constraining = int(used.sum()) - len(free_runs)
             if constraining >= MIN_CONSTRAINING_EPOCHS:
                 solution = _solve_window(x[used], y[used], rc[used], geometry, scale_bounds, free_runs,
-                                         difference_tower)
+                                         difference_tower, start_sigma_m, t[used], heading_rate_sigma_radps)
             solved_parameters = 1 if scale_bounds is None else 2
             if solution is not None and constraining <= solved_parameters:
                 # As many epochs as unknowns (heading, scale): some heading fits them exactly, whatever the
@@ -220,7 +252,8 @@ def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.
 
 def _solve_window(x: np.ndarray, y: np.ndarray, rc: np.ndarray, geometry: Geometry,
                   scale_bounds: tuple[float, float] | None, free_runs: list[np.ndarray],
-                  difference_tower: int = 0) -> HeadingSolution | None:
+                  difference_tower: int = 0, start_sigma_m: float = 0.0, t: np.ndarray | None = None,
+                  heading_rate_sigma_radps: float = 0.0) -> HeadingSolution | None:
     """Eq. 15 over the given epochs: coarse grid, then every local minimum refined.
 
     None when the cost is flat to within :data:`COST_FLOOR_M` over the whole
@@ -266,5 +299,107 @@ def _solve_window(x: np.ndarray, y: np.ndarray, rc: np.ndarray, geometry: Geomet
     costs_m, minima_rad, solved_scales = (np.array(v) for v in zip(*found))
     floored = np.maximum(costs_m, COST_FLOOR_M)
     confidence = float((floored[1] - floored[0]) / floored[1]) if len(costs_m) > 1 else 1.0
+    sigma = heading_sigma(minima_rad[0], solved_scales[0], x, y, rc, geometry, free_runs, difference_tower,
+                          solve_scale=scale_bounds is not None, start_sigma_m=start_sigma_m, pdr_t_s=t,
+                          heading_rate_sigma_radps=heading_rate_sigma_radps)
     return HeadingSolution(minima_rad=minima_rad, costs_m=costs_m, scales=solved_scales,
-                           heading_rad=float(minima_rad[0]), confidence=confidence, n_used=len(rc))
+                           heading_rad=float(minima_rad[0]), confidence=confidence, n_used=len(rc), sigma_rad=sigma)
+
+
+def heading_sigma(heading_rad: float, scale: float, pdr_x_m: np.ndarray, pdr_y_m: np.ndarray,
+                  range_change_m: np.ndarray, geometry: Geometry, free_runs: list[np.ndarray] | None = None,
+                  difference_tower: int = 0, solve_scale: bool = True, start_sigma_m: float = 0.0,
+                  pdr_t_s: np.ndarray | None = None, heading_rate_sigma_radps: float = 0.0) -> float:
+    """Standard uncertainty of an eq. 15 heading about its minimum, rad.
+
+    Eq. 15 is a least-absolute-deviations fit. With Laplace residuals of mean
+    absolute value ``b`` (the cost at the minimum, raised to
+    :data:`COST_FLOOR_M`) its parameters' covariance is ``b^2 (G^T G)^-1``,
+    ``G`` the derivatives of the predicted range change (eq. 14) by heading
+    and, where solved, PDR scale: a heading that the walk's geometry barely
+    moves the range with is poorly known however small the cost. Consecutive
+    epochs' residuals are not independent (the PDR drifts, the range error
+    wanders), so ``G^T G`` counts ``n_eff = n (1 - rho) / (1 + rho)`` epochs
+    instead of ``n``, ``rho`` the residuals' lag-one autocorrelation. Each
+    free run's offset (:func:`free_offset_runs`) takes its mean out of the
+    derivatives, as it takes its median out of the mismatch.
+
+    The start fix's error is no residual: every epoch's prediction is made
+    from the same P0, so its error moves the minimum as a whole. Its share is
+    the least-squares solution's response to the predicted change's
+    derivatives by P0 (east and north), each with ``start_sigma_m``. Nor is
+    the PDR's heading drift over the window, the AHRS's residual gyro bias:
+    a rate error turns each later step further, and the minimum follows it
+    with the least-squares response to the track turned at
+    ``heading_rate_sigma_radps``.
+
+    Parameters
+    ----------
+    heading_rad, scale : float
+        The minimum: heading (rad) and PDR distance scale.
+    pdr_x_m, pdr_y_m, range_change_m : ndarray
+        The epochs that entered the cost (NaN-free), m.
+    geometry : Geometry
+    free_runs : list of ndarray, optional
+    difference_tower : int
+        As :func:`predicted_range_change`.
+    solve_scale : bool
+        Whether the scale was solved with the heading (it then shares the
+        range's information).
+    start_sigma_m : float
+        Standard deviation of the start fix P0 per axis, m.
+    pdr_t_s : ndarray, optional
+        The epochs' times, s (needed with ``heading_rate_sigma_radps``).
+    heading_rate_sigma_radps : float
+        Standard deviation of the PDR heading's rate error, rad/s.
+
+    Returns
+    -------
+    float
+        The heading's standard deviation, rad (pi where the range does not
+        move with the heading at all).
+    """
+    def predicted(h: float, k: float, dx_m: float = 0.0, dy_m: float = 0.0) -> np.ndarray:
+        start = replace(geometry, start_x_m=geometry.start_x_m + dx_m, start_y_m=geometry.start_y_m + dy_m)
+        return predicted_range_change(h, k * pdr_x_m, k * pdr_y_m, start, difference_tower)
+
+    step_rad, step_scale, step_m = 1e-4, 1e-4, 0.1
+    columns = [(predicted(heading_rad + step_rad, scale) - predicted(heading_rad - step_rad, scale)) / (2 * step_rad)]
+    if solve_scale:
+        columns.append((predicted(heading_rad, scale + step_scale) - predicted(heading_rad, scale - step_scale))
+                       / (2 * step_scale))
+    jacobian = np.stack(columns, axis=1)
+    # Systematic errors, one column each, scaled by their sigma: P0 east and north, the PDR heading's rate.
+    systematic = [(predicted(heading_rad, scale, step_m, 0.0) - predicted(heading_rad, scale, -step_m, 0.0))
+                  / (2 * step_m) * start_sigma_m,
+                  (predicted(heading_rad, scale, 0.0, step_m) - predicted(heading_rad, scale, 0.0, -step_m))
+                  / (2 * step_m) * start_sigma_m]
+    if pdr_t_s is not None:
+        # The track with every step turned by a rate error of step_rate rad/s since the first epoch.
+        step_rate = 1e-4
+        dx, dy = np.diff(pdr_x_m, prepend=0.0), np.diff(pdr_y_m, prepend=0.0)
+        tx, ty = rotate_pdr(dx, dy, step_rate * (pdr_t_s - pdr_t_s[0]))
+        turned = predicted_range_change(heading_rad, scale * np.cumsum(tx), scale * np.cumsum(ty), geometry,
+                                        difference_tower)
+        systematic.append((turned - predicted(heading_rad, scale)) / step_rate * heading_rate_sigma_radps)
+    by_error = np.stack(systematic, axis=1)
+    mismatch = predicted(heading_rad, scale) - range_change_m
+    for run in free_runs or ():
+        mismatch[run] -= np.median(mismatch[run])
+        jacobian[run] -= jacobian[run].mean(axis=0)
+        by_error[run] -= by_error[run].mean(axis=0)
+    n = len(mismatch)
+    rho = 0.0
+    if n > 2 and np.std(mismatch[:-1]) > 0 and np.std(mismatch[1:]) > 0:
+        rho = float(np.clip(np.corrcoef(mismatch[:-1], mismatch[1:])[0, 1], 0.0, 1.0 - 1e-6))
+    n_eff = max(n * (1.0 - rho) / (1.0 + rho), 1.0)
+    information = (jacobian.T @ jacobian) * n_eff / n
+    b = max(float(np.mean(np.abs(mismatch))), COST_FLOOR_M)
+    try:
+        variance = b**2 * np.linalg.inv(information)[0, 0]
+        # The systematic errors' share: how the least-squares heading follows each of them at one sigma.
+        response = np.linalg.solve(jacobian.T @ jacobian, jacobian.T @ by_error)[0]
+    except np.linalg.LinAlgError:
+        return float(np.pi)
+    variance += float(response @ response)
+    return float(min(np.sqrt(max(variance, 0.0)), np.pi))

@@ -19,7 +19,7 @@ the path channels keep the sigma of their aggregation rule.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -77,6 +77,13 @@ class FusionConfig:
     si_range : {"always", "without-first-path"}
         Where the filters take the SI-carrier range
         (:func:`fusion.observations.si_range_epochs`); eq. 15 sees all of it.
+    heading_drift_radps : float
+        The PDR heading's rate error that eq. 15's sigma counts
+        (:func:`fusion.heading_init.heading_sigma`), rad/s: the drift that
+        bends the PDR track over the solved window, far below the filters'
+        initial heading-rate spread, which must also hold a bias the range
+        has not yet shown (chosen on the tuning walks so that the sigma holds
+        the heading errors; docs/decisions.md, D45).
     """
 
     noise: ModelNoise = field(default_factory=ModelNoise)
@@ -92,6 +99,7 @@ class FusionConfig:
     standstills: StandstillConfig = field(default_factory=StandstillConfig)
     heading_range: str = DEFAULT_HEADING_RANGE
     si_range: str = DEFAULT_SI_RANGE_USE
+    heading_drift_radps: float = np.deg2rad(0.02)
 
     def __post_init__(self) -> None:
         if self.clock_model not in CLOCK_MODELS:
@@ -124,20 +132,39 @@ def initial_heading(pdr: PdrSteps, range_epochs: RangeEpochs, path_epochs: PathE
     epoch that starts from a new origin (a slip, a re-found path) is left
     out, so that eq. 15 gives the run after it a free offset.
     """
+    # What eq. 15's sigma counts beyond the residuals: the fix's error and the PDR heading's drift.
+    sigmas = dict(start_sigma_m=config.noise.initial_position_m,
+                  heading_rate_sigma_radps=config.heading_drift_radps)
     if config.clock().free_running and path_epochs is not None:
         for k in range(path_epochs.range_difference_m.shape[1]):
             try:
                 return solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, path_epochs.range_difference_m[at_steps, k],
-                                             geometry, difference_tower=k + 1)
+                                             geometry, difference_tower=k + 1,
+                                             **sigmas)
             except ValueError:  # too few epochs of this difference: try the next, then the range
                 continue
     if config.heading_range == "first-path" and path_epochs is not None:
         first = np.where(path_epochs.first_path_new_origin[:, 0], np.nan, path_epochs.first_path_range_m[:, 0])
         try:
-            return solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, first[at_steps], geometry)
+            return solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, first[at_steps], geometry,
+                                         **sigmas)
         except ValueError:  # too few first-path epochs: the SI-carrier range
             pass
-    return solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, range_epochs.range_change_m[at_steps], geometry)
+    return solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, range_epochs.range_change_m[at_steps], geometry,
+                                 **sigmas)
+
+
+def with_heading_spread(config: FusionConfig, heading: HeadingSolution) -> FusionConfig:
+    """``config`` with the filters' initial heading spread widened to eq. 15's sigma where that is wider.
+
+    The filters start around the solved heading with
+    ``ModelNoise.initial_heading_rad``; where the range leaves the heading
+    less certain than that (a walk along the line of sight, a short window),
+    a narrower start would hold the filters away from the truth.
+    """
+    if heading.sigma_rad <= config.noise.initial_heading_rad:
+        return config
+    return replace(config, noise=replace(config.noise, initial_heading_rad=heading.sigma_rad))
 
 
 FilterRunner = Callable[[FilterEpochs, Geometry, FusionConfig], Track]
@@ -236,6 +263,6 @@ def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], to
     heading = initial_heading(pdr, range_epochs, path_epochs, at_steps, geometry, config)
     epochs = build_epochs(pdr, si_range_epochs(range_epochs, path_epochs, config.si_range), heading.heading_rad,
                           path_epochs)
-    tracks = {name: FILTERS[name](epochs, geometry, config) for name in filters}
+    tracks = {name: FILTERS[name](epochs, geometry, with_heading_spread(config, heading)) for name in filters}
     return FusionResult(tracks=tracks, heading=heading, epochs=epochs, start_xy_m=(start_xy_m[0], start_xy_m[1]),
                         code_offsets=code_offsets)

@@ -240,3 +240,52 @@ def test_a_walker_who_has_hardly_moved_gives_no_heading():
     measured[0] = 0.0
     with pytest.raises(ValueError, match="does not constrain the heading"):
         solve_initial_heading(t, x, y, measured, GEOMETRY, max_duration_s=None)
+
+
+def test_heading_sigma_holds_the_scatter_of_white_range_noise():
+    """With white range noise alone, eq. 15's sigma matches the scatter of the solved heading over noise draws."""
+    walk = park_like_walk()
+    pdr = walk.pdr
+    true_heading = np.deg2rad(70.0)
+    clean = measured_range((pdr.x_m, pdr.y_m), true_heading)
+    rng = np.random.default_rng(5)
+    errors, sigmas = [], []
+    for _ in range(40):
+        noisy = clean + rng.laplace(0.0, 0.3, clean.shape)
+        sol = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, noisy, GEOMETRY, scale_bounds=None, max_duration_s=20.0)
+        errors.append(heading_error_rad(sol.heading_rad, true_heading))
+        sigmas.append(sol.sigma_rad)
+    scatter = np.sqrt(np.mean(np.square(errors)))
+    assert 0.6 < np.mean(sigmas) / scatter < 1.7
+
+
+def test_heading_sigma_grows_with_the_start_fix_error_and_the_pdr_drift():
+    """The fix's error and the PDR heading's drift move the minimum as a whole: each widens the sigma."""
+    pdr = park_like_walk().pdr
+    true_heading = np.deg2rad(200.0)
+    rc = measured_range((pdr.x_m, pdr.y_m), true_heading) + np.random.default_rng(1).laplace(0.0, 0.1, len(pdr.t_s))
+
+    def sigma(**kw):
+        return solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, rc, GEOMETRY, **kw).sigma_rad
+
+    alone = sigma()
+    assert sigma(start_sigma_m=3.0) > alone
+    assert sigma(heading_rate_sigma_radps=np.deg2rad(0.05)) > alone
+    # A P0 off by the stated sigma moves the minimum by no more than a few of the sigma it claims.
+    shifted = Geometry(3.0, 0.0, GEOMETRY.tower_x_m, GEOMETRY.tower_y_m, GEOMETRY.tower_height_m)
+    sol = solve_initial_heading(pdr.t_s, pdr.x_m, pdr.y_m, rc, shifted, start_sigma_m=3.0)
+    assert heading_error_rad(sol.heading_rad, true_heading) < 3.0 * sol.sigma_rad
+
+
+def test_an_uncertain_heading_says_so_and_widens_the_filters_start():
+    from fusion.heading_init import HeadingSolution
+    from fusion.run import FusionConfig, with_heading_spread
+    config = FusionConfig()
+    sure = HeadingSolution(np.array([1.0]), np.array([0.1]), np.array([1.0]), 1.0, 1.0, 50, np.deg2rad(0.5))
+    vague = HeadingSolution(np.array([1.0]), np.array([0.1]), np.array([1.0]), 1.0, 1.0, 50, np.deg2rad(8.0))
+    mirror = HeadingSolution(np.array([1.0, 2.0]), np.array([0.1, 0.11]), np.ones(2), 1.0, 0.1, 50, np.deg2rad(0.5))
+    assert not sure.uncertain() and "WARNING" not in sure.describe()
+    assert vague.uncertain() and "WARNING" in vague.describe()
+    assert mirror.uncertain() and "WARNING" in mirror.describe()
+    assert with_heading_spread(config, sure) is config
+    assert with_heading_spread(config, vague).noise.initial_heading_rad == pytest.approx(np.deg2rad(8.0))
