@@ -144,10 +144,16 @@ def heading_cost(heading_rad: float | np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: 
     """
     predicted = predicted_range_change(np.asarray(heading_rad)[..., None], scale * pdr_x_m, scale * pdr_y_m, geometry,
                                        difference_tower)
-    mismatch = predicted - range_change_m
+    return np.mean(np.abs(centred_mismatch(predicted, range_change_m, free_runs)), axis=-1)
+
+
+def centred_mismatch(predicted_m: np.ndarray, range_change_m: np.ndarray,
+                     free_runs: list[np.ndarray] | None = None) -> np.ndarray:
+    """Predicted minus measured range change (last axis: epochs), each free run's median taken out, m."""
+    mismatch = predicted_m - range_change_m
     for run in free_runs or ():
         mismatch[..., run] -= np.median(mismatch[..., run], axis=-1, keepdims=True)
-    return np.mean(np.abs(mismatch), axis=-1)
+    return mismatch
 
 
 def free_offset_runs(observed: np.ndarray) -> list[np.ndarray]:
@@ -369,11 +375,11 @@ def heading_sigma(heading_rad: float, scale: float, pdr_x_m: np.ndarray, pdr_y_m
         columns.append((predicted(heading_rad, scale + step_scale) - predicted(heading_rad, scale - step_scale))
                        / (2 * step_scale))
     jacobian = np.stack(columns, axis=1)
+    at_minimum = predicted(heading_rad, scale)
     # Systematic errors, one column each, scaled by their sigma: P0 east and north, the PDR heading's rate.
-    systematic = [(predicted(heading_rad, scale, step_m, 0.0) - predicted(heading_rad, scale, -step_m, 0.0))
-                  / (2 * step_m) * start_sigma_m,
-                  (predicted(heading_rad, scale, 0.0, step_m) - predicted(heading_rad, scale, 0.0, -step_m))
-                  / (2 * step_m) * start_sigma_m]
+    systematic = [(predicted(heading_rad, scale, step_m * east, step_m * north)
+                   - predicted(heading_rad, scale, -step_m * east, -step_m * north)) / (2 * step_m) * start_sigma_m
+                  for east, north in ((1.0, 0.0), (0.0, 1.0))]
     if pdr_t_s is not None:
         # The track with every step turned by a rate error of step_rate rad/s since the first epoch.
         step_rate = 1e-4
@@ -381,11 +387,10 @@ def heading_sigma(heading_rad: float, scale: float, pdr_x_m: np.ndarray, pdr_y_m
         tx, ty = rotate_pdr(dx, dy, step_rate * (pdr_t_s - pdr_t_s[0]))
         turned = predicted_range_change(heading_rad, scale * np.cumsum(tx), scale * np.cumsum(ty), geometry,
                                         difference_tower)
-        systematic.append((turned - predicted(heading_rad, scale)) / step_rate * heading_rate_sigma_radps)
+        systematic.append((turned - at_minimum) / step_rate * heading_rate_sigma_radps)
     by_error = np.stack(systematic, axis=1)
-    mismatch = predicted(heading_rad, scale) - range_change_m
+    mismatch = centred_mismatch(at_minimum, range_change_m, free_runs)
     for run in free_runs or ():
-        mismatch[run] -= np.median(mismatch[run])
         jacobian[run] -= jacobian[run].mean(axis=0)
         by_error[run] -= by_error[run].mean(axis=0)
     n = len(mismatch)

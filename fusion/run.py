@@ -263,6 +263,7 @@ def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], to
     heading = initial_heading(pdr, range_epochs, path_epochs, at_steps, geometry, config)
     epochs = build_epochs(pdr, si_range_epochs(range_epochs, path_epochs, config.si_range), heading.heading_rad,
                           path_epochs)
-    tracks = {name: FILTERS[name](epochs, geometry, with_heading_spread(config, heading)) for name in filters}
+    filter_config = with_heading_spread(config, heading)
+    tracks = {name: FILTERS[name](epochs, geometry, filter_config) for name in filters}
     return FusionResult(tracks=tracks, heading=heading, epochs=epochs, start_xy_m=(start_xy_m[0], start_xy_m[1]),
                         code_offsets=code_offsets)
