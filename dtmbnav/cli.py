@@ -1024,8 +1024,7 @@ def _add_bench_command(subparsers: argparse._SubParsersAction, common: argparse.
 
 def _add_results_command(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
     """``dtmbnav results`` and its options."""
-    from dtmbnav.results import IQ_SEEDS, OBS_SEEDS, SECTIONS
-    from dtmbnav.results_check import CHECK_SEEDS
+    from dtmbnav.seeds import CHECK_SEEDS, IQ_SEEDS, OBS_SEEDS, RESULT_SECTIONS as SECTIONS
 
     p = _command(subparsers, common, "results", "every result table, generated into one Markdown file")
     p.add_argument("-o", "--output", type=Path, default=Path("docs/results.md"),

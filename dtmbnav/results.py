@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from dtmbnav.distributed import IN_PROCESS, ClusterConfig
-from dtmbnav.seeds import REPORTING_SEEDS
+from dtmbnav.seeds import IQ_SEEDS, OBS_SEEDS, REPORTING_SEEDS, RESULT_SECTIONS
 
 #: Scenarios of the fusion tables, in the order they are printed.
 FUSION_SCENARIOS = ("park-loop-cw", "park-loop-ccw", "sfn-park", "sfn3-park", "street-out", "street-back",
@@ -50,9 +50,6 @@ BASELINE_COLUMNS = (("pdr", "PDR"), ("pdr@fix", "PDR@fix"))
 PF_COLUMN = "PF (vs PDR / vs PDR@fix)"
 #: Filters of the per-walk table, after the PDR baselines (each titled by its name in capitals).
 PER_WALK_FILTERS = ("pf", "ukf")
-#: Default Monte Carlo walks per scenario at the IQ and the observation level.
-IQ_SEEDS = 10
-OBS_SEEDS = 50
 #: The file's title and preamble.
 PREAMBLE = """# Results
 
@@ -389,8 +386,7 @@ def _sections(config: ResultsConfig) -> dict[str, Callable[[], Section]]:
 
 
 #: Every section, in the file's order.
-SECTIONS = ("fusion-iq", "fusion-obs", "fusion-exact", "receiver", "paths", "frontends", "field", "weak-signal", "pdr",
-            "bench")
+SECTIONS = RESULT_SECTIONS
 
 
 def render_section(section: Section, commit: str, date: str, machine: str) -> str:

@@ -67,9 +67,8 @@ from pathlib import Path
 import numpy as np
 
 from dtmbnav import results
+from dtmbnav.seeds import CHECK_SEEDS
 
-#: Walks of each scenario a fusion section's check runs again, unless told otherwise.
-CHECK_SEEDS = 3
 #: Sections of fixed walks, one per row, run again whole and compared figure by figure.
 ROW_SECTIONS = ("receiver", "paths")
 #: Why the other sections are not checked.

@@ -25,6 +25,14 @@ SEED_STRIDE = 1000
 #: Where the receiver range comes from: the observation-level model, the IQ transmitter, channel and receiver,
 #: or the exact range change of the direct path (the filters' bound with a perfect receiver).
 LEVELS = ("obs", "iq", "exact")
+#: Default Monte Carlo walks per scenario at the IQ and the observation level (``dtmbnav results``).
+IQ_SEEDS = 10
+OBS_SEEDS = 50
+#: Walks of each scenario a fusion section's check (``dtmbnav results --check``) runs again, unless told otherwise.
+CHECK_SEEDS = 3
+#: Every section of ``dtmbnav results``, in the file's order.
+RESULT_SECTIONS = ("fusion-iq", "fusion-obs", "fusion-exact", "receiver", "paths", "frontends", "field", "weak-signal",
+                   "pdr", "bench")
 
 
 def monte_carlo_seed(scenario_seed: int, k: int, first_seed: int = REPORTING_SEEDS.start) -> int:
