@@ -80,7 +80,7 @@ from receiver.ofdm import si_carrier_numbers
 
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def si_phase_kernel(y_prev: np.ndarray, y: np.ndarray, k: np.ndarray, delta_prev: float, delta: np.ndarray,
                     reference: np.ndarray, phase_prev: float, gain: float) -> tuple[np.ndarray, np.ndarray, float]:
     """SI phase advance of each frame of a batch against the reference, and the scatter of eq. 6's terms.
@@ -184,7 +184,7 @@ def expected_phase_variance(si_snr_db: np.ndarray, n_carriers: int = gb20600.SI_
     return (1.0 + 0.5 / gamma) / (n_carriers * gamma)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def pn_theta_kernel(taps_prev: np.ndarray, taps: np.ndarray, shift: np.ndarray) -> np.ndarray:
     """``sum_l conj(h_m[l]) h_{m-1}[l + s_m]`` for each frame of a batch.
 

@@ -87,6 +87,13 @@ class ChannelEstimates:
     peak_metric: np.ndarray
     centroid: np.ndarray
 
+    @classmethod
+    def empty(cls, count: int, n_taps: int) -> ChannelEstimates:
+        """Uninitialised estimates of ``count`` frames of ``n_taps`` taps (for a kernel to fill)."""
+        return cls(taps=np.empty((count, n_taps), np.complex64), raw_taps=np.empty((count, n_taps), np.complex64),
+                   snr_db=np.empty(count, np.float32), noise_power=np.empty(count),
+                   peak_metric=np.empty(count, np.float32), centroid=np.empty(count))
+
 
 class ChannelEstimator:
     """Batched PN-header channel estimation for one header mode.
@@ -185,26 +192,35 @@ class ChannelEstimator:
     def estimate(self, count: int, phases: np.ndarray) -> ChannelEstimates:
         """Estimate the channel of the first ``count`` windows in :attr:`windows`."""
         windows = self._windows[:count]
+        out = ChannelEstimates.empty(count, self.n_taps)
         if self.cyclic:
-            power_in = np.empty(count)
-            m = self.mode.value
-            shifts = (np.asarray(phases, dtype=np.int64) + m.preamble) % m.period
-            m_sequence_correlation_kernel(windows, shifts, self._sample_slot, self._shift_slot, self._hadamard_scale,
-                                          self._hadamard_work, self._corr, power_in)
-            raw = np.empty((count, self.n_taps), np.complex64)
-            noise_tap = np.empty(count)
-            deconvolve_kernel(self._corr[:count], self.tap_bins, self.noise_bins, raw, noise_tap)
-        else:
-            power_in = np.mean(windows.real ** 2 + windows.imag ** 2, axis=1)
-            raw = windows @ self._pinv_t
-            noise_tap = self._ls_noise_tap(raw, power_in)
-        out = ChannelEstimates(taps=np.empty((count, self.n_taps), np.complex64), raw_taps=raw.astype(np.complex64),
-                               snr_db=np.empty(count, np.float32), noise_power=np.empty(count),
-                               peak_metric=np.empty(count, np.float32), centroid=np.empty(count))
-        summarise_taps_kernel(out.raw_taps, noise_tap, power_in, self.threshold, self.header_power,
-                              self.reference_length, self.taps_before, out.taps, out.snr_db, out.noise_power,
-                              out.peak_metric, out.centroid)
+            estimate_cyclic_kernel(windows, self.header_shifts(phases), self.cyclic_tables, self.summary_settings,
+                                   out.raw_taps, out.taps, out.snr_db, out.noise_power, out.peak_metric, out.centroid)
+            return out
+        power_in = np.mean(windows.real ** 2 + windows.imag ** 2, axis=1)
+        out.raw_taps[:] = windows @ self._pinv_t
+        summarise_taps_kernel(out.raw_taps, self._ls_noise_tap(out.raw_taps, power_in), power_in,
+                              *self.summary_settings, out.taps, out.snr_db, out.noise_power, out.peak_metric,
+                              out.centroid)
         return out
+
+    def header_shifts(self, phases: np.ndarray) -> np.ndarray:
+        """Cyclic shift of each header phase's m-sequence against the window (:func:`m_sequence_correlation_kernel`)."""
+        m = self.mode.value
+        return (np.asarray(phases, dtype=np.int64) + m.preamble) % m.period
+
+    @property
+    def cyclic_tables(self) -> tuple:
+        """The tables and buffers :func:`estimate_cyclic_kernel` uses (PN420/PN945): Hadamard slots and scale,
+        its scratch row, the correlation rows (read again by :meth:`span_taps`), the tap and noise lags."""
+        return (self._sample_slot, self._shift_slot, self._hadamard_scale, self._hadamard_work, self._corr,
+                self.tap_bins, self.noise_bins)
+
+    @property
+    def summary_settings(self) -> tuple[float, float, int, int]:
+        """:func:`summarise_taps_kernel`'s settings: tap threshold, header power ratio, reference length, taps
+        before the window start."""
+        return self.threshold, self.header_power, self.reference_length, self.taps_before
 
     def span_taps(self, count: int, taps_before: int, taps_after: int) -> tuple[np.ndarray, np.ndarray]:
         """Raw taps over another delay span, from the correlations of the last :meth:`estimate` (PN420/PN945).
@@ -222,7 +238,7 @@ class ChannelEstimator:
         noise_tap : ndarray, (count,)
             Mean tap power on the lags outside the span (the tap noise floor).
         """
-        tap_bins, noise_bins = self._span_bins(taps_before, taps_after)
+        tap_bins, noise_bins = self.span_bins(taps_before, taps_after)
         raw = np.empty((count, len(tap_bins)), np.complex64)
         noise_tap = np.empty(count)
         deconvolve_kernel(self._corr[:count], tap_bins, noise_bins, raw, noise_tap)
@@ -271,7 +287,7 @@ class ChannelEstimator:
                                               self._view_power)
             view_readout_kernel(corr[:count], self._view_bins, *self._view_span, out[:count, v])
 
-    def _span_bins(self, taps_before: int, taps_after: int) -> tuple[np.ndarray, np.ndarray]:
+    def span_bins(self, taps_before: int, taps_after: int) -> tuple[np.ndarray, np.ndarray]:
         """Correlation lags of a span and the noise lags outside it (:meth:`span_taps`; made once per span)."""
         key = (taps_before, taps_after)
         if key not in self._span_cache:
@@ -417,6 +433,28 @@ def walsh_hadamard_inplace(work: np.ndarray) -> None:
             a, b = work[i], work[i + q]
             work[i] = a + b
             work[i + q] = a - b
+
+
+@njit(cache=True, nogil=True)
+def estimate_cyclic_kernel(windows: np.ndarray, shifts: np.ndarray, tables: tuple, settings: tuple,
+                           raw: np.ndarray, taps: np.ndarray, snr_db: np.ndarray, noise_power: np.ndarray,
+                           peak: np.ndarray, centroid: np.ndarray) -> None:
+    """:meth:`ChannelEstimator.estimate` of ``len(shifts)`` PN420/PN945 windows in one call (into the given arrays).
+
+    The m-sequence correlation, the deconvolution over the estimator's span
+    and the summary, as :attr:`ChannelEstimator.cyclic_tables` and
+    :attr:`ChannelEstimator.summary_settings` set them up; the correlations
+    stay in the tables' rows for :meth:`ChannelEstimator.span_taps`.
+    """
+    sample_slot, shift_slot, scale, work, corr, tap_bins, noise_bins = tables
+    threshold, header_power, reference_length, taps_before = settings
+    count = shifts.shape[0]
+    power_in = np.empty(count)
+    noise_tap = np.empty(count)
+    m_sequence_correlation_kernel(windows, shifts, sample_slot, shift_slot, scale, work, corr, power_in)
+    deconvolve_kernel(corr[:count], tap_bins, noise_bins, raw, noise_tap)
+    summarise_taps_kernel(raw, noise_tap, power_in, threshold, header_power, reference_length, taps_before, taps,
+                          snr_db, noise_power, peak, centroid)
 
 
 @njit(cache=True, fastmath=True, nogil=True)

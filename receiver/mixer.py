@@ -40,7 +40,7 @@ def check_channel_offset(channel_offset_hz: float, sample_rate_hz: float) -> Non
                          f"|channel - centre| <= {limit / 1e3:.1f} kHz")
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _phasor(cycles: float) -> complex:
     """``exp(-j 2 pi cycles)`` with ``cycles`` first reduced to [0, 1)."""
     frac = cycles - np.floor(cycles)

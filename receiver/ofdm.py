@@ -108,6 +108,12 @@ class OfdmDemodulator:
         self._unit_phases = np.ones(batch, dtype=np.complex64)
 
     @property
+    def si_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`si_dft_kernel`'s tables and scratch buffer: inner and outer twiddles, slot of each SI carrier,
+        work row."""
+        return self.inner_twiddles, self.twiddles, self.slot_of_si, self._work
+
+    @property
     def bodies(self) -> np.ndarray:
         """The ``(batch, 3780)`` input buffer the body-recovery kernel fills."""
         return self._bodies
@@ -120,8 +126,8 @@ class OfdmDemodulator:
         """
         out = np.empty((count, len(self.slot_of_si)), dtype=np.complex64)
         phases = self._unit_phases if frame_phases is None else frame_phases
-        si_dft_kernel(self._bodies, count, self.inner_twiddles, self.twiddles, self.slot_of_si, phases, self._work,
-                      out)
+        inner_twiddles, twiddles, slot_of_si, work = self.si_tables
+        si_dft_kernel(self._bodies, count, inner_twiddles, twiddles, slot_of_si, phases, work, out)
         return out
 
 

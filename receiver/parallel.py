@@ -13,6 +13,16 @@ whatever the number of threads, each is computed by one thread with its own buff
 (the numba kernels release the GIL), and the results are put back in frame order, so
 the output is bit-identical for any ``jobs``. Blocks also keep the bodies a kernel
 writes in the cache when the DFT reads them.
+
+With more than one thread, the next batch's blocks can also start early
+(:meth:`FrameWorkers.prefetch`): the caller places the next batch's windows
+where the timing loop would put them before it has taken the current batch,
+and the pool works on them while the calling thread runs the sequential
+update. When the batch comes, each block whose inputs (windows, header
+phases, coarse CFO, samples) are exactly those prefetched takes the
+prefetched result, and any other is computed afresh: a block's result is a
+function of its inputs alone, so prefetching changes when the work is done,
+never what it gives.
 """
 
 from __future__ import annotations
@@ -20,24 +30,26 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, fields
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, fields, replace
 from functools import partial
 from itertools import pairwise
 
 import numpy as np
+from numba import njit
 
 from dtmbnav_core.gb20600 import PnMode
 from receiver.body import body_phases, recover_bodies
-from receiver.channel_estimate import ChannelEstimates, ChannelEstimator
+from receiver.channel_estimate import ChannelEstimates, ChannelEstimator, deconvolve_kernel, estimate_cyclic_kernel
 from receiver.derotate import derotate_segments
-from receiver.ofdm import OfdmDemodulator
+from receiver.ofdm import OfdmDemodulator, si_dft_kernel
 
 #: Frames per block of work: the unit one thread processes (fixed, so results do not depend on the
 #: thread count), small enough that a block's bodies stay in the cache between body recovery and DFT.
 FRAME_BLOCK = 32
-#: Stages timed per block (:attr:`BatchFrames.seconds`), named as in :data:`receiver.pipeline.STAGES`.
-BLOCK_STAGES = ("channel", "body", "fft")
+#: Stages timed per block (:attr:`BatchFrames.seconds`), named as in :data:`receiver.pipeline.STAGES`: a block run
+#: ahead in one compiled call (:meth:`FrameWorkers.prefetch`) counts as "frames" only.
+BLOCK_STAGES = ("channel", "body", "fft", "frames")
 
 
 @dataclass
@@ -145,6 +157,11 @@ class FrameWorkers:
         self._taps = (taps_before, taps_after, tap_threshold, noise_guard)
         self._pool = ThreadPoolExecutor(jobs - 1, thread_name_prefix="frames") if jobs > 1 else None
         self._local = threading.local()     # per thread: its estimators (one per mode) and demodulator
+        #: Blocks started by prefetch(): their inputs' key -> (future of _block's result, the views' taps).
+        self._prefetched: dict[tuple, tuple[Future, np.ndarray | None]] = {}
+        #: Blocks of the batches run so far that a prefetch had computed, and all blocks run.
+        self.prefetch_hits = 0
+        self.blocks_run = 0
 
     def _estimator(self, mode: PnMode) -> ChannelEstimator:
         """This thread's channel estimator for ``mode`` (window placement is the same in every thread's)."""
@@ -154,29 +171,55 @@ class FrameWorkers:
         return estimators[mode]
 
     def run(self, mode: PnMode, windows: BatchWindows, keep_bodies: bool = False,
-            span: tuple[int, int] | None = None, views: tuple[int, ...] = ()) -> BatchFrames:
+            span: tuple[int, int] | None = None, views: tuple[int, ...] = (), generation: int = 0) -> BatchFrames:
         """Channel estimates, SI carriers (and bodies when ``keep_bodies``) of every frame of a batch.
 
         ``span`` = ``(taps_before, taps_after)``: also the raw taps over that delay span (the path
         tracker's, :mod:`receiver.paths`; PN420 and PN945 only), and with ``views`` (shifts,
-        samples) the taps of those views.
+        samples) the taps of those views. ``generation`` names the samples ``windows.samples``
+        gives (the caller changes it whenever the samples at a stream index may change, e.g.
+        when the stream is conjugated); blocks prefetched under another generation are not used.
         """
         count = len(windows.starts)
-        blocks = [(lo, min(lo + FRAME_BLOCK, count)) for lo in range(0, count, FRAME_BLOCK)]
+        blocks = _blocks(count)
         views_out = np.empty((count, len(views), mode.value.period), np.complex64) if views else None
         work = partial(self._block, mode, windows, keep_bodies=keep_bodies, span=span, views=views,
                        views_out=views_out)
+        prefetched, self._prefetched = self._prefetched, {}
+        hits = {}
+        for block in blocks if prefetched else ():
+            key = self._key(mode, windows, *block, keep_bodies, span, views, generation)
+            if key in prefetched:
+                hits[block] = prefetched.pop(key)
+        for future, _ in prefetched.values():   # prefetched for a batch that did not come
+            future.cancel()
+        self.prefetch_hits += len(hits)
+        self.blocks_run += len(blocks)
 
         def run_share(share: list[tuple[int, int]]) -> list[tuple]:
             return [work(*block) for block in share]
 
-        # Thread i takes the i-th of `jobs` consecutive shares of the blocks; this thread takes the first
-        # and works while the others run theirs (one hand-off per thread and batch).
-        threads = min(self.jobs if self._pool is not None else 1, len(blocks))
-        edges = np.linspace(0, len(blocks), max(threads, 1) + 1).round().astype(int)
-        shares = [blocks[a:b] for a, b in pairwise(edges)]
-        others = [self._pool.submit(run_share, share) for share in shares[1:]] if self._pool is not None else []
-        parts = run_share(shares[0]) + [part for future in others for part in future.result()]
+        if hits:
+            # This thread takes back the prefetched blocks the pool has not started (the last ones first, the
+            # pool takes them first to last) and does them with the ones not prefetched.
+            for block in reversed(list(hits)):
+                if hits[block][0].cancel():
+                    del hits[block]
+            missed = [block for block in blocks if block not in hits]
+            done = dict(zip(missed, run_share(missed)))
+            for (lo, hi), (future, pre_views) in hits.items():
+                done[lo, hi] = future.result()
+                if views_out is not None:
+                    views_out[lo:hi] = pre_views[lo:hi]
+            parts = [done[block] for block in blocks]
+        else:
+            # Thread i takes the i-th of `jobs` consecutive shares of the blocks; this thread takes the first
+            # and works while the others run theirs (one hand-off per thread and batch).
+            threads = min(self.jobs if self._pool is not None else 1, len(blocks))
+            edges = np.linspace(0, len(blocks), max(threads, 1) + 1).round().astype(int)
+            shares = [blocks[a:b] for a, b in pairwise(edges)]
+            others = [self._pool.submit(run_share, share) for share in shares[1:]] if self._pool is not None else []
+            parts = run_share(shares[0]) + [part for future in others for part in future.result()]
         channel = ChannelEstimates(**{f.name: np.concatenate([getattr(p[0], f.name) for p in parts])
                                       for f in fields(ChannelEstimates)})
         si = np.concatenate([p[1] for p in parts])
@@ -185,6 +228,34 @@ class FrameWorkers:
                          np.concatenate([p[3][1] for p in parts]), views_out) if span is not None else None
         seconds = {stage: sum(p[4][i] for p in parts) for i, stage in enumerate(BLOCK_STAGES)}
         return BatchFrames(channel, si, bodies, spans, seconds)
+
+    def prefetch(self, mode: PnMode, windows: BatchWindows, keep_bodies: bool = False,
+                 span: tuple[int, int] | None = None, views: tuple[int, ...] = (), generation: int = 0) -> None:
+        """Start the blocks of a batch expected next on the pool's threads, and return at once.
+
+        The arguments are those the next :meth:`run` is expected to get. The
+        samples of every block are taken here, on the calling thread (the
+        caller's sample store need not be thread-safe); blocks not used by the
+        next :meth:`run` are dropped. Nothing happens with ``jobs = 1``.
+        """
+        if self._pool is None:
+            return
+        views_out = np.empty((len(windows.starts), len(views), mode.value.period), np.complex64) if views else None
+        compiled = mode.value.cyclic_length > 0 and not views
+        for lo, hi in _blocks(len(windows.starts)):
+            buf, buf_start = self._block_samples(mode, windows, lo, hi, views)
+            fixed = replace(windows, samples=_Span(buf, buf_start).samples, first_sample=buf_start)
+            block = self._compiled_block if compiled else self._block
+            future = self._pool.submit(block, mode, fixed, lo, hi, keep_bodies, span, views, views_out)
+            self._prefetched[self._key(mode, windows, lo, hi, keep_bodies, span, views, generation)] = (future,
+                                                                                                      views_out)
+
+    def _key(self, mode: PnMode, w: BatchWindows, lo: int, hi: int, keep_bodies: bool,
+             span: tuple[int, int] | None, views: tuple[int, ...], generation: int) -> tuple:
+        """Everything block ``lo:hi``'s result depends on (the samples by their generation and zero padding)."""
+        buf_start = self._block_span(mode, w, lo, hi, views)[0]
+        return (mode, lo, hi, w.starts[lo:hi].tobytes(), w.phases[lo:hi + 1].tobytes(), w.cfo_cycles_per_sample,
+                max(w.first_sample - buf_start, 0), keep_bodies, span, views, generation)
 
     def close(self) -> None:
         """Stop the threads (the object cannot run batches afterwards)."""
@@ -198,25 +269,37 @@ class FrameWorkers:
             local.estimators, local.ofdm = {}, OfdmDemodulator(FRAME_BLOCK)
         return local.estimators, local.ofdm
 
+    def _block_span(self, mode: PnMode, w: BatchWindows, lo: int, hi: int,
+                    views: tuple[int, ...]) -> tuple[int, int]:
+        """Stream samples ``[start, stop)`` frames ``lo:hi`` read."""
+        taps_before, taps_after = self._taps[:2]
+        est = self._estimator(mode)
+        # A frame reads from taps_before before its header (or from its earliest view's window) to the next
+        # header's first taps_after samples.
+        start = int(w.starts[lo]) - max(taps_before, -est.window_offset - min(views, default=0))
+        return start, int(w.starts[hi - 1]) + mode.value.frame_length + taps_after + 1
+
+    def _block_samples(self, mode: PnMode, w: BatchWindows, lo: int, hi: int,
+                       views: tuple[int, ...]) -> tuple[np.ndarray, int]:
+        """The samples frames ``lo:hi`` read, and the stream index of the first."""
+        buf_start, buf_stop = self._block_span(mode, w, lo, hi, views)
+        if buf_start < w.first_sample:
+            # The stream's first frames: the earliest views reach before its first sample.
+            return np.concatenate([np.zeros(w.first_sample - buf_start, np.complex64),
+                                   w.samples(w.first_sample, buf_stop)]), buf_start
+        return w.samples(buf_start, buf_stop), buf_start
+
     def _block(self, mode: PnMode, w: BatchWindows, lo: int, hi: int, keep_bodies: bool,
                span: tuple[int, int] | None, views: tuple[int, ...] = (),
                views_out: np.ndarray | None = None) -> tuple[ChannelEstimates, np.ndarray, np.ndarray | None,
                                                              tuple[np.ndarray, np.ndarray] | None, tuple[float, ...]]:
         """Frames ``lo:hi`` of a batch, on this thread's buffers (the views' taps into ``views_out[lo:hi]``)."""
         est, ofdm = self._estimator(mode), self._buffers()[1]
-        taps_before, taps_after = self._taps[:2]
+        taps_before = self._taps[0]
         ng = mode.value.header_length
         starts = w.starts[lo:hi]
         t0 = time.perf_counter()
-        # A frame reads from taps_before before its header (or from its earliest view's window) to the next
-        # header's first taps_after samples.
-        buf_start = int(starts[0]) - max(taps_before, -est.window_offset - min(views, default=0))
-        buf_stop = int(starts[-1]) + mode.value.frame_length + taps_after + 1
-        if buf_start < w.first_sample:
-            # The stream's first frames: the earliest views reach before its first sample.
-            buf = np.concatenate([np.zeros(w.first_sample - buf_start, np.complex64), w.samples(w.first_sample, buf_stop)])
-        else:
-            buf = w.samples(buf_start, buf_stop)
+        buf, buf_start = self._block_samples(mode, w, lo, hi, views)
         derotate_segments(buf, buf_start, starts + est.window_offset, est.window_length, w.cfo_cycles_per_sample,
                           w.rot, est.windows)
         ch = est.estimate(hi - lo, w.phases[lo:hi])
@@ -232,4 +315,81 @@ class FrameWorkers:
         si = ofdm.si_carriers(hi - lo, phase)
         t3 = time.perf_counter()
         bodies = ofdm.bodies[: hi - lo].copy() if keep_bodies else None
-        return ch, si, bodies, span_taps, (t1 - t0, t2 - t1, t3 - t2)
+        return ch, si, bodies, span_taps, (t1 - t0, t2 - t1, t3 - t2, 0.0)
+
+
+    def _compiled_block(self, mode: PnMode, w: BatchWindows, lo: int, hi: int, keep_bodies: bool,
+                        span: tuple[int, int] | None, views: tuple[int, ...] = (),
+                        views_out: np.ndarray | None = None) -> tuple[ChannelEstimates, np.ndarray, np.ndarray | None,
+                                                                      tuple[np.ndarray, np.ndarray] | None,
+                                                                      tuple[float, ...]]:
+        """:meth:`_block` of a PN420/PN945 block without views, in one compiled call (:func:`frame_block_kernel`).
+
+        The GIL is taken only to set the call up: a pool thread running it ahead
+        does not wait for the thread that runs the sequential update between
+        stages. Its time is reported as the ``frames`` stage.
+        """
+        est, ofdm = self._estimator(mode), self._buffers()[1]
+        taps_before = self._taps[0]
+        count, ng = hi - lo, mode.value.header_length
+        starts = w.starts[lo:hi]
+        t0 = time.perf_counter()
+        buf, buf_start = self._block_samples(mode, w, lo, hi, views)
+        phase = body_phases(starts, ng, taps_before, w.cfo_cycles_per_sample)
+        ch = ChannelEstimates.empty(count, est.n_taps)
+        span_bins = est.span_bins(*span) if span is not None else (est.tap_bins, est.noise_bins)
+        span_taps = (np.empty((count, len(span_bins[0])), np.complex64), np.empty(count))
+        si = np.empty((count, len(ofdm.slot_of_si)), np.complex64)
+        frame_block_kernel(buf, buf_start, starts, w.phases[lo:hi + 1], est.window_offset, est.window_length,
+                           w.cfo_cycles_per_sample, w.rot, est.windows, est.header_shifts(w.phases[lo:hi]),
+                           est.cyclic_tables, est.summary_settings, ch.raw_taps, ch.taps, ch.snr_db, ch.noise_power,
+                           ch.peak_metric, ch.centroid, span is not None, span_bins, span_taps[0], span_taps[1], ng,
+                           phase, w.headers[lo:hi + 1], ofdm.bodies, ofdm.si_tables, si)
+        bodies = ofdm.bodies[:count].copy() if keep_bodies else None
+        return ch, si, bodies, span_taps if span is not None else None, (0.0, 0.0, 0.0, time.perf_counter() - t0)
+
+
+@njit(cache=True, nogil=True)
+def frame_block_kernel(buf: np.ndarray, buf_start: int, starts: np.ndarray, phases: np.ndarray, window_offset: int,
+                       window_length: int, cfo_cycles_per_sample: float, rot: np.ndarray, windows: np.ndarray,
+                       shifts: np.ndarray, tables: tuple, settings: tuple, raw: np.ndarray, taps: np.ndarray,
+                       snr_db: np.ndarray, noise_power: np.ndarray, peak: np.ndarray, centroid: np.ndarray,
+                       with_span: bool, span_bins: tuple, span_raw: np.ndarray, span_noise: np.ndarray,
+                       header_length: int, frame_phases: np.ndarray, headers: np.ndarray, bodies: np.ndarray,
+                       si_tables: tuple, si: np.ndarray) -> None:
+    """The per-frame work of one PN420/PN945 block, the kernels of :meth:`FrameWorkers._block` in its order.
+
+    Header-window derotation (:func:`receiver.derotate.derotate_segments`),
+    channel estimate (:func:`receiver.channel_estimate.estimate_cyclic_kernel`),
+    the path tracker's span (:func:`receiver.channel_estimate.deconvolve_kernel`,
+    when ``with_span``), body recovery (:func:`receiver.body.recover_bodies`)
+    and SI DFT (:func:`receiver.ofdm.si_dft_kernel`): the same kernels on the
+    same inputs, so the same outputs, without returning to Python between
+    them. ``headers`` holds the header symbols of ``len(starts) + 1`` phases
+    (each frame's and the next one's).
+    """
+    count = starts.shape[0]
+    derotate_segments(buf, buf_start, starts + window_offset, window_length, cfo_cycles_per_sample, rot, windows)
+    estimate_cyclic_kernel(windows[:count], shifts, tables, settings, raw, taps, snr_db, noise_power, peak, centroid)
+    if with_span:
+        deconvolve_kernel(tables[4][:count], span_bins[0], span_bins[1], span_raw, span_noise)
+    recover_bodies(buf, buf_start, starts, header_length, rot, frame_phases, taps, settings[3], headers[:count],
+                   headers[1:count + 1], bodies)
+    inner_twiddles, twiddles, slot_of_si, work = si_tables
+    si_dft_kernel(bodies, count, inner_twiddles, twiddles, slot_of_si, frame_phases, work, si)
+
+
+def _blocks(count: int) -> list[tuple[int, int]]:
+    """The blocks ``(lo, hi)`` of a batch of ``count`` frames (the same for any number of threads)."""
+    return [(lo, min(lo + FRAME_BLOCK, count)) for lo in range(0, count, FRAME_BLOCK)]
+
+
+@dataclass(frozen=True)
+class _Span:
+    """Samples taken ahead for one block: ``samples(start, stop)`` over the stream indices they cover."""
+
+    buf: np.ndarray
+    first: int
+
+    def samples(self, start: int, stop: int) -> np.ndarray:
+        return self.buf[start - self.first: stop - self.first]

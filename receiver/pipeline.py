@@ -106,8 +106,9 @@ INSPECT_STAGES = ("channel", "tracking", "body", "ofdm", "paths")
 END_OF_STREAM = np.iinfo(np.int64).max // 4
 #: Stage names of :attr:`Receiver.stage_seconds`: front-end correction (DC and I/Q), resampling, acquisition
 #: (searches and lock set-up, a one-off cost per lock) and, per batch, sync (timing loop), channel estimate,
-#: body recovery, SI DFT, estimators, path tracking.
-STAGES = ("frontend", "resample", "acquisition", "sync", "channel", "body", "fft", "estimators", "paths")
+#: body recovery, SI DFT, estimators, path tracking; and "frames", the per-frame work (channel estimate, body
+#: recovery, SI DFT) of the blocks run ahead on other threads with ``jobs`` > 1 (receiver.parallel).
+STAGES = ("frontend", "resample", "acquisition", "sync", "channel", "body", "fft", "estimators", "paths", "frames")
 #: Lags on each side of the channel-estimate span kept out of the noise floor for a narrowband
 #: capture: its paths' spectrum ends at the capture's band edge, so each path rings for tens of
 #: samples, which would otherwise read as noise (and lower the SNRs).
@@ -408,6 +409,9 @@ class Receiver:
         self._modes = (self.config.pn_mode,) if self.config.pn_mode else tuple(PnMode)
         self._acq_window = window_length(self.config.acquisition_frames)
         self._queue = SampleQueue()
+        #: Names the samples the frame workers read and the lock they are read for: a new value with either, so
+        #: a block prefetched for the old ones is never used for the new ones (FrameWorkers.prefetch).
+        self._generation = 0
         self._search_from = 0
         self._lock: _Lock | None = None
         self._workers = FrameWorkers(self.config.jobs, self.config.taps_before, self.config.taps_after,
@@ -625,6 +629,7 @@ class Receiver:
             return [row for batch in held for row in self._emit(batch)]
         self.conjugated = not self.conjugated
         self._queue.conjugate()
+        self._generation += 1
         (self._search_from, self._frame_counter, self._last_start, self._lock_starts_gap,
          acquisitions, self.search_outcomes, self.scatter_flagged, self._segment, self._coast, self._lost_input,
          drops) = self._restart
@@ -679,6 +684,7 @@ class Receiver:
                 f = m.frames_per_superframe
                 index += (acq.frame_in_superframe - index + f // 2) % f - f // 2
         self._lock = _Lock(acq, self.config, index, start)
+        self._generation += 1
         self._lock_starts_gap = self._frame_counter is not None
         if self._frame_counter is None:
             self._segment = 0
@@ -693,6 +699,24 @@ class Receiver:
             self._si_detector = SiWordDetector(self.config.taps_before, self.config.taps_before + self.config.taps_after,
                                                self.config.si_polarity)
         return True
+
+    def _prefetch_next(self, lock: _Lock, first_frame: int, work: dict[str, Any]) -> None:
+        """Start the next batch's per-frame work on the pool while this thread finishes the current batch.
+
+        Called once the timing loop has taken the current batch: the windows
+        are those the next batch will have unless the estimators or the path
+        tracker end the lock first. :meth:`FrameWorkers.run` uses a prefetched
+        block only when its inputs are exactly those of the batch; the views
+        of the guard-interval span are planned per batch, so those batches
+        are not prefetched.
+        """
+        size = self.config.batch_frames
+        starts = np.rint(lock.tracker.predict(size)).astype(np.int64)
+        if starts[-1] + lock.mode.value.frame_length + self.config.taps_after + 1 > self._queue.end:
+            return
+        phases = lock.phases(first_frame + np.arange(size + 1))
+        self._workers.prefetch(lock.mode, BatchWindows(self._queue.view, starts, phases, lock.header_symbols(phases),
+                                                       lock.cfo_cycles_per_sample, lock.rot, self._queue.start), **work)
 
     def _trim(self) -> None:
         """Drop buffered samples no future batch or acquisition can need."""
@@ -714,23 +738,29 @@ class Receiver:
         cfg = self.config
         m = lock.mode.value
         size = cfg.batch_frames
-        starts = np.rint(lock.tracker.predict(size)).astype(np.int64)
+        # With threads to spare a batch waits until the next one's samples are there too, so that the next
+        # one can be prefetched (_prefetch_next); the batches are the same.
+        ahead = 2 if self._workers.jobs > 1 and not final else 1
+        starts = np.rint(lock.tracker.predict(ahead * size)).astype(np.int64)
         # A frame needs its header, body and the next header's first taps_after samples.
         stops = starts + m.frame_length + cfg.taps_after + 1
         count = int(np.searchsorted(stops, self._queue.end, side="right"))
-        if count < size and not (final and count > 0):
+        if count < ahead * size and not (final and count > 0):
             return None
+        count = min(count, size)
         starts = starts[:count]
         frame_index = lock.next_frame_index + np.arange(count)
         phases = lock.phases(np.concatenate([frame_index, frame_index[-1:] + 1]))
         tracker = self._path_tracker
         if tracker is not None and lock.mode != tracker.mode:
             tracker = None
+        work = {"keep_bodies": cfg.inspects("body"),
+                "span": None if tracker is None else (tracker.taps_before, tracker.taps_after),
+                "generation": self._generation}
+        views = () if tracker is None else tracker.plan_views()
         frames = self._workers.run(lock.mode, BatchWindows(self._queue.view, starts, phases, lock.header_symbols(phases),
                                                            lock.cfo_cycles_per_sample, lock.rot, self._queue.start),
-                                   keep_bodies=cfg.inspects("body"),
-                                   span=None if tracker is None else (tracker.taps_before, tracker.taps_after),
-                                   views=() if tracker is None else tracker.plan_views())
+                                   views=views, **work)
         ch, si = frames.channel, frames.si
         for name, dt in frames.seconds.items():
             self.stage_seconds[name] += dt
@@ -776,6 +806,8 @@ class Receiver:
         if shift:
             lock.tracker.tau -= shift
             lock.drop_pending = True
+        if self._workers.jobs > 1 and count == size and lost_at is None and not views:
+            self._prefetch_next(lock, int(frame_index[-1]) + 1, work)
         t2 = time.perf_counter()
         self.stage_seconds["sync"] += t2 - t1
         for stage, arrays in (("channel", {"taps": ch.taps, "snr_db": ch.snr_db, "peak_metric": ch.peak_metric}),

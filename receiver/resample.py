@@ -71,7 +71,7 @@ def polyphase_bank(h: np.ndarray, up: int) -> np.ndarray:
     return np.ascontiguousarray(padded.reshape(n_taps, up).T)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def polyphase_kernel(x: np.ndarray, x_start: int, bank: np.ndarray, delay: int, up: int, down: int,
                      n_first: int, n_count: int) -> np.ndarray:
     """Output samples ``n_first .. n_first + n_count - 1`` of the resampler.

@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def timing_loop_kernel(measured: np.ndarray, valid: np.ndarray, tau: float, period: float, alpha: float,
                        beta: float) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Run the timing loop over a batch of frames.

@@ -25,7 +25,8 @@ from dtmbnav_core.records import FRAME_COLUMN_DTYPES, PATH_COLUMN_DTYPES, FrameB
 from receiver import writer
 from receiver.acquisition import differential_grid_metric, window_length
 from receiver.capture import open_capture, rails_to_samples
-from receiver.parallel import FRAME_BLOCK
+from receiver.derotate import rotation_table
+from receiver.parallel import FRAME_BLOCK, BatchWindows, FrameWorkers
 from receiver.pipeline import Receiver, ReceiverConfig, receive_stream
 from receiver.reader import read_ahead
 
@@ -61,6 +62,39 @@ def test_threads_give_bit_identical_frames(mode, rotating):
         assert np.array_equal(column, getattr(many, name), equal_nan=True), name
     assert np.array_equal(bodies_one, bodies_many)
     assert rx_one.attributes() == rx_many.attributes()
+    # The threads ran blocks ahead of their batch (FrameWorkers.prefetch); one thread runs none ahead.
+    assert rx_many._workers.prefetch_hits > 0
+    assert rx_one._workers.prefetch_hits == 0
+
+
+@pytest.mark.parametrize("mode", [PnMode.PN420, PnMode.PN945])
+@pytest.mark.parametrize("padded", [False, True])
+def test_compiled_block_equals_the_staged_block(mode, padded):
+    """frame_block_kernel (the blocks run ahead on the pool) gives every output of the staged block bit for bit.
+
+    Arbitrary samples and windows: the parity is of the arithmetic, not of the frames. ``padded``: the stream's
+    first block, whose taps reach before the first sample (zeros there).
+    """
+    rng = np.random.default_rng(7)
+    m = mode.value
+    count, taps, span = FRAME_BLOCK - 5, (40, m.preamble), (m.postamble, m.preamble)
+    x = (rng.standard_normal(40 * m.frame_length) + 1j * rng.standard_normal(40 * m.frame_length)).astype(np.complex64)
+    first_sample = 1000
+    starts = (first_sample + (10 if padded else 500) + m.frame_length * np.arange(count)
+              + rng.integers(-3, 4, count)).astype(np.int64)
+    phases = rng.integers(-(m.period // 2), m.period // 2 + 1, count + 1).astype(np.int64)
+    headers = np.stack([gb20600.header_symbols(mode, int(p)) for p in phases]).astype(np.complex64)
+    cfo_hz = 2345.6
+    windows = BatchWindows(lambda a, b: x[a - first_sample: b - first_sample], starts, phases, headers,
+                           cfo_hz / SYMBOL_RATE_HZ, rotation_table(cfo_hz, m.frame_length + 200), first_sample)
+    workers = FrameWorkers(1, *taps, tap_threshold=4.0)
+    staged = workers._block(mode, windows, 0, count, True, span)
+    compiled = workers._compiled_block(mode, windows, 0, count, True, span)
+    for name in ("taps", "raw_taps", "snr_db", "noise_power", "peak_metric", "centroid"):
+        assert np.array_equal(getattr(staged[0], name), getattr(compiled[0], name), equal_nan=True), name
+    # SI carriers, bodies, the path span's taps and noise floor
+    for a, b in [*zip(staged[1:3], compiled[1:3]), *zip(staged[3], compiled[3])]:
+        assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
 
 
 def test_cli_jobs_give_the_same_file(tmp_path):

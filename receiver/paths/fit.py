@@ -96,7 +96,7 @@ def _pulse_tables_cached(period: int, up: int, down: int) -> tuple[np.ndarray, n
 
 # ---- the least-squares fit (numba kernel and its numpy twin) ---------------------------------
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, nogil=True, fastmath=True)
 def _table_at(table: np.ndarray, x: float, period: int, oversampling: int) -> float:
     """Periodic table lookup with linear interpolation, ``x`` in chips."""
     pos = (x % period) * oversampling
@@ -105,7 +105,7 @@ def _table_at(table: np.ndarray, x: float, period: int, oversampling: int) -> fl
     return table[i0] * (1.0 - w) + table[i0 + 1] * w
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, nogil=True, fastmath=True)
 def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np.ndarray, rate: np.ndarray,
                      max_step: np.ndarray, table: np.ndarray, dtable: np.ndarray, oversampling: int,
                      block_frames: int, gain: float, rate_gain: float, max_run_move: float, amplitudes: np.ndarray,
@@ -122,7 +122,7 @@ def fit_paths_kernel(taps: np.ndarray, offsets: np.ndarray, lag0: int, delay: np
                      amplitudes, lags, variance, residual_power)
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, nogil=True, fastmath=True)
 def fit_views_kernel(taps: np.ndarray, offsets: np.ndarray, lag_axis: np.ndarray, column_view: np.ndarray,
                      scale: np.ndarray, delay: np.ndarray, rate: np.ndarray, max_step: np.ndarray, table: np.ndarray,
                      dtable: np.ndarray, oversampling: int, block_frames: int, gain: float, rate_gain: float,
@@ -293,7 +293,7 @@ def fit_views_kernel(taps: np.ndarray, offsets: np.ndarray, lag_axis: np.ndarray
         start = stop
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, nogil=True, fastmath=True)
 def model_residual_kernel(taps: np.ndarray, lag_axis: np.ndarray, column_view: np.ndarray, scale: np.ndarray,
                           amplitudes: np.ndarray, lags: np.ndarray, table: np.ndarray, oversampling: int,
                           block_frames: int, max_run_move: float, residual_power: np.ndarray) -> None:

@@ -208,7 +208,7 @@ class PathConfig:
 
 # ---- cycle slips ---------------------------------------------------------------------------
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def slip_kernel(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarray, smooth_hz: float,
                 run_cycles: float, run_s: float, alpha: float, sigmas: float, min_cycles: float,
                 bridged: np.ndarray, slips: np.ndarray) -> tuple[float, float, float]:
@@ -315,7 +315,7 @@ def slip_reference(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarra
     return bridged, slips, smooth_hz, run_cycles, run_s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def step_paths_kernel(cfo_hz: np.ndarray, dt_s: np.ndarray, sigma_cycles: np.ndarray, smooth_hz: np.ndarray,
                       run_cycles: np.ndarray, run_s: np.ndarray, alpha: float, sigmas: float, min_cycles: float,
                       moved: np.ndarray, power: np.ndarray, noise: np.ndarray, steady_move: float, survival: float,
