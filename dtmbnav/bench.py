@@ -22,9 +22,10 @@ is limited to one thread so that "one core" means one core):
   and end to end once more with the path tracker switched off
   (``ReceiverConfig.track_paths``), the rate it is measured against;
 - receive command: ``dtmbnav receive`` as a user runs it, a child process
-  on a generated ci8 capture at 7.56 Msps, pinned to one core (two for
-  ``--jobs 2``): wall time including interpreter start-up, imports, reading
-  and writing, next to the in-memory figure; the same with path tracking off;
+  on generated ci8 captures at 7.56 Msps (20 s and 60 s), pinned to one
+  core (two for ``--jobs 2``): wall time including interpreter start-up,
+  imports, reading and writing, next to the in-memory figure, and the
+  two-core rate over the one-core rate; the same with path tracking off;
   the start-up (a 0.2 s capture) and the receive path's import time; the
   children import from bytecode as an installed copy does, even where the
   environment sets ``PYTHONDONTWRITEBYTECODE``; the child's peak RSS for a
@@ -343,23 +344,26 @@ def _capture_prefix(capture: Path, seconds: float, folder: Path) -> Path:
 START_UP_CAPTURE_S = 0.2
 
 
-def bench_receive_command(seconds: float, rss_seconds: tuple[float, float], repeats: int) -> list[BenchRow]:
-    """``dtmbnav receive`` as a user runs it: whole process on a generated ci8 capture, against in-memory.
+def bench_receive_command(lengths: tuple[float, ...], rss_seconds: tuple[float, float],
+                          repeats: int) -> list[BenchRow]:
+    """``dtmbnav receive`` as a user runs it: whole process on generated ci8 captures, against in-memory.
 
     A park-loop ci8 capture at 7.56 Msps is generated once (raw + sidecar)
     and cut to the lengths used. The peak RSS of the child for a short and a
     long capture shows memory flat with length (these runs also load numba's
-    cache and put the file in the page cache). Then the command runs in a
-    child process pinned to one core (two for ``--jobs 2``); its wall time
-    counts interpreter start-up, imports (from bytecode, as installed:
-    :func:`_child_env`), reading, conversion and writing. Next to it, the
-    same samples through :class:`receiver.pipeline.Receiver` in this process
-    (kernels only, reading left out); the command once more with
-    ``--no-paths`` (the rate the path tracker is measured against) and with
-    ``--keep-dc --no-correct-iq`` (the front-end corrector's stage off); the
-    command on a :data:`START_UP_CAPTURE_S` capture (its start-up); and the
-    import of :mod:`receiver.pipeline` in a fresh interpreter. When dtmb-sdr is
-    installed, its front end (:data:`DTMB_SDR_FRONT_END`) runs on the same
+    cache and put the file in the page cache). Then, for each of ``lengths``
+    (seconds), the command runs in a child process pinned to one core and
+    with ``--jobs 2`` on two; its wall time counts interpreter start-up,
+    imports (from bytecode, as installed: :func:`_child_env`), reading,
+    conversion and writing. Next to each, the same samples through
+    :class:`receiver.pipeline.Receiver` in this process (kernels only,
+    reading left out), and the two-core rate over the one-core rate. On the
+    first length, the command once more with ``--no-paths`` (the rate the
+    path tracker is measured against) and with ``--keep-dc --no-correct-iq``
+    (the front-end corrector's stage off); the command on a
+    :data:`START_UP_CAPTURE_S` capture (its start-up); and the import of
+    :mod:`receiver.pipeline` in a fresh interpreter. When dtmb-sdr is
+    installed, its front end (:data:`DTMB_SDR_FRONT_END`) runs on the longest
     capture on one core too.
     """
     from sim.scenario import load_scenario
@@ -370,12 +374,12 @@ def bench_receive_command(seconds: float, rss_seconds: tuple[float, float], repe
     with tempfile.TemporaryDirectory(prefix="dtmbnav-bench-") as tmp:
         folder = Path(tmp)
         env = _child_env(folder)   # the child runs this package, wherever it was imported from
-        longest = max(seconds, *rss_seconds)
+        longest = max(*lengths, *rss_seconds)
         result = simulate(load_scenario("park-loop"), folder / "sim", seconds=longest, sample_format="ci8",
                           container="raw")
         assert result.capture_path is not None
         captures = {sec: _capture_prefix(Path(result.capture_path), sec, folder) if sec < longest
-                    else Path(result.capture_path) for sec in {seconds, START_UP_CAPTURE_S, *rss_seconds}}
+                    else Path(result.capture_path) for sec in {*lengths, START_UP_CAPTURE_S, *rss_seconds}}
 
         def command(sec: float, jobs: int, *options: str) -> list[str]:
             return [sys.executable, "-m", "dtmbnav.cli", "-q", "receive", str(captures[sec]), "-o",
@@ -392,25 +396,33 @@ def bench_receive_command(seconds: float, rss_seconds: tuple[float, float], repe
         rss_rows = [BenchRow(f"receive command peak RSS, {sec:g} s capture", "MB",
                              _peak_rss_mb(command(sec, 1), env, folder), None, None, "the child's ru_maxrss")
                     for sec in sorted(rss_seconds)]
+        one_core: dict[float, float] = {}
+        for seconds in lengths:
+            capture = open_capture(captures[seconds])
+            whole_process: dict[int, float] = {}
+            for jobs in (1, 2):
+                best = whole_process[jobs] = min(receive(seconds, jobs) for _ in range(repeats))
+                in_memory = seconds / _receiver_seconds(capture, jobs)
+                rows.append(BenchRow(f"receive command, {seconds:g} s, --jobs {jobs}", "samples/s",
+                                     capture.num_samples / best, None, seconds / best,
+                                     f"ci8 7.56 Msps {seconds:g} s capture on {min(jobs, len(cpus) or jobs)} "
+                                     f"core(s), incl. start-up; in memory {in_memory:.1f}x real time"))
+            one_core[seconds] = whole_process[1]
+            rows.append(BenchRow(f"receive command, {seconds:g} s, 2 cores / 1 core", "ratio",
+                                 whole_process[1] / whole_process[2], None, None,
+                                 "the --jobs 2 rate over the one-core rate, same capture"))
+        seconds = lengths[0]
         capture = open_capture(captures[seconds])
-        whole_process: dict[int, float] = {}
-        for jobs in (1, 2):
-            best = whole_process[jobs] = min(receive(seconds, jobs) for _ in range(repeats))
-            in_memory = seconds / _receiver_seconds(capture, jobs)
-            rows.append(BenchRow(f"receive command, whole process, --jobs {jobs}", "samples/s",
-                                 capture.num_samples / best, None, seconds / best,
-                                 f"ci8 7.56 Msps {seconds:g} s capture on {min(jobs, len(cpus) or jobs)} core(s), "
-                                 f"incl. start-up; in memory {in_memory:.1f}x real time"))
         off = min(receive(seconds, 1, "--no-paths") for _ in range(repeats))
-        rows.append(BenchRow("receive command, tracking off, --jobs 1", "samples/s",
+        rows.append(BenchRow(f"receive command, {seconds:g} s, tracking off", "samples/s",
                              capture.num_samples / off, None, seconds / off,
-                             f"the same on 1 core with --no-paths; with tracking {off / whole_process[1]:.0%} of "
+                             f"the same on 1 core with --no-paths; with tracking {off / one_core[seconds]:.0%} of "
                              "this speed"))
         raw = min(receive(seconds, 1, "--keep-dc", "--no-correct-iq") for _ in range(repeats))
-        rows.append(BenchRow("receive command, front-end stage off, --jobs 1", "samples/s",
+        rows.append(BenchRow(f"receive command, {seconds:g} s, front-end stage off", "samples/s",
                              capture.num_samples / raw, None, seconds / raw,
                              f"the same on 1 core with --keep-dc --no-correct-iq (no front-end corrector); with "
-                             f"the stage {raw / whole_process[1]:.0%} of this speed"))
+                             f"the stage {raw / one_core[seconds]:.0%} of this speed"))
         start_up = min(receive(START_UP_CAPTURE_S, 1) for _ in range(repeats))
         rows.append(BenchRow(f"receive command start-up ({START_UP_CAPTURE_S:g} s capture)", "s", start_up, None, None,
                              "whole process on 1 core: interpreter, imports, numba cache, acquisition, files"))
@@ -418,7 +430,8 @@ def bench_receive_command(seconds: float, rss_seconds: tuple[float, float], repe
                              None, None, "child process on 1 core, best of 5; the receive path's imports"))
         rows.extend(rss_rows)
         if importlib.util.find_spec("dtmb") is not None:
-            rows.extend(_bench_dtmb_sdr(captures[seconds], seconds, whole_process[1], cpus[:1]))
+            seconds = max(lengths)
+            rows.extend(_bench_dtmb_sdr(captures[seconds], seconds, one_core[seconds], cpus[:1]))
     return rows
 
 
@@ -521,8 +534,8 @@ def run_benchmarks(json_path: str | None = None, quick: bool = False) -> int:
                      ("simulate", lambda: bench_simulate((0.5, 1.0) if quick else (5.0, 60.0))),
                      ("resampler", lambda: [bench_resampler(seconds / 2)]),
                      ("receiver", lambda: bench_receiver(receiver_seconds, 50 if quick else 400, 1 if quick else 3)),
-                     ("receive command", lambda: bench_receive_command(0.5 if quick else 20.0,
-                                                                       (0.25, 0.5) if quick else (5.0, 60.0),
+                     ("receive command", lambda: bench_receive_command((0.5, 1.0) if quick else (20.0, 60.0),
+                                                                       (0.25, 1.0) if quick else (5.0, 60.0),
                                                                        1 if quick else 2)),
                      ("particle filter", lambda: bench_particle_filter((1000, 10_000) if quick else
                                                                         (1000, 10_000, 100_000), 5 if quick else 30))]:

@@ -200,9 +200,11 @@ def test_bench_quick(tmp_path):
     rows = json.loads(out.read_text())["rows"]
     assert any(r["kernel"].startswith("receiver end to end") for r in rows)
     kernels = {r["kernel"] for r in rows}
-    # The whole-process rows issue 17's targets are read from: with tracking on and off, start-up, import.
-    assert {"receive command, whole process, --jobs 1", "receive command, tracking off, --jobs 1",
-            "receive command start-up (0.2 s capture)", "import receiver.pipeline"} <= kernels
+    # The whole-process rows the receiver's speed targets are read from: two lengths on one and two cores and
+    # their ratio, tracking off, start-up, import.
+    assert {"receive command, 0.5 s, --jobs 1", "receive command, 1 s, --jobs 2", "receive command, 1 s, 2 cores / 1 core",
+            "receive command, 0.5 s, tracking off", "receive command start-up (0.2 s capture)",
+            "import receiver.pipeline"} <= kernels
     assert all(r["rate"] > 0 for r in rows)
 
 
