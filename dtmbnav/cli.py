@@ -862,7 +862,8 @@ def _add_receive_command(subparsers: argparse._SubParsersAction, common: argpars
                         "that does not record it (a raw file): fuse aligns the phone's log with it")
     p.add_argument("--csv", metavar="FILE", help="also write the frame table as CSV ('-' for stdout)")
     p.add_argument("--jobs", type=_positive_int, default=1, metavar="N",
-                   help="threads for the per-frame work (default 1); the output is the same for any N")
+                   help="threads for the per-frame work, the next batch's run ahead of the current one's "
+                        "sequential update (default 1); the output is the same for any N")
     p.add_argument("--doppler-check", action="store_true",
                    help="move the first path to the Doppler line whose earliest path comes first (off by default: "
                         "it helped the street walk it was set on and hurt held-out ones; docs/paths.md)")
