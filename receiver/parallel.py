@@ -317,7 +317,6 @@ class FrameWorkers:
         bodies = ofdm.bodies[: hi - lo].copy() if keep_bodies else None
         return ch, si, bodies, span_taps, (t1 - t0, t2 - t1, t3 - t2, 0.0)
 
-
     def _compiled_block(self, mode: PnMode, w: BatchWindows, lo: int, hi: int, keep_bodies: bool,
                         span: tuple[int, int] | None, views: tuple[int, ...] = (),
                         views_out: np.ndarray | None = None) -> tuple[ChannelEstimates, np.ndarray, np.ndarray | None,
@@ -325,9 +324,10 @@ class FrameWorkers:
                                                                       tuple[float, ...]]:
         """:meth:`_block` of a PN420/PN945 block without views, in one compiled call (:func:`frame_block_kernel`).
 
-        The GIL is taken only to set the call up: a pool thread running it ahead
-        does not wait for the thread that runs the sequential update between
-        stages. Its time is reported as the ``frames`` stage.
+        Takes :meth:`_block`'s arguments (``views`` must be empty). The GIL is
+        taken only to set the call up: a pool thread running it ahead does not
+        wait for the thread that runs the sequential update between stages.
+        Its time is reported as the ``frames`` stage.
         """
         est, ofdm = self._estimator(mode), self._buffers()[1]
         taps_before = self._taps[0]
@@ -340,7 +340,7 @@ class FrameWorkers:
         span_bins = est.span_bins(*span) if span is not None else (est.tap_bins, est.noise_bins)
         span_taps = (np.empty((count, len(span_bins[0])), np.complex64), np.empty(count))
         si = np.empty((count, len(ofdm.slot_of_si)), np.complex64)
-        frame_block_kernel(buf, buf_start, starts, w.phases[lo:hi + 1], est.window_offset, est.window_length,
+        frame_block_kernel(buf, buf_start, starts, est.window_offset, est.window_length,
                            w.cfo_cycles_per_sample, w.rot, est.windows, est.header_shifts(w.phases[lo:hi]),
                            est.cyclic_tables, est.summary_settings, ch.raw_taps, ch.taps, ch.snr_db, ch.noise_power,
                            ch.peak_metric, ch.centroid, span is not None, span_bins, span_taps[0], span_taps[1], ng,
@@ -350,9 +350,8 @@ class FrameWorkers:
 
 
 @njit(cache=True, nogil=True)
-def frame_block_kernel(buf: np.ndarray, buf_start: int, starts: np.ndarray, phases: np.ndarray, window_offset: int,
-                       window_length: int, cfo_cycles_per_sample: float, rot: np.ndarray, windows: np.ndarray,
-                       shifts: np.ndarray, tables: tuple, settings: tuple, raw: np.ndarray, taps: np.ndarray,
+def frame_block_kernel(buf: np.ndarray, buf_start: int, starts: np.ndarray, window_offset: int, window_length: int,
+                       cfo_cycles_per_sample: float, rot: np.ndarray, windows: np.ndarray, shifts: np.ndarray, tables: tuple, settings: tuple, raw: np.ndarray, taps: np.ndarray,
                        snr_db: np.ndarray, noise_power: np.ndarray, peak: np.ndarray, centroid: np.ndarray,
                        with_span: bool, span_bins: tuple, span_raw: np.ndarray, span_noise: np.ndarray,
                        header_length: int, frame_phases: np.ndarray, headers: np.ndarray, bodies: np.ndarray,
