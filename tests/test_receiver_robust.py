@@ -7,6 +7,8 @@ The narrowband figures over 40 s of walking come from
 ``python -m dtmbnav.accuracy --narrowband``; here a few seconds.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from dtmbnav.accuracy import accuracy, match_truth, run_capture
@@ -105,6 +107,19 @@ def test_orientation_at_low_snr():
     assert rx_c.conjugated and rx_c.si_index == 15
     for name, column in rows.columns().items():
         assert np.array_equal(column, getattr(rows_c, name), equal_nan=True), name
+
+
+def test_a_conjugated_stream_with_threads_gives_the_rows_of_one_thread():
+    """Blocks are prefetched before the orientation is decided (from the unconjugated samples); the rows after
+    the stream is conjugated and locked again are those of one thread."""
+    x = np.conj(make_signal(int(0.3 * SYMBOL_RATE_HZ), snr_db=12, cfo_hz=-700.0, start_symbol=START))
+    config = ReceiverConfig(clock_offset_hz=-700.0)
+    rows, rx = receive(x, config)
+    rows_2, rx_2 = receive(x, replace(config, jobs=2))
+    assert rx.conjugated and rx_2.conjugated and len(rows) > 400
+    assert rx_2._workers.prefetch_hits > 0
+    for name, column in rows.columns().items():
+        assert np.array_equal(column, getattr(rows_2, name), equal_nan=True), name
 
 
 def test_dropout_adds_no_range_jump():
