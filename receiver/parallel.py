@@ -188,7 +188,8 @@ class FrameWorkers:
         prefetched, self._prefetched = self._prefetched, {}
         hits = {}
         for block in blocks if prefetched else ():
-            key = self._key(mode, windows, *block, keep_bodies, span, views, generation)
+            buf_start = self._block_span(mode, windows, *block, views)[0]
+            key = self._key(mode, windows, *block, buf_start, keep_bodies, span, views, generation)
             if key in prefetched:
                 hits[block] = prefetched.pop(key)
         for future, _ in prefetched.values():   # prefetched for a batch that did not come
@@ -247,13 +248,14 @@ class FrameWorkers:
             fixed = replace(windows, samples=_Span(buf, buf_start).samples, first_sample=buf_start)
             block = self._compiled_block if compiled else self._block
             future = self._pool.submit(block, mode, fixed, lo, hi, keep_bodies, span, views, views_out)
-            self._prefetched[self._key(mode, windows, lo, hi, keep_bodies, span, views, generation)] = (future,
-                                                                                                      views_out)
+            key = self._key(mode, windows, lo, hi, buf_start, keep_bodies, span, views, generation)
+            self._prefetched[key] = (future, views_out)
 
-    def _key(self, mode: PnMode, w: BatchWindows, lo: int, hi: int, keep_bodies: bool,
+    @staticmethod
+    def _key(mode: PnMode, w: BatchWindows, lo: int, hi: int, buf_start: int, keep_bodies: bool,
              span: tuple[int, int] | None, views: tuple[int, ...], generation: int) -> tuple:
-        """Everything block ``lo:hi``'s result depends on (the samples by their generation and zero padding)."""
-        buf_start = self._block_span(mode, w, lo, hi, views)[0]
+        """Everything block ``lo:hi``'s result depends on (the samples by their generation and by the zero padding
+        before the stream's first sample, from ``buf_start``, the first sample the block reads)."""
         return (mode, lo, hi, w.starts[lo:hi].tobytes(), w.phases[lo:hi + 1].tobytes(), w.cfo_cycles_per_sample,
                 max(w.first_sample - buf_start, 0), keep_bodies, span, views, generation)
 

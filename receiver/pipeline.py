@@ -710,13 +710,21 @@ class Receiver:
         of the guard-interval span are planned per batch, so those batches
         are not prefetched.
         """
-        size = self.config.batch_frames
-        starts = np.rint(lock.tracker.predict(size)).astype(np.int64)
-        if starts[-1] + lock.mode.value.frame_length + self.config.taps_after + 1 > self._queue.end:
+        starts = np.rint(lock.tracker.predict(self.config.batch_frames)).astype(np.int64)
+        if self._frame_stops(lock, starts)[-1] > self._queue.end:
             return
-        phases = lock.phases(first_frame + np.arange(size + 1))
-        self._workers.prefetch(lock.mode, BatchWindows(self._queue.view, starts, phases, lock.header_symbols(phases),
-                                                       lock.cfo_cycles_per_sample, lock.rot, self._queue.start), **work)
+        self._workers.prefetch(lock.mode, self._batch_windows(lock, starts, first_frame), **work)
+
+    def _frame_stops(self, lock: _Lock, starts: np.ndarray) -> np.ndarray:
+        """The stream index each frame's samples end before: its header, body and the next header's first
+        ``taps_after`` samples."""
+        return starts + lock.mode.value.frame_length + self.config.taps_after + 1
+
+    def _batch_windows(self, lock: _Lock, starts: np.ndarray, first_frame: int) -> BatchWindows:
+        """The per-frame work's inputs for frames ``first_frame, ...`` at window starts ``starts``."""
+        phases = lock.phases(first_frame + np.arange(len(starts) + 1))
+        return BatchWindows(self._queue.view, starts, phases, lock.header_symbols(phases), lock.cfo_cycles_per_sample,
+                            lock.rot, self._queue.start)
 
     def _trim(self) -> None:
         """Drop buffered samples no future batch or acquisition can need."""
@@ -736,21 +744,19 @@ class Receiver:
         lock = self._lock
         assert lock is not None
         cfg = self.config
-        m = lock.mode.value
         size = cfg.batch_frames
         # With threads to spare a batch waits until the next one's samples are there too, so that the next
         # one can be prefetched (_prefetch_next); the batches are the same.
         ahead = 2 if self._workers.jobs > 1 and not final else 1
         starts = np.rint(lock.tracker.predict(ahead * size)).astype(np.int64)
-        # A frame needs its header, body and the next header's first taps_after samples.
-        stops = starts + m.frame_length + cfg.taps_after + 1
-        count = int(np.searchsorted(stops, self._queue.end, side="right"))
+        count = int(np.searchsorted(self._frame_stops(lock, starts), self._queue.end, side="right"))
         if count < ahead * size and not (final and count > 0):
             return None
         count = min(count, size)
         starts = starts[:count]
         frame_index = lock.next_frame_index + np.arange(count)
-        phases = lock.phases(np.concatenate([frame_index, frame_index[-1:] + 1]))
+        windows = self._batch_windows(lock, starts, lock.next_frame_index)
+        phases = windows.phases
         tracker = self._path_tracker
         if tracker is not None and lock.mode != tracker.mode:
             tracker = None
@@ -758,9 +764,7 @@ class Receiver:
                 "span": None if tracker is None else (tracker.taps_before, tracker.taps_after),
                 "generation": self._generation}
         views = () if tracker is None else tracker.plan_views()
-        frames = self._workers.run(lock.mode, BatchWindows(self._queue.view, starts, phases, lock.header_symbols(phases),
-                                                           lock.cfo_cycles_per_sample, lock.rot, self._queue.start),
-                                   views=views, **work)
+        frames = self._workers.run(lock.mode, windows, views=views, **work)
         ch, si = frames.channel, frames.si
         for name, dt in frames.seconds.items():
             self.stage_seconds[name] += dt
