@@ -175,15 +175,53 @@ def anti_alias_pulse(table: PulseTable, sample_rate_hz: float) -> PulseTable:
     if sample_rate_hz >= rs:
         return table
     osr = table.oversampling
-    nyquist = sample_rate_hz / 2.0
-    cutoff = 0.5 * (1.0 + ANTI_ALIAS_PASSBAND) * nyquist / rs          # cycles per symbol
-    # Transition width as a fraction of the table grid's Nyquist frequency (osr / 2 cycles per symbol).
-    numtaps, beta = kaiserord(ANTI_ALIAS_STOPBAND_DB, (1.0 - ANTI_ALIAS_PASSBAND) * nyquist / rs / (osr / 2.0))
+    # fs / 2 as a fraction of the table grid's Nyquist frequency (osr / 2 cycles per symbol).
+    edge = sample_rate_hz / (rs * osr)
+    numtaps, beta = anti_alias_order(edge)
     half = -(-numtaps // (2 * osr))                                      # half length, whole symbols
-    x = np.arange(-half * osr, half * osr + 1) / osr
-    h = 2.0 * cutoff * np.sinc(2.0 * cutoff * x) * np.kaiser(len(x), beta)
-    h /= np.sum(h) / osr                                                 # unit gain at DC
+    # pulse_table's lowpass has unit gain at DC in the table's units: taps summing to osr.
+    h = osr * anti_alias_fir(2 * half * osr + 1, beta, edge)
     return pulse_table(table.span, osr, table.rolloff, table.taper, lowpass=h)
+
+
+def anti_alias_order(edge: float) -> tuple[int, float]:
+    """Kaiser length and beta of the anti-alias filter (module step 0) at a rate of ``fs / edge``.
+
+    Parameters
+    ----------
+    edge : float
+        ``fs / 2`` as a fraction of the Nyquist frequency of the rate the filter runs at (at most 1).
+
+    Returns
+    -------
+    numtaps : int
+        Fewest taps for ``ANTI_ALIAS_STOPBAND_DB`` over the transition ``ANTI_ALIAS_PASSBAND * fs / 2 .. fs / 2``
+        (:func:`scipy.signal.kaiserord`).
+    beta : float
+        Kaiser window parameter.
+    """
+    return kaiserord(ANTI_ALIAS_STOPBAND_DB, (1.0 - ANTI_ALIAS_PASSBAND) * edge)
+
+
+def anti_alias_fir(numtaps: int, beta: float, edge: float) -> np.ndarray:
+    """Taps of the anti-alias filter (module step 0): a Kaiser-windowed sinc cut midway between the passband edge
+    and ``fs / 2``, unit gain at DC.
+
+    Parameters
+    ----------
+    numtaps : int
+        Length, odd (:func:`anti_alias_order` gives the least).
+    beta : float
+        Kaiser window parameter (:func:`anti_alias_order`).
+    edge : float
+        ``fs / 2`` as a fraction of the filter rate's Nyquist frequency (:func:`anti_alias_order`).
+
+    Returns
+    -------
+    float64 ndarray
+        ``numtaps`` symmetric taps summing to 1 (firwin's ``scale``: unit gain at DC).
+    """
+    return firwin(numtaps, 0.5 * (1.0 + ANTI_ALIAS_PASSBAND) * edge, window=("kaiser", beta))
 
 
 def tuning_factor(sample_rate_hz: float, tuning_offset_hz: float) -> int:
@@ -206,9 +244,8 @@ def tuning_filter(factor: int) -> np.ndarray:
     ``ANTI_ALIAS_STOPBAND_DB`` (frequencies as fractions of the synthesis
     rate's Nyquist frequency: ``1 / factor`` is ``fs / 2``).
     """
-    numtaps, beta = kaiserord(ANTI_ALIAS_STOPBAND_DB, (1.0 - ANTI_ALIAS_PASSBAND) / factor)
-    numtaps |= 1
-    return firwin(numtaps, 0.5 * (1.0 + ANTI_ALIAS_PASSBAND) / factor, window=("kaiser", beta))
+    numtaps, beta = anti_alias_order(1.0 / factor)
+    return anti_alias_fir(numtaps | 1, beta, 1.0 / factor)
 
 
 @njit(cache=True, nogil=True)
@@ -516,6 +553,7 @@ def interpolator_table(ratio: int, taps: int, beta: float) -> np.ndarray:
     input samples) from inputs ``m - taps / 2 + 1 .. m + taps / 2``; each row
     sums to 1 (unit gain at DC). The cutoff is the input's Nyquist frequency.
     """
+    # Not firwin: scipy builds no polyphase table, and firwin's window spans its taps' centres, not +-taps / 2.
     p = np.arange(ratio)[:, None] / ratio
     x = np.arange(taps)[None, :] - (taps // 2 - 1) - p                   # input samples from the output instant
     window = np.i0(beta * np.sqrt(np.clip(1.0 - (x / (taps / 2.0)) ** 2, 0.0, None))) / np.i0(beta)
