@@ -113,7 +113,7 @@ from numbers import Real
 import numpy as np
 from numba import njit
 from scipy import fft as sp_fft
-from scipy.signal import firwin, kaiserord
+from scipy.signal import firwin, firwin2, kaiserord
 
 from dtmbnav_core import gb20600
 from dtmbnav_core.iqformat import IqFormat, encode, get_format, interleave
@@ -657,12 +657,15 @@ class PhaseNoise:
         return weight
 
     def _design(self, stage: int) -> np.ndarray:
-        """Stage FIR by frequency sampling: ``|H| = sqrt(PSD * weight * rate)``, zero phase, Kaiser-windowed."""
+        """Stage FIR by frequency sampling: ``|H| = sqrt(PSD * weight * rate)``, Kaiser-windowed, centred.
+
+        :func:`scipy.signal.firwin2` given the ``PHASE_DESIGN_GRID`` grid itself, so its interpolation changes nothing.
+        """
         rate = self.rates_hz[stage]
         f_hz = np.arange(PHASE_DESIGN_GRID // 2 + 1) * rate / PHASE_DESIGN_GRID
         amplitude = np.sqrt(self.psd_rad2_hz(f_hz) * self.stage_weight(stage, f_hz) * rate)
-        impulse = np.fft.irfft(amplitude, n=PHASE_DESIGN_GRID)
-        return np.roll(impulse, PHASE_FIR_TAPS // 2)[:PHASE_FIR_TAPS] * np.kaiser(PHASE_FIR_TAPS, PHASE_KAISER_BETA)
+        return firwin2(PHASE_FIR_TAPS, f_hz, amplitude, nfreqs=len(f_hz), window=("kaiser", PHASE_KAISER_BETA),
+                       fs=rate)
 
     def _white(self, stage: int, first: int, count: int) -> np.ndarray:
         """Unit white noise (float32) of one stage at its absolute indices ``first .. first + count - 1`` (any sign)."""
