@@ -9,22 +9,21 @@ fix (``cn_db``, ``agc_backoff_db``, ``start_offset_s``, ``bulk_cfo_hz``,
 ``iq_conjugate``) keep the scenario's values. Every preset sets every one of
 its keys, so applying one replaces whatever impairments the scenario had.
 
-Each value carries the ids of its sources (``DevicePreset.sources``);
-``docs/devices.md`` expands every id into the datasheet, vendor page, driver
-source file or published measurement it stands for, with the figure as
-read. The id ``stated`` marks a typical value stated without a published
-figure behind it; the front-end sweep covers a range around such values.
+Every value of every preset has its row in the figure table of
+``docs/devices.md``: the datasheet, driver source file or published
+measurement it comes from, or the assumption it is and why, and the range
+the front-end sweep covers around it.
 
 The clock is always ``preset = "custom"`` with a fixed, representative
 ``offset_ppb`` (a unit inside the oscillator's stated tolerance, not a draw
 from it: :func:`sim.oscillator.clock_parameters` draws only for the named
 presets) and the ``drift_adev`` of its oscillator class.
 
-Zero-IF devices (HackRF One, PlutoSDR, USRP B200) put their LO leakage at DC,
-where the 36 SI carriers of the channel sit (within +-36 kHz of the centre);
-their users tune beside the channel. The presets keep ``tuning_offset_hz`` at
-0 (the channel on the capture's centre, the harder case) and
-:attr:`DevicePreset.practice` says what offset a recording would use.
+Zero-IF devices (HackRF One, PlutoSDR, USRP B200) put their LO leakage at
+DC, where the SI carriers of the channel sit; their users tune beside the
+channel. The presets keep ``tuning_offset_hz`` at 0 (the channel on the
+capture's centre, the harder case) and :attr:`DevicePreset.practice` says
+what offset a recording would use.
 """
 
 from __future__ import annotations
@@ -36,24 +35,16 @@ from typing import Any
 
 from sim.scenario import Scenario
 
-#: Source id of a typical value stated without a published figure (docs/devices.md).
-STATED = "stated"
-
-#: Phase-noise profile of an AD936x RX LO near 666 MHz, ``[[offset_hz, dBc/Hz], ...]``: a typical synthesizer
-#: shape whose level integrates (100 Hz to 4 MHz) to about 0.2 deg rms, the Ettus figure of 1.0 deg rms at
-#: 3.5 GHz scaled to UHF by 20 log10 of the frequency ratio.
+#: Phase-noise profile ``[[offset_hz, dBc/Hz], ...]`` of an AD936x RX LO at UHF (docs/devices.md, figure table).
 AD936X_PHASE_NOISE = ((1e3, -95.0), (1e4, -103.0), (1e5, -106.0), (1e6, -128.0))
-#: Phase-noise profile of the R820T/R820T2 silicon tuner at UHF (typical value, stated: no published figure found).
+#: Phase-noise profile of the R820T/R820T2 tuner at UHF (docs/devices.md: an assumption).
 R820T_PHASE_NOISE = ((1e3, -80.0), (1e4, -88.0), (1e5, -95.0), (1e6, -115.0))
-#: Phase-noise profile of the HackRF One at UHF: its two synthesizers (RFFC5072 near 3 GHz and MAX2837 near
-#: 2.5 GHz) run far above the carrier, so their in-band -94 and -100 dBc/Hz reach the baseband undivided.
+#: Phase-noise profile of the HackRF One at UHF (docs/devices.md, figure table).
 HACKRF_PHASE_NOISE = ((1e3, -85.0), (1e4, -92.0), (1e5, -93.0), (1e6, -115.0))
 
-#: Allan deviation at 1 s of a TCXO's wander: the project's free-running preset (dtmbnav_core.constants).
+#: Allan deviation at 1 s of a TCXO: the project's free-running clock preset (docs/devices.md).
 TCXO_ADEV = 1e-9
-#: Allan deviation at 1 s of a plain crystal oscillator: a warm-up drift of 1-2 ppm per hour (or 2 ppm in
-#: 10 minutes) read as a random walk, ``sigma(T) = adev * sqrt(3 T)``, which is the one wander
-#: sim.oscillator models.
+#: Allan deviation at 1 s of a plain crystal oscillator (docs/devices.md: a warm-up drift read as a random walk).
 XO_ADEV = 1e-8
 
 
@@ -70,10 +61,6 @@ class DevicePreset:
     receiver : Mapping
         ``[receiver]`` keys and values; ``clock`` is a table
         ``{"preset": "custom", "offset_ppb": ..., "drift_adev": ...}``.
-    sources : Mapping
-        Every key of ``receiver`` (the clock as ``clock.offset_ppb`` and
-        ``clock.drift_adev``) to the tuple of source ids behind its value
-        (docs/devices.md).
     practice : str
         How people record with it, where that differs from the preset
         (off-centre tuning, gain settings).
@@ -82,22 +69,11 @@ class DevicePreset:
     name: str
     description: str
     receiver: Mapping[str, Any]
-    sources: Mapping[str, tuple[str, ...]]
     practice: str = ""
 
     def receiver_table(self) -> dict[str, Any]:
         """A fresh, mutable copy of :attr:`receiver`: lists as lists, the clock as a dict (TOML's shapes)."""
         return {key: _thaw(value) for key, value in self.receiver.items()}
-
-    def sourced_keys(self) -> set[str]:
-        """The keys :attr:`sources` must cover: every receiver key, the clock by its values."""
-        keys = {key for key in self.receiver if key != "clock"}
-        keys |= {f"clock.{key}" for key in self.receiver.get("clock", {}) if key != "preset"}
-        return keys
-
-    def source_ids(self) -> set[str]:
-        """Every source id the preset cites."""
-        return {sid for ids in self.sources.values() for sid in ids}
 
 
 def _freeze(value: Any) -> Any:
@@ -122,65 +98,46 @@ def _profile(points: tuple[tuple[float, float], ...]) -> list[list[float]]:
     return [[float(f), float(level)] for f, level in points]
 
 
-def _preset(name: str, description: str, receiver: dict[str, Any], sources: dict[str, tuple[str, ...]],
-            practice: str = "") -> DevicePreset:
-    return DevicePreset(name, description, _freeze(receiver), MappingProxyType(dict(sources)), practice)
+def _preset(name: str, description: str, receiver: dict[str, Any], practice: str = "") -> DevicePreset:
+    return DevicePreset(name, description, _freeze(receiver), practice)
 
 
-def _rtl_sdr(name: str, description: str, offset_ppb: float, drift_adev: float,
-             clock_sources: tuple[str, ...], drift_sources: tuple[str, ...]) -> DevicePreset:
+def _rtl_sdr(name: str, description: str, offset_ppb: float, drift_adev: float) -> DevicePreset:
     """An RTL2832U + R820T/R820T2 (or R828D) dongle; the variants differ only in their oscillator."""
+    # Sources and assumptions: docs/devices.md, figure table, rows rtl-sdr and rtl-sdr-generic.
     receiver = {
-        # The widest rate gr-osmosdr lists as known to work; it records only the centre 2.4 MHz of the
-        # channel, which still holds the 36 SI carriers.
+        # The widest rate known to run without drops: it records only the centre of the channel, which still
+        # holds the SI carriers.
         "sample_rate_hz": 2.4e6,
         "sample_format": "cu8",
         "adc_bits": 8,
-        # The bytes centre on 127.4 (the constant gr-osmosdr and SoapyRTLSDR subtract), 0.6 LSB below 128.
+        # The bytes centre on 127.4 (the constant the maintained drivers subtract), not 128.
         "adc_dc_lsb": [-0.6, -0.6],
         "clock": {"preset": "custom", "offset_ppb": offset_ppb, "drift_adev": drift_adev},
-        # Low-IF tuner (3.57 MHz IF) and digital downconversion in the RTL2832U: the tuner's LO leaks at -IF,
-        # outside the recorded band, and I and Q come from one ADC, so they are balanced.
+        # Low-IF tuner and digital downconversion in the RTL2832U: the tuner's LO lies outside the recorded band,
+        # and I and Q come from one ADC, so they are balanced.
         "tuning_offset_hz": 0.0,
         "lo_leakage_dbc": None,
         "lo_leakage_phase_deg": 0.0,
         "iq_gain_db": 0.0,
         "iq_phase_deg": 0.0,
         "phase_noise_dbc_hz": _profile(R820T_PHASE_NOISE),
-        # rtl_sdr without -g runs the tuner's AGC, whose LNA and mixer steps are 0.3-4 dB.
+        # rtl_sdr without -g runs the tuner's AGC.
         "agc_step_db": 2.0,
         "agc_steps_per_minute": 1.0,
         "drops_per_minute": 0.0,
-        # librtlsdr hands over 256 KiB buffers: 131072 IQ pairs.
+        # A drop loses whole librtlsdr buffers.
         "drop_samples": [131072, 524288],
-    }
-    sources = {
-        "sample_rate_hz": ("gr-osmosdr-rtl", "librtlsdr", "superkuh-rtlsdr"),
-        "sample_format": ("librtlsdr",),
-        "adc_bits": ("librtlsdr", "superkuh-rtlsdr"),
-        "adc_dc_lsb": ("gr-osmosdr-rtl", "soapyrtlsdr"),
-        "clock.offset_ppb": clock_sources,
-        "clock.drift_adev": drift_sources,
-        "tuning_offset_hz": ("librtlsdr", "timenuts-r820t"),
-        "lo_leakage_dbc": ("librtlsdr", "timenuts-r820t"),
-        "lo_leakage_phase_deg": (STATED,),
-        "iq_gain_db": ("timenuts-r820t",),
-        "iq_phase_deg": ("timenuts-r820t",),
-        "phase_noise_dbc_hz": (STATED,),
-        "agc_step_db": ("librtlsdr",),
-        "agc_steps_per_minute": (STATED,),
-        "drops_per_minute": ("gr-osmosdr-rtl", "superkuh-rtlsdr"),
-        "drop_samples": ("librtlsdr",),
     }
     practice = ("2.4 Msps is the rate that runs without drops (3.2 Msps is the maximum); it cannot cover the "
                 "7.56 MHz channel. No off-centre tuning: the low-IF tuner has no LO spike at DC, and the RTL2832U's "
                 "byte offset is the adc_dc_lsb. A fixed gain (rtl_sdr -g) removes the AGC steps.")
-    return _preset(name, description, receiver, sources, practice)
+    return _preset(name, description, receiver, practice)
 
 
 def _ad936x(name: str, description: str, rate_hz: float, offset_ppb: float, drift_adev: float,
             agc_step_db: float, agc_steps_per_minute: float, drops_per_minute: float,
-            drop_samples: list[int], sources: dict[str, tuple[str, ...]], practice: str) -> DevicePreset:
+            drop_samples: list[int], practice: str) -> DevicePreset:
     """A zero-IF AD9361/AD9363 front end with its RF DC and quadrature tracking on (the drivers' default)."""
     receiver = {
         "sample_rate_hz": rate_hz,
@@ -189,10 +146,10 @@ def _ad936x(name: str, description: str, rate_hz: float, offset_ppb: float, drif
         "adc_dc_lsb": [0.0, 0.0],
         "clock": {"preset": "custom", "offset_ppb": offset_ppb, "drift_adev": drift_adev},
         "tuning_offset_hz": 0.0,
-        # What the DC tracking leaves of the LO leakage (typical value, stated).
+        # What the DC tracking leaves of the LO leakage.
         "lo_leakage_dbc": -60.0,
         "lo_leakage_phase_deg": 0.0,
-        # Quadrature tracking: 0.2 % gain (0.017 dB) and 0.2 deg, an image near -50 dBc.
+        # What the quadrature tracking leaves.
         "iq_gain_db": 0.02,
         "iq_phase_deg": 0.2,
         "phase_noise_dbc_hz": _profile(AD936X_PHASE_NOISE),
@@ -201,39 +158,31 @@ def _ad936x(name: str, description: str, rate_hz: float, offset_ppb: float, drif
         "drops_per_minute": drops_per_minute,
         "drop_samples": drop_samples,
     }
-    common = {
-        "lo_leakage_dbc": ("ad9361-nos", "ettus-list-b210-dc", STATED),
-        "lo_leakage_phase_deg": (STATED,),
-        "iq_gain_db": ("ez-ad9361-quadrature",),
-        "iq_phase_deg": ("ez-ad9361-quadrature",),
-        "phase_noise_dbc_hz": ("ettus-kb-b200", STATED),
-    }
-    return _preset(name, description, receiver, {**common, **sources}, practice)
+    return _preset(name, description, receiver, practice)
 
 
 def _devices() -> dict[str, DevicePreset]:
-    rtl = _rtl_sdr(
-        "rtl-sdr", "RTL2832U + R820T2/R828D with a 1 ppm TCXO (RTL-SDR Blog V3, V4)",
-        offset_ppb=500.0, drift_adev=TCXO_ADEV,
-        clock_sources=("rtlsdrblog-v3", "rtlsdrblog-v4", "utahsdr-rtlsdr"), drift_sources=(STATED,))
-    generic = _rtl_sdr(
-        "rtl-sdr-generic", "RTL2832U + R820T/R820T2 with a plain 28.8 MHz crystal (generic DVB-T dongle)",
-        offset_ppb=40_000.0, drift_adev=XO_ADEV,
-        clock_sources=("superkuh-rtlsdr", "simonsdialogs-rtl"), drift_sources=("simonsdialogs-rtl", STATED))
+    rtl = _rtl_sdr("rtl-sdr", "RTL2832U + R820T2/R828D with a 1 ppm TCXO (RTL-SDR Blog V3, V4)",
+                   offset_ppb=500.0, drift_adev=TCXO_ADEV)
+    generic = _rtl_sdr("rtl-sdr-generic",
+                       "RTL2832U + R820T/R820T2 with a plain 28.8 MHz crystal (generic DVB-T dongle)",
+                       offset_ppb=40_000.0, drift_adev=XO_ADEV)
+    # Sources and assumptions: docs/devices.md, figure table, rows hackrf-one.
     hackrf = _preset(
         "hackrf-one", "HackRF One: RFFC5072 mixer, MAX2837 zero-IF transceiver, MAX5864 8-bit ADC, 25 MHz crystal",
         {
-            # hackrf_transfer's default rate; the docs advise 8 Msps or more.
+            # hackrf_transfer's default rate.
             "sample_rate_hz": 10e6,
             "sample_format": "ci8",
             "adc_bits": 8,
+            # The DC is modelled whole as the LO leakage.
             "adc_dc_lsb": [0.0, 0.0],
             "clock": {"preset": "custom", "offset_ppb": 10_000.0, "drift_adev": XO_ADEV},
             "tuning_offset_hz": 0.0,
-            # The DC spike GSG's docs describe; nothing in the RX path removes it (typical level, stated).
+            # Nothing in the RX path removes the DC spike.
             "lo_leakage_dbc": -20.0,
             "lo_leakage_phase_deg": 0.0,
-            # No quadrature calibration in the MAX2837 path (typical value, stated: an image near -28 dBc).
+            # No quadrature calibration in the MAX2837 path.
             "iq_gain_db": 0.5,
             "iq_phase_deg": 3.0,
             "phase_noise_dbc_hz": _profile(HACKRF_PHASE_NOISE),
@@ -241,72 +190,31 @@ def _devices() -> dict[str, DevicePreset]:
             "agc_step_db": 0.0,
             "agc_steps_per_minute": 0.0,
             "drops_per_minute": 0.2,
-            # libhackrf transfers 256 KiB: 131072 IQ pairs of ci8.
+            # A drop loses whole libhackrf transfers.
             "drop_samples": [131072, 524288],
-        },
-        {
-            "sample_rate_hz": ("hackrf-src", "gsg-hackrf-docs"),
-            "sample_format": ("gsg-hackrf-docs", "gr-osmosdr-hackrf"),
-            "adc_bits": ("gsg-hackrf-docs",),
-            "adc_dc_lsb": (STATED,),
-            "clock.offset_ppb": ("hackrf-379", "gps-sdr-sim-26", "gps-sdr-sim-290", "hackrf-dev-2013", "hackrf-src"),
-            "clock.drift_adev": ("hackrf-495", STATED),
-            "tuning_offset_hz": ("gsg-hackrf-docs",),
-            "lo_leakage_dbc": ("gsg-hackrf-docs", STATED),
-            "lo_leakage_phase_deg": (STATED,),
-            "iq_gain_db": (STATED,),
-            "iq_phase_deg": (STATED,),
-            "phase_noise_dbc_hz": ("hackrf-889", "phaser-10", "hackrf-815", "hackrf-1416", STATED),
-            "agc_step_db": ("hackrf-src",),
-            "agc_steps_per_minute": ("hackrf-src",),
-            "drops_per_minute": ("gsg-hackrf-docs", STATED),
-            "drop_samples": ("hackrf-src",),
         },
         "GSG's docs recommend off-centre tuning to keep the DC spike out of the signal: at 10 Msps "
         "tuning_offset_hz = 1e6 moves the SI carriers 1 MHz from DC and keeps nearly all the channel in band; "
         "20 Msps holds the whole channel beside the spike.")
+    # Sources and assumptions: docs/devices.md, figure table, rows plutosdr.
     pluto = _ad936x(
         "plutosdr", "ADALM-PLUTO: AD9363 zero-IF transceiver, 12-bit ADC, 40 MHz crystal oscillator, USB 2.0",
         rate_hz=8e6, offset_ppb=12_000.0, drift_adev=XO_ADEV,
         agc_step_db=2.0, agc_steps_per_minute=4.0, drops_per_minute=1.0, drop_samples=[65536, 262144],
-        sources={
-            "sample_rate_hz": ("adi-pluto-specs", "pysdr-pluto"),
-            "sample_format": ("soapyplutosdr", "adi-libiio-cli"),
-            "adc_bits": ("adi-pluto-specs", "ad9361-nos"),
-            "adc_dc_lsb": ("ad9361-nos",),
-            "tuning_offset_hz": ("paths-md", STATED),
-            "clock.offset_ppb": ("adi-pluto-hardware", "paths-md", STATED),
-            "clock.drift_adev": ("adi-pluto-hardware", STATED),
-            "agc_step_db": ("adi-libiio-cli", STATED),
-            "agc_steps_per_minute": ("adi-libiio-cli", STATED),
-            "drops_per_minute": ("pysdr-pluto", STATED),
-            "drop_samples": ("soapyplutosdr", STATED),
-        },
         practice="8 Msps of 16-bit IQ (32 MB/s) is near what USB 2.0 carries, so some runs drop samples. The "
                  "driver's default gain mode is the slow-attack AGC; gain_control_mode 'manual' removes the steps. "
                  "libiio and SoapySDR deliver the 12 bits right-aligned (full scale 2048). Tuning a few hundred kHz "
                  "beside the channel keeps the SI carriers out of the DC tracking's notch.")
+    # Sources and assumptions: docs/devices.md, figure table, rows usrp-b200.
     b200 = _ad936x(
         "usrp-b200", "Ettus USRP B200/B210: AD9361 zero-IF transceiver, 12-bit ADC, 40 MHz TCXO, USB 3.0",
         rate_hz=10e6, offset_ppb=1_000.0, drift_adev=TCXO_ADEV,
         agc_step_db=0.0, agc_steps_per_minute=0.0, drops_per_minute=0.0, drop_samples=[2040, 65280],
-        sources={
-            "sample_rate_hz": ("uhd-b200",),
-            "sample_format": ("uhd-convert", "uhd-fpga-b200"),
-            "adc_bits": ("ad9361-nos", "uhd-fpga-b200"),
-            "adc_dc_lsb": ("uhd-ad9361",),
-            "tuning_offset_hz": ("uhd-dboards", "paths-md"),
-            "clock.offset_ppb": ("ettus-b200-spec", "paths-md"),
-            "clock.drift_adev": ("ettus-b200-spec", STATED),
-            "agc_step_db": ("uhd-ad9361",),
-            "agc_steps_per_minute": ("uhd-ad9361",),
-            "drops_per_minute": ("uhd-b200", STATED),
-            "drop_samples": (STATED,),
-        },
         practice="UHD keeps the AD9361's AGC off and its DC-offset and IQ-balance tracking on. A tune request with "
                  "lo_offset moves the LO beside the channel inside the device and the FPGA shifts the channel back "
                  "to the capture's centre, so the recording looks centred and the leakage sits at -lo_offset (the "
                  "simulator's tuning_offset_hz models the other practice, a capture centred beside the channel).")
+    # Sources and assumptions: docs/devices.md, figure table, rows airspy-r2.
     airspy = _preset(
         "airspy-r2", "Airspy R2: R820T2 low-IF tuner, 12-bit ADC at 20 Msps real, 0.5 ppm TCXO; libairspy makes IQ",
         {
@@ -327,26 +235,8 @@ def _devices() -> dict[str, DevicePreset]:
             "agc_step_db": 0.0,
             "agc_steps_per_minute": 0.0,
             "drops_per_minute": 0.1,
-            # libairspy's 256 KiB transfers hold 131072 real samples: 65536 IQ pairs.
+            # A drop loses whole libairspy transfers.
             "drop_samples": [65536, 262144],
-        },
-        {
-            "sample_rate_hz": ("libairspy", "debian-airspy"),
-            "sample_format": ("libairspy",),
-            "adc_bits": ("libairspy", "debian-airspy"),
-            "adc_dc_lsb": ("libairspy",),
-            "clock.offset_ppb": ("airspy-r2",),
-            "clock.drift_adev": ("airspy-r2", STATED),
-            "tuning_offset_hz": ("libairspy",),
-            "lo_leakage_dbc": ("libairspy", "gophertrunk-airspy"),
-            "lo_leakage_phase_deg": (STATED,),
-            "iq_gain_db": ("libairspy", "gophertrunk-airspy"),
-            "iq_phase_deg": ("libairspy", "gophertrunk-airspy"),
-            "phase_noise_dbc_hz": (STATED,),
-            "agc_step_db": ("libairspy",),
-            "agc_steps_per_minute": ("libairspy",),
-            "drops_per_minute": ("libairspy", STATED),
-            "drop_samples": ("libairspy",),
         },
         "airspy_rx writes int16 IQ by default (12-bit codes less 2048, shifted left by 4). No off-centre tuning: "
         "the low-IF tuner leaves no spike at DC.")
