@@ -85,9 +85,9 @@ Order (sim.rf applies it to the noise-free multipath signal):
    ``receiver.adc_dc_lsb`` an ADC of ``adc_bits`` bits spans the format's
    full scale (``2 ** adc_bits`` levels: a 12-bit ADC in ci16 moves in steps
    of 16 codes, in cf32 of ``2 / 2 ** 12``), its DC ``adc_dc_lsb`` (I, Q; ADC
-   LSB) added before rounding, levels about the format's zero code (an
-   RTL-SDR's bytes centred on 127.5: ``adc_bits = 8``, ``adc_dc_lsb = [-0.5,
-   -0.5]`` in cu8), clipped at full scale (:func:`adc_quantise`).
+   LSB) added before rounding, levels about the format's zero code (the
+   ``rtl-sdr`` device presets of :mod:`sim.devices` centre their cu8 bytes
+   below 128 this way), clipped at full scale (:func:`adc_quantise`).
 9. **Dropped samples** (``receiver.drops_per_minute``,
    ``receiver.drop_samples``): runs of samples lost between the ADC and the
    file (USB overflows). At Poisson times from the scenario's first sample
