@@ -68,7 +68,7 @@ def test_the_start_fix_estimate_is_off_by_the_fix_error_seen_along_the_hyperbola
     walk, paths = coded_walk()
     g = walk.geometry
     at_fix = dataclasses.replace(g, start_x_m=g.start_x_m + fix_error_m[0], start_y_m=g.start_y_m + fix_error_m[1])
-    epochs, offsets = tied(walk, paths, at_fix, None)
+    _, offsets = tied(walk, paths, at_fix, None)
     assert offsets.source == ("start fix",)
     projected = (at_fix.start_range_m(1) - at_fix.start_range_m(0)) - (g.start_range_m(1) - g.start_range_m(0))
     assert offsets.offset_m[0] == pytest.approx(OFFSET_M - projected, abs=0.05)
@@ -90,13 +90,27 @@ def test_a_difference_first_tracked_after_the_first_step_stays_unknown():
 
 
 def test_the_simulator_draws_each_walks_offsets_about_the_plan():
+    """Each site's offset is the plan's plus its own N(0, plan_error_s) draw, a function of the walk's seed alone:
+    over 400 seeds the draws spread by plan_error_s about the plan, two sites' draws are uncorrelated (so their
+    difference, what a receiver sees of an SFN, spreads by sqrt(2) plan_error_s), and the same walk with another
+    receiver, or asked again, keeps its offsets."""
     scenario = load_scenario("sfn-park")
+    sigma = scenario.network.plan_error_s
     plan = np.array([site.transmit_delay_s for site in scenario.sites])
-    assert scenario.network.plan_error_s > 0.0
+    assert sigma > 0.0 and len(plan) == 2
     draws = np.array([scenario.replace(seed=seed).transmit_delays_s() - plan for seed in range(400)])
-    assert np.all(draws == np.array([scenario.replace(seed=seed).transmit_delays_s() - plan for seed in range(400)]))
-    assert np.std(draws) == pytest.approx(scenario.network.plan_error_s, rel=0.1)
-    assert abs(np.mean(draws)) < 3.0 * scenario.network.plan_error_s / np.sqrt(draws.size)
+    assert np.std(draws) == pytest.approx(sigma, rel=0.1)
+    assert abs(np.mean(draws)) < 3.0 * sigma / np.sqrt(draws.size)
+    # 400 uncorrelated pairs keep |r| below 3 / sqrt(400); one draw shared by both sites would give r = 1 and a
+    # difference exactly the plan's.
+    assert abs(np.corrcoef(draws[:, 0], draws[:, 1])[0, 1]) < 0.15
+    assert np.std(draws[:, 1] - draws[:, 0]) == pytest.approx(np.sqrt(2.0) * sigma, rel=0.1)
+    walk = scenario.replace(seed=7)
+    offsets = walk.transmit_delays_s()
+    np.testing.assert_array_equal(walk.replace(receiver={"cn_db": 3.0, "sample_rate_hz": 10e6}).transmit_delays_s(),
+                                  offsets)
+    np.testing.assert_array_equal(walk.transmit_delays_s(), offsets)
+    assert not np.array_equal(scenario.replace(seed=8).transmit_delays_s(), offsets)
     exact = scenario.replace(network={"plan_error_s": 0.0})
     np.testing.assert_array_equal(exact.transmit_delays_s(), plan)
 
