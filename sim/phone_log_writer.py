@@ -1,31 +1,29 @@
-"""Write a simulated walk's IMU and GNSS as a phone app writes them: GnssLogger's text log or Sensor Logger's CSV export.
+"""Write a simulated walk's IMU and GNSS as a phone app writes them: GnssLogger's text log, Sensor Logger's CSV export.
 
 ``dtmbnav simulate --phone-log FORMAT`` writes, beside the capture, what the phone carried on the walk
-would have logged, so that the field path (``dtmbnav sensors``, ``dtmbnav/phone_logs.py``) runs on
-simulated walks without reading any simulator file. Formats (:data:`dtmbnav_core.phone.PHONE_LOG_FORMATS`):
+would have logged, so that the field path (``dtmbnav sensors``, ``dtmbnav/field/phone_logs.py``) runs on
+simulated walks without reading any simulator file. Formats (:data:`dtmbnav_core.phone.PHONE_LOG_FORMATS`;
+their row types, headers, columns, units and time bases: :mod:`dtmbnav_core.phone_formats`):
 
 - ``gnsslogger``: Google's GnssLogger text log ``gnss_log_<yyyy_MM_dd_HH_mm_ss>.txt``: the app's
-  ``#`` preamble and one ``# Type,...`` header line per row type (its LOGGING_FORMAT), then the rows in
-  time order: ``UncalAccel``, ``UncalGyro`` and ``UncalMag`` (bias and drift columns 0: the simulated
-  values are the phone's calibrated output) at every IMU sample, a ``Fix`` row (provider ``GPS``) and a
-  ``Status`` row per fix. Sensor rows carry ``utcTimeMillis`` (the phone's UTC clock, ms) and
-  ``elapsedRealtimeNanos`` (its monotonic clock, which starts at :data:`BOOT_ELAPSED_NS`); a fix
-  carries both too (``UnixTimeMillis``, ``elapsedRealtimeNanos``). The simulator models the fix's mean
-  C/N0 only, so its ``Status`` row is one GPS L1 signal of that C/N0, used in the fix.
+  ``#`` preamble and the header line of each row type written, then the rows in time order:
+  ``UncalAccel``, ``UncalGyro`` and ``UncalMag`` (bias and drift columns 0: the simulated values
+  are the phone's calibrated output) at every IMU sample, a ``Fix`` row (provider ``GPS``) and a
+  ``Status`` row per fix. The phone's monotonic clock (``elapsedRealtimeNanos``) starts at
+  :data:`BOOT_ELAPSED_NS`. The simulator models the fix's mean C/N0 only, so its ``Status`` row is
+  one GPS L1 signal of that C/N0, used in the fix.
 - ``sensorlogger``: the Sensor Logger app's export, a folder ``<yyyy-MM-dd_HH-mm-ss>`` of CSV files:
   ``TotalAcceleration.csv`` (the specific force), ``Accelerometer.csv`` and ``Gravity.csv`` (the
   specific force split, as Android's linear acceleration and gravity sensors, into its moving average
-  over :data:`GRAVITY_WINDOW_S` and the rest), ``Gyroscope.csv``, ``Magnetometer.csv`` (columns
-  ``time`` in ns since the Unix epoch on the phone's UTC clock, ``seconds_elapsed`` since the
-  recording's start on the phone's clock, then ``z,y,x``), ``Location.csv`` and ``Metadata.csv``
-  (platform ``android``, units and frames as Android reports them).
+  over :data:`GRAVITY_WINDOW_S` and the rest), ``Gyroscope.csv``, ``Magnetometer.csv``,
+  ``Location.csv`` and ``Metadata.csv`` (platform ``android``, units and frames as Android reports them).
 
 Both: every IMU sample as simulated (the scenario's ``imu.rate_hz``; the default 100 Hz is Sensor
 Logger's default rate, GnssLogger logs the sensors at their own rate), every fix of the GNSS log
 (``gnss.rate_hz``, 1 Hz by default). A sample with a non-finite value (a gap the IMU model left) is
 not written; an IMU without a magnetometer (its ``mag_ut`` None, NaN, or zeros throughout as in
-``/imu``) writes no ``UncalMag`` rows and no ``Magnetometer.csv``. Axes: the IMU's phone frame is Android's device frame
-(``docs/conventions.md``); units m/s^2, rad/s, uT, as Android's.
+``/imu``) writes no ``UncalMag`` rows and no ``Magnetometer.csv``. Axes: the IMU's phone frame is
+Android's device frame (``docs/conventions.md``); units m/s^2, rad/s, uT, as Android's.
 
 Fixes: the simulated fix (east, north) at the phone's height (``channel.antenna_height_m`` above the
 walker's plane) about the scenario's ``[origin]``, as WGS84 latitude, longitude (deg) and height above
@@ -39,12 +37,17 @@ is stamped ``start_utc_ns + offset + t (1 + drift)`` on the UTC clock and
 ``BOOT_ELAPSED_NS + t (1 + drift)`` on the monotonic one. The samples are those simulated, at
 their simulated instants: the phone's clock only stamps them.
 
-Numbers are written as the shortest text that reads back to the same float.
+The formats' text (:func:`gnsslogger_rows`, :func:`gnsslogger_text`, :func:`sensor_logger_csv` and
+the row builders on them) is also what the tests build their sample logs with. Numbers are written
+as the shortest text that reads back to the same float.
 """
 
 from __future__ import annotations
 
+import csv
 import datetime
+import io
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,6 +57,27 @@ from scipy.ndimage import uniform_filter1d
 from dtmbnav_core.geodetic import to_lat_lon_height
 from dtmbnav_core.h5io import atomic_folder, atomic_path
 from dtmbnav_core.phone import ACCURACY_RADIUS_SIGMAS, PHONE_LOG_FORMATS, PhoneClock
+from dtmbnav_core.phone_formats import (
+    ACCELEROMETER,
+    ELAPSED_NANOS,
+    GNSSLOGGER_HEADERS,
+    GNSSLOGGER_SENSOR_ROW_TYPES,
+    GRAVITY,
+    GYROSCOPE,
+    LOCATION,
+    LOCATION_COLUMNS,
+    MAGNETOMETER,
+    METADATA,
+    SENSOR_LOGGER_AXES,
+    SENSOR_LOGGER_AXIS_HEADER,
+    SENSOR_LOGGER_ELAPSED,
+    SENSOR_LOGGER_LOCATION_HEADER,
+    SENSOR_LOGGER_METADATA_HEADER,
+    SENSOR_LOGGER_TIME,
+    TOTAL_ACCELERATION,
+    UTC_MILLIS,
+    SensorRows,
+)
 from dtmbnav_core.records import GnssLog, ImuLog
 from sim.gnss import fix_sigma_m
 from sim.scenario import Scenario
@@ -67,32 +91,16 @@ GPS_L1_HZ = 1575.42e6
 #: GnssLogger's preamble, before the header lines of the row types.
 GNSSLOGGER_PREAMBLE = ("# ", "# Header Description:", "# ",
                        "# Version: v3.0.6.4 Platform: 14 Manufacturer: dtmbnav Model: simulator", "# ")
-#: GnssLogger's header of each row type written (its LOGGING_FORMAT), by row type.
-GNSSLOGGER_HEADERS = {
-    "Fix": ("Provider", "LatitudeDegrees", "LongitudeDegrees", "AltitudeMeters", "SpeedMps", "AccuracyMeters",
-            "BearingDegrees", "UnixTimeMillis", "SpeedAccuracyMps", "BearingAccuracyDegrees", "elapsedRealtimeNanos",
-            "VerticalAccuracyMeters", "MockLocation"),
-    "Status": ("UnixTimeMillis", "SignalCount", "SignalIndex", "ConstellationType", "Svid", "CarrierFrequencyHz",
-               "Cn0DbHz", "AzimuthDegrees", "ElevationDegrees", "UsedInFix", "HasAlmanacData", "HasEphemerisData",
-               "BasebandCn0DbHz"),
-    "UncalAccel": ("utcTimeMillis", "elapsedRealtimeNanos", "UncalAccelXMps2", "UncalAccelYMps2", "UncalAccelZMps2",
-                   "BiasXMps2", "BiasYMps2", "BiasZMps2"),
-    "UncalGyro": ("utcTimeMillis", "elapsedRealtimeNanos", "UncalGyroXRadPerSec", "UncalGyroYRadPerSec",
-                  "UncalGyroZRadPerSec", "DriftXRadPerSec", "DriftYRadPerSec", "DriftZRadPerSec"),
-    "UncalMag": ("utcTimeMillis", "elapsedRealtimeNanos", "UncalMagXMicroT", "UncalMagYMicroT", "UncalMagZMicroT",
-                 "BiasXMicroT", "BiasYMicroT", "BiasZMicroT"),
-}
-#: The ImuLog column of each GnssLogger sensor row type.
-GNSSLOGGER_SENSOR_ROWS = {"UncalAccel": "acc_mps2", "UncalGyro": "gyro_radps", "UncalMag": "mag_ut"}
-#: Sensor Logger's axis files: the ImuLog column each is written from.
-SENSOR_LOGGER_AXIS_FILES = {"TotalAcceleration.csv": "acc_mps2", "Gyroscope.csv": "gyro_radps",
-                            "Magnetometer.csv": "mag_ut"}
-SENSOR_LOGGER_AXIS_HEADER = ("time", "seconds_elapsed", "z", "y", "x")
-SENSOR_LOGGER_LOCATION_HEADER = ("time", "seconds_elapsed", "bearingAccuracy", "speedAccuracy", "verticalAccuracy",
-                                 "horizontalAccuracy", "speed", "bearing", "altitude", "longitude", "latitude")
-SENSOR_LOGGER_METADATA_HEADER = ("version", "device name", "recording epoch time", "recording time",
-                                 "recording timezone", "platform", "appVersion", "device id", "sensors",
-                                 "sampleRateMs", "standardisation", "platform version")
+#: The GnssLogger row types the simulator writes, in the order of their header lines.
+GNSSLOGGER_WRITTEN = ("Fix", "Status", "UncalAccel", "UncalGyro", "UncalMag")
+#: The GnssLogger rows of each ImuLog sensor column: the sensor's uncalibrated row type.
+GNSSLOGGER_IMU_ROWS = {column: GNSSLOGGER_SENSOR_ROW_TYPES[row_type] for column, row_type in
+                       (("acc_mps2", "UncalAccel"), ("gyro_radps", "UncalGyro"), ("mag_ut", "UncalMag"))}
+#: Sensor Logger's axis files written straight from an ImuLog column.
+SENSOR_LOGGER_IMU_FILES = {TOTAL_ACCELERATION: "acc_mps2", GYROSCOPE: "gyro_radps", MAGNETOMETER: "mag_ut"}
+
+#: A column of a table to write: an array or a list of texts, one per row, or one value for every row.
+Cells = np.ndarray | Sequence[str] | str | float | int
 
 
 @dataclass(frozen=True)
@@ -130,11 +138,6 @@ def phone_fixes(scenario: Scenario, gnss: GnssLog) -> PhoneFixes:
                       accuracy_m=accuracy, cn0_dbhz=np.asarray(gnss.cn0_dbhz, dtype=np.float64))
 
 
-def _text(value: float) -> str:
-    """A float as the shortest text that reads back to it."""
-    return repr(float(value))
-
-
 def imu_samples(imu: ImuLog) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Each ImuLog sensor column's samples with finite values, as (times s, N x 3 values); the magnetometer
     left out where the IMU has none (None, no finite sample, or zeros throughout: the ``/imu`` convention).
@@ -145,7 +148,7 @@ def imu_samples(imu: ImuLog) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         The accelerometer or the gyroscope has no finite non-zero sample.
     """
     out = {}
-    for column in ("acc_mps2", "gyro_radps", "mag_ut"):
+    for column in GNSSLOGGER_IMU_ROWS:
         values = getattr(imu, column)
         values = np.full((len(imu.t_s), 3), np.nan) if values is None else np.asarray(values, dtype=np.float64)
         finite = np.isfinite(values).all(axis=1)
@@ -156,100 +159,192 @@ def imu_samples(imu: ImuLog) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     return out
 
 
-def _utc_ms(utc_ns: np.ndarray) -> np.ndarray:
+def _utc_ms(utc_ns: np.ndarray | int) -> np.ndarray | int:
     """UTC stamps in ns to whole ms (rounded half up)."""
     return (utc_ns + 500_000) // 1_000_000
 
 
-def _start_stamp(clock: PhoneClock, start_utc_ns: int) -> tuple[int, datetime.datetime]:
-    """The phone's UTC at the log's start: ns since the Unix epoch, and as a date and time (whole seconds)."""
-    utc_ns = int(clock.utc_ns(np.zeros(1), start_utc_ns)[0])
-    return utc_ns, datetime.datetime.fromtimestamp(utc_ns // 1_000_000_000, tz=datetime.UTC)
+def _start_utc_ns(clock: PhoneClock, start_utc_ns: int) -> int:
+    """The phone's UTC at the log's start, ns since the Unix epoch."""
+    return int(clock.utc_ns(np.zeros(1), start_utc_ns)[0])
+
+
+def _date(utc_ns: int) -> datetime.datetime:
+    """A UTC time in ns since the Unix epoch as a date and time (whole seconds), for file names."""
+    return datetime.datetime.fromtimestamp(utc_ns // 1_000_000_000, tz=datetime.UTC)
+
+
+# --- the formats' text -----------------------------------------------------------------------------------
+
+def text_cells(values: Cells, n: int) -> list[str]:
+    """A column's ``n`` cells as text: whole numbers as written, other numbers as the shortest text that reads
+    back to the same float (``repr``), text as it is; a single value is repeated."""
+    if isinstance(values, str):
+        return [values] * n
+    if np.ndim(values) == 0:
+        return text_cells([values], 1) * n
+    array = np.asarray(values)
+    if len(array) != n:
+        raise ValueError(f"a column of {len(array)} cells in a table of {n} rows")
+    return list(map(repr if array.dtype.kind == "f" else str, array.tolist()))
+
+
+def table_cells(header: Sequence[str], columns: Mapping[str, Cells]) -> list[list[str]]:
+    """The cells of each column of ``header``, from ``columns`` by name (a column not given: empty cells).
+
+    The table has as many rows as the columns given as arrays or lists (one row where every column is a
+    single value).
+
+    Raises
+    ------
+    ValueError
+        A column ``header`` does not name, or columns of different lengths.
+    """
+    unknown = sorted(set(columns) - set(header))
+    if unknown:
+        raise ValueError(f"columns {unknown} are not in the header {', '.join(header)}")
+    n = next((len(v) for v in columns.values() if not isinstance(v, str) and np.ndim(v) == 1), 1)
+    return [text_cells(columns.get(name, ""), n) for name in header]
+
+
+def gnsslogger_rows(row_type: str, columns: Mapping[str, Cells]) -> list[str]:
+    """Rows of one GnssLogger row type: the type, then the fields its header
+    (:data:`dtmbnav_core.phone_formats.GNSSLOGGER_HEADERS`) names, from ``columns`` by name
+    (:func:`table_cells`). The app does not quote a field, nor does this."""
+    cells = table_cells(GNSSLOGGER_HEADERS[row_type], columns)
+    return list(map(",".join, zip([row_type] * len(cells[0]), *cells)))
+
+
+def gnsslogger_text(blocks: Sequence[tuple[np.ndarray, list[str]]], row_types: Sequence[str]) -> str:
+    """A GnssLogger log: :data:`GNSSLOGGER_PREAMBLE`, the header line of each of ``row_types`` (each followed by
+    an empty comment line, as the app writes them), then the rows of ``blocks``, merged in time order.
+
+    ``blocks``: (times, rows) of each block of rows; the times (on one clock for every block) only order
+    the rows, rows of equal times following the order of ``blocks``.
+    """
+    order = np.argsort(np.concatenate([times for times, _ in blocks]), kind="stable")
+    rows = [row for _, block in blocks for row in block]
+    headers = [line for row_type in row_types
+               for line in (f"# {row_type},{','.join(GNSSLOGGER_HEADERS[row_type])}", "# ")]
+    return "\n".join([*GNSSLOGGER_PREAMBLE, *headers, *(rows[i] for i in order.tolist())]) + "\n"
+
+
+def sensor_logger_csv(header: Sequence[str], columns: Mapping[str, Cells]) -> str:
+    """A Sensor Logger CSV file: its header row, then the rows of ``columns`` (:func:`table_cells`), written by
+    the csv module so that a field holding a comma is quoted, as the app writes it."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(header)
+    writer.writerows(zip(*table_cells(header, columns)))
+    return out.getvalue()
+
+
+def gnsslogger_stamps(t_s: np.ndarray, clock: PhoneClock, start_utc_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """GnssLogger's stamps of moments ``t_s`` s after the log's start: on the phone's UTC clock (ms since the
+    Unix epoch, ``utcTimeMillis``) and on its monotonic clock (ns, ``elapsedRealtimeNanos``)."""
+    return _utc_ms(clock.utc_ns(t_s, start_utc_ns)), BOOT_ELAPSED_NS + clock.elapsed_ns(t_s)
+
+
+def sensor_rows(rows: SensorRows, t_s: np.ndarray, values: np.ndarray, clock: PhoneClock, start_utc_ns: int,
+                bias: Sequence[float] = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, list[str]]:
+    """A motion sensor's GnssLogger rows of type ``rows`` at ``t_s`` (s after the log's start): their
+    ``elapsedRealtimeNanos`` (ns) and texts.
+
+    ``values`` (N x 3) are the row's own (an uncalibrated row's reading includes its bias); ``bias``, an
+    uncalibrated row type's bias (or drift) columns, is the same in every row.
+    """
+    utc_ms, elapsed_ns = gnsslogger_stamps(t_s, clock, start_utc_ns)
+    columns: dict[str, Cells] = {UTC_MILLIS: utc_ms, ELAPSED_NANOS: elapsed_ns, **dict(zip(rows.values, values.T))}
+    if rows.bias is not None:
+        columns.update(zip(rows.bias, bias))
+    return elapsed_ns, gnsslogger_rows(rows.row_type, columns)
+
+
+def fix_rows(fixes: PhoneFixes, clock: PhoneClock, start_utc_ns: int,
+             provider: str = "GPS") -> tuple[np.ndarray, list[str]]:
+    """The ``Fix`` rows of ``fixes`` (speed, bearing and the other accuracies empty): their
+    ``elapsedRealtimeNanos`` (ns) and texts."""
+    utc_ms, elapsed_ns = gnsslogger_stamps(fixes.t_s, clock, start_utc_ns)
+    return elapsed_ns, gnsslogger_rows("Fix", {
+        "Provider": provider, "LatitudeDegrees": fixes.lat_deg, "LongitudeDegrees": fixes.lon_deg,
+        "AltitudeMeters": fixes.height_m, "AccuracyMeters": fixes.accuracy_m, "UnixTimeMillis": utc_ms,
+        ELAPSED_NANOS: elapsed_ns, "MockLocation": "0"})
+
+
+def axis_csv(t_s: np.ndarray, values: np.ndarray, clock: PhoneClock, start_utc_ns: int) -> str:
+    """A Sensor Logger axis file of samples ``values`` (N x 3, x, y, z) at ``t_s`` s after the log's start."""
+    return sensor_logger_csv(SENSOR_LOGGER_AXIS_HEADER, {
+        SENSOR_LOGGER_TIME: clock.utc_ns(t_s, start_utc_ns), SENSOR_LOGGER_ELAPSED: clock.elapsed_s(t_s),
+        **dict(zip(SENSOR_LOGGER_AXES, values.T))})
+
+
+def location_csv(fixes: PhoneFixes, clock: PhoneClock, start_utc_ns: int) -> str:
+    """Sensor Logger's ``Location.csv`` of ``fixes`` (speed, bearing and the other accuracies empty)."""
+    return sensor_logger_csv(SENSOR_LOGGER_LOCATION_HEADER, {
+        SENSOR_LOGGER_TIME: clock.utc_ns(fixes.t_s, start_utc_ns), SENSOR_LOGGER_ELAPSED: clock.elapsed_s(fixes.t_s),
+        LOCATION_COLUMNS["accuracy"]: fixes.accuracy_m, LOCATION_COLUMNS["height"]: fixes.height_m,
+        LOCATION_COLUMNS["lon"]: fixes.lon_deg, LOCATION_COLUMNS["lat"]: fixes.lat_deg})
+
+
+def metadata_csv(start_utc_ns: int, intervals_s: Mapping[str, float], platform: str = "android",
+                 device_name: str = "dtmbnav simulator") -> str:
+    """Sensor Logger's ``Metadata.csv`` of a recording that starts at ``start_utc_ns`` (the phone's UTC, ns
+    since the Unix epoch) and samples each sensor (its file's name without ``.csv``) every ``intervals_s`` s;
+    units and frames not standardised."""
+    sensors = sorted(intervals_s)
+    return sensor_logger_csv(SENSOR_LOGGER_METADATA_HEADER, {
+        "version": "3", "device name": device_name, "recording epoch time": str(_utc_ms(start_utc_ns)),
+        "recording time": f"{_date(start_utc_ns):%Y-%m-%d_%H-%M-%S}", "recording timezone": "UTC",
+        "platform": platform, "appVersion": "1.64", "device id": "simulated", "sensors": "|".join(sensors),
+        "sampleRateMs": "|".join(str(round(intervals_s[s] * 1000)) for s in sensors), "standardisation": "false",
+        "platform version": "14"})
 
 
 # --- GnssLogger ------------------------------------------------------------------------------------------
 
-def gnsslogger_text(imu: ImuLog, fixes: PhoneFixes, clock: PhoneClock, start_utc_ns: int) -> str:
+def gnsslogger_log(imu: ImuLog, fixes: PhoneFixes, clock: PhoneClock, start_utc_ns: int) -> str:
     """The text of a GnssLogger log of the walk (module docstring)."""
-    times: list[np.ndarray] = []
-    rows: list[list[str]] = []
     samples = imu_samples(imu)
-    for row_type, column in GNSSLOGGER_SENSOR_ROWS.items():
-        if column not in samples:
-            continue
-        t_s, values = samples[column]
-        elapsed = BOOT_ELAPSED_NS + clock.elapsed_ns(t_s)
-        utc_ms = _utc_ms(clock.utc_ns(t_s, start_utc_ns))
-        rows.append([f"{row_type},{ms},{ns},{_text(x)},{_text(y)},{_text(z)},0.0,0.0,0.0"
-                     for ms, ns, (x, y, z) in zip(utc_ms, elapsed, values)])
-        times.append(elapsed)
-    elapsed = BOOT_ELAPSED_NS + clock.elapsed_ns(fixes.t_s)
-    utc_ms = _utc_ms(clock.utc_ns(fixes.t_s, start_utc_ns))
-    rows.append([f"Fix,GPS,{_text(lat)},{_text(lon)},{_text(h)},,{_text(acc)},,{ms},,,{ns},,0"
-                 for lat, lon, h, acc, ms, ns in zip(fixes.lat_deg, fixes.lon_deg, fixes.height_m, fixes.accuracy_m,
-                                                     utc_ms, elapsed)])
-    rows.append([f"Status,{ms},1,0,1,1,{_text(GPS_L1_HZ)},{_text(cn0)},,,1,1,1,"
-                 for ms, cn0 in zip(utc_ms, fixes.cn0_dbhz)])
-    times += [elapsed, elapsed]
-    order = np.argsort(np.concatenate(times), kind="stable")
-    lines = [line for block in rows for line in block]
-    headers = [line for row_type, names in GNSSLOGGER_HEADERS.items() for line in (f"# {row_type},{','.join(names)}",
-                                                                                      "# ")]
-    return "\n".join([*GNSSLOGGER_PREAMBLE, *headers, *(lines[i] for i in order)]) + "\n"
+    blocks = [sensor_rows(GNSSLOGGER_IMU_ROWS[column], *samples[column], clock, start_utc_ns)
+              for column in GNSSLOGGER_IMU_ROWS if column in samples]
+    elapsed_ns, fix_block = fix_rows(fixes, clock, start_utc_ns)
+    status = gnsslogger_rows("Status", {
+        "UnixTimeMillis": gnsslogger_stamps(fixes.t_s, clock, start_utc_ns)[0], "SignalCount": "1",
+        "SignalIndex": "0", "ConstellationType": "1", "Svid": "1", "CarrierFrequencyHz": GPS_L1_HZ,
+        "Cn0DbHz": fixes.cn0_dbhz, "UsedInFix": "1", "HasAlmanacData": "1", "HasEphemerisData": "1"})
+    return gnsslogger_text([*blocks, (elapsed_ns, fix_block), (elapsed_ns, status)], GNSSLOGGER_WRITTEN)
 
 
 def write_gnsslogger(out_dir: str | Path, imu: ImuLog, fixes: PhoneFixes, clock: PhoneClock,
                      start_utc_ns: int) -> Path:
     """Write the GnssLogger log into ``out_dir`` (atomically), named by the phone's UTC at its start; its path."""
-    _, start = _start_stamp(clock, start_utc_ns)
-    path = Path(out_dir) / f"gnss_log_{start:%Y_%m_%d_%H_%M_%S}.txt"
+    path = Path(out_dir) / f"gnss_log_{_date(_start_utc_ns(clock, start_utc_ns)):%Y_%m_%d_%H_%M_%S}.txt"
     with atomic_path(path) as tmp:
-        tmp.write_text(gnsslogger_text(imu, fixes, clock, start_utc_ns))
+        tmp.write_text(gnsslogger_log(imu, fixes, clock, start_utc_ns))
     return path
 
 
 # --- Sensor Logger ----------------------------------------------------------------------------------------
-
-def _csv(header: tuple[str, ...], rows: list[str]) -> str:
-    return "\n".join([",".join(header), *rows]) + "\n"
-
-
-def _axis_csv(t_s: np.ndarray, values: np.ndarray, clock: PhoneClock, start_utc_ns: int) -> str:
-    """A Sensor Logger axis file: ``time`` (phone UTC, ns), ``seconds_elapsed`` (phone clock, s), ``z,y,x``."""
-    utc = clock.utc_ns(t_s, start_utc_ns)
-    elapsed = clock.elapsed_s(t_s)
-    return _csv(SENSOR_LOGGER_AXIS_HEADER, [f"{ns},{_text(s)},{_text(z)},{_text(y)},{_text(x)}"
-                                            for ns, s, (x, y, z) in zip(utc, elapsed, values)])
-
 
 def sensor_logger_files(imu: ImuLog, fixes: PhoneFixes, clock: PhoneClock, start_utc_ns: int) -> dict[str, str]:
     """The files of a Sensor Logger export of the walk, name -> text (module docstring)."""
     files: dict[str, str] = {}
     intervals_s: dict[str, float] = {}  # each file's sample interval, for Metadata.csv
     samples = imu_samples(imu)
-    for name, column in SENSOR_LOGGER_AXIS_FILES.items():
+    for name, column in SENSOR_LOGGER_IMU_FILES.items():
         if column not in samples:
             continue
         t_s, values = samples[column]
-        files[name] = _axis_csv(t_s, values, clock, start_utc_ns)
+        files[name] = axis_csv(t_s, values, clock, start_utc_ns)
         intervals_s[name.removesuffix(".csv")] = interval = float(np.median(np.diff(t_s)))
         if column == "acc_mps2":
             gravity = uniform_filter1d(values, max(1, round(GRAVITY_WINDOW_S / interval)), axis=0, mode="nearest")
-            files["Gravity.csv"] = _axis_csv(t_s, gravity, clock, start_utc_ns)
-            files["Accelerometer.csv"] = _axis_csv(t_s, values - gravity, clock, start_utc_ns)
-            intervals_s["Accelerometer"] = intervals_s["Gravity"] = interval
-    utc = clock.utc_ns(fixes.t_s, start_utc_ns)
-    files["Location.csv"] = _csv(SENSOR_LOGGER_LOCATION_HEADER, [
-        f"{ns},{_text(s)},,,,{_text(acc)},,,{_text(h)},{_text(lon)},{_text(lat)}"
-        for ns, s, acc, h, lon, lat in zip(utc, clock.elapsed_s(fixes.t_s), fixes.accuracy_m, fixes.height_m,
-                                           fixes.lon_deg, fixes.lat_deg)])
-    intervals_s["Location"] = float(np.median(np.diff(fixes.t_s))) if len(fixes.t_s) > 1 else 1.0
-    start_ns, start = _start_stamp(clock, start_utc_ns)
-    sensors = sorted(intervals_s)
-    files["Metadata.csv"] = _csv(SENSOR_LOGGER_METADATA_HEADER, [",".join([
-        "3", "dtmbnav simulator", str(_utc_ms(start_ns)), f"{start:%Y-%m-%d_%H-%M-%S}", "UTC", "android", "1.64",
-        "simulated", "|".join(sensors), "|".join(str(round(intervals_s[s] * 1000)) for s in sensors), "false",
-        "14"])])
+            files[GRAVITY] = axis_csv(t_s, gravity, clock, start_utc_ns)
+            files[ACCELEROMETER] = axis_csv(t_s, values - gravity, clock, start_utc_ns)
+            intervals_s[ACCELEROMETER.removesuffix(".csv")] = intervals_s[GRAVITY.removesuffix(".csv")] = interval
+    files[LOCATION] = location_csv(fixes, clock, start_utc_ns)
+    intervals_s[LOCATION.removesuffix(".csv")] = float(np.median(np.diff(fixes.t_s))) if len(fixes.t_s) > 1 else 1.0
+    files[METADATA] = metadata_csv(_start_utc_ns(clock, start_utc_ns), intervals_s)
     return files
 
 
@@ -257,8 +352,7 @@ def write_sensor_logger(out_dir: str | Path, imu: ImuLog, fixes: PhoneFixes, clo
                         start_utc_ns: int) -> Path:
     """Write the Sensor Logger export into a folder of ``out_dir`` named by the phone's UTC at the recording's
     start (atomically: all its files or none); the folder's path."""
-    _, start = _start_stamp(clock, start_utc_ns)
-    folder = Path(out_dir) / f"{start:%Y-%m-%d_%H-%M-%S}"
+    folder = Path(out_dir) / f"{_date(_start_utc_ns(clock, start_utc_ns)):%Y-%m-%d_%H-%M-%S}"
     with atomic_folder(folder) as tmp:
         for name, text in sensor_logger_files(imu, fixes, clock, start_utc_ns).items():
             (tmp / name).write_text(text)
