@@ -34,8 +34,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from ahrs.filters import Madgwick
-from scipy.ndimage import uniform_filter1d
 from scipy.spatial.transform import Rotation
+
+from dtmbnav_core.moving import moving_std
 
 #: Fewest rest samples for a gyro-bias estimate (else no bias is removed).
 MIN_REST_SAMPLES = 50
@@ -93,11 +94,7 @@ def standstill_mask(gyro_radps: np.ndarray, rate_hz: float, window_s: float, thr
     The standard deviation (not the mean) is tested so that an unknown bias
     does not matter; walking makes the hand sway at several deg/s.
     """
-    width = max(2, round(window_s * rate_hz))
-    mean = uniform_filter1d(gyro_radps, width, axis=0, mode="nearest")
-    mean_sq = uniform_filter1d(gyro_radps**2, width, axis=0, mode="nearest")
-    std = np.sqrt(np.maximum(mean_sq - mean**2, 0.0))
-    return np.all(std < threshold_radps, axis=1)
+    return np.all(moving_std(gyro_radps, window_s, rate_hz) < threshold_radps, axis=1)
 
 
 def initial_standstill(t_s: np.ndarray, gyro_radps: np.ndarray, first_step_t_s: float,
