@@ -30,7 +30,7 @@ import numpy as np
 from scipy.ndimage import percentile_filter, uniform_filter1d
 from scipy.signal import find_peaks
 
-from dtmbnav_core.resampling import UNIFORM_SPREAD
+from dtmbnav_core.resampling import UNIFORM_SPREAD, is_uniform
 
 
 @dataclass(frozen=True)
@@ -107,7 +107,7 @@ def dynamic_acceleration(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDete
     if acc_mps2.ndim != 2 or acc_mps2.shape[1] != 3 or len(acc_mps2) != len(t_s) or len(t_s) < 2:
         raise ValueError(f"acc_mps2 must be N x 3 with N = len(t_s) >= 2, got {acc_mps2.shape} and {len(t_s)}")
     dt = np.diff(t_s)
-    if np.any(dt <= 0) or np.ptp(dt) > UNIFORM_SPREAD * dt.mean():
+    if np.any(dt <= 0) or not is_uniform(t_s):
         raise ValueError(f"t_s must increase at a uniform rate (interval spread at most {UNIFORM_SPREAD:g} of the "
                          f"mean interval, got {np.ptp(dt) / abs(dt.mean()):.3g}); resample uneven times first "
                          "(run_pdr does)")
