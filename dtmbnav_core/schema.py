@@ -47,11 +47,14 @@ GNSS_COLUMNS = ("t_s", "x_m", "y_m", "cn0_dbhz")
 #: /truth/drops (int64): the first lost sample on the receiver's clock and the file index of the first sample
 #: after the gap (both samples since the capture's first), and the samples lost.
 DROP_COLUMNS = ("receiver_sample", "capture_sample", "samples")
-#: Columns of a towers file as CSV (``towers.csv``, one row per transmitter of the network, header first): the
-#: tower's name, WGS84 latitude and longitude (deg), its antenna's height above the ellipsoid (m), the DTMB
-#: channel's centre (Hz) and the tower's fixed transmit delay of the network plan (s).
-TOWERS_CSV_COLUMNS = ("name", "lat_deg", "lon_deg", "height_m", "channel_hz", "transmit_delay_s",
-                      "transmit_delay_sigma_s")
+#: Columns of a towers file as CSV (``towers.csv``, one row per transmitter of the network, header first; the
+#: fields of its TOML form too): those every tower needs, the tower's name, WGS84 latitude and longitude (deg)
+#: and its antenna's height above the ellipsoid (m); and those it may leave out (an empty cell), the DTMB
+#: channel's centre (Hz), the tower's fixed transmit delay of the network plan (s) and that delay's standard
+#: deviation (s).
+TOWERS_CSV_REQUIRED = ("name", "lat_deg", "lon_deg", "height_m")
+TOWERS_CSV_OPTIONAL = ("channel_hz", "transmit_delay_s", "transmit_delay_sigma_s")
+TOWERS_CSV_COLUMNS = TOWERS_CSV_REQUIRED + TOWERS_CSV_OPTIONAL
 #: Further /gnss columns of an imported phone log: up (m) in the ENU frame, the stated horizontal accuracy
 #: (m), and the fix as logged (WGS84 latitude and longitude, deg; height above the ellipsoid, m).
 GNSS_GEODETIC_COLUMNS = ("z_m", "accuracy_m", "lat_deg", "lon_deg", "height_m")

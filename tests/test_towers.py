@@ -1,4 +1,4 @@
-"""The towers file of ``fuse --towers`` (``dtmbnav.towers``): reading it, choosing towers, placing them.
+"""The towers file of ``fuse --towers`` (``dtmbnav.field.towers``): reading it, choosing towers, placing them.
 
 TOML and CSV forms of one table read to the same records; any valid table written as CSV reads back
 equal (a property test); ``fuse --towers`` hands the chosen towers, in the sensors file's ENU frame,
@@ -21,7 +21,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from dtmbnav.cli import EXIT_BAD_INPUT, EXIT_OK, main
-from dtmbnav.towers import FIELDS, HEIGHT_RANGE_M, MAX_TRANSMIT_DELAY_S, Tower, choose_towers, read_towers
+from dtmbnav.field.towers import HEIGHT_RANGE_M, MAX_TRANSMIT_DELAY_S, Tower, choose_towers, read_towers
 from dtmbnav_core import schema
 from dtmbnav_core.h5io import read_attrs, read_columns
 from dtmbnav_core.sensors import read_tower
@@ -107,10 +107,10 @@ _TABLES = st.lists(_NAME, min_size=1, max_size=6, unique=True).flatmap(
 def test_any_valid_table_written_as_csv_reads_back_equal(tmp_path_factory, towers):
     out = io.StringIO()
     writer = csv.writer(out)
-    writer.writerow(FIELDS)
+    writer.writerow(schema.TOWERS_CSV_COLUMNS)
     for tower in towers:
         writer.writerow([tower.name, *("" if v is None else repr(v) for v in
-                                       (getattr(tower, field) for field in FIELDS[1:]))])
+                                       (getattr(tower, field) for field in schema.TOWERS_CSV_COLUMNS[1:]))])
     path = _write(tmp_path_factory.mktemp("csv") / "towers.csv", out.getvalue())
     assert read_towers(path) == towers
 
@@ -191,7 +191,7 @@ def _fuse_arguments(tmp_path, monkeypatch, capsys, *extra: str, carrier_hz: floa
         seen.update(kwargs)
         raise ValueError("stop here")
 
-    monkeypatch.setattr("dtmbnav.chain.fuse_files", fake_fuse)
+    monkeypatch.setattr("dtmbnav.chain.fuse.fuse_files", fake_fuse)
     sensors = _sensors_with_origin(tmp_path / "sensors.h5")
     rx = _receiver_on(tmp_path / "rx.h5", carrier_hz)
     code = main(["-q", "fuse", "--receiver", str(rx), "--sensors", str(sensors), "-o", str(tmp_path / "f.h5"),
