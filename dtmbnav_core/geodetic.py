@@ -3,17 +3,21 @@
 The project's ENU frame (x east, y north, z up, m; ``docs/conventions.md``) is the tangent plane at a
 geodetic origin: an imported phone log's first fix (or one given), a simulated scenario's
 ``[origin]``. The conversions are pure functions, shared by the simulator (which writes the walk's
-fixes and the towers as latitude and longitude) and the real-data path (which reads them back);
-:mod:`dtmbnav.geodetic` adds the file and command-line helpers.
+fixes and the towers as latitude and longitude) and the real-data path (which reads them back), with
+the helpers of files and command lines: ``LAT,LON[,H]`` parsed, a sensors file's origin read, a tower
+given by latitude and longitude put into a sensors file's frame (``fuse --tower-ll``).
 """
 
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
 import pymap3d
+
+from dtmbnav_core.sensors import read_geodetic_origin
 
 
 @dataclass(frozen=True)
@@ -78,3 +82,48 @@ def to_geodetic(east_m: np.ndarray, north_m: np.ndarray, up_m: np.ndarray | floa
     the height)."""
     lat, lon, _ = to_lat_lon_height(east_m, north_m, up_m, origin)
     return lat, lon
+
+
+def parse_point(text: str) -> GeodeticPoint:
+    """``LAT,LON`` or ``LAT,LON,HEIGHT_M`` (deg, deg, m above the ellipsoid; the height None when not given);
+    ValueError naming what is wrong."""
+    parts = text.split(",")
+    if len(parts) not in (2, 3):
+        raise ValueError(f"expected LAT,LON[,HEIGHT_M], got {text!r}")
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise ValueError(f"expected LAT,LON[,HEIGHT_M] as numbers, got {text!r}") from None
+    return GeodeticPoint(*values)
+
+
+def read_origin(path: str | os.PathLike) -> GeodeticPoint | None:
+    """The geodetic origin of a sensors or results file's ENU frame (:func:`read_geodetic_origin`), None without."""
+    origin = read_geodetic_origin(path)
+    return None if origin is None else GeodeticPoint(*origin)
+
+
+def tower_in_sensors_frame(sensors_path: str | os.PathLike, tower: GeodeticPoint) -> tuple[float, float, float]:
+    """A tower given by latitude and longitude in the ENU frame of a sensors file.
+
+    Returns
+    -------
+    x_m, y_m : float
+        East and north of the tower about the file's origin, m.
+    height_m : float
+        The tower antenna's height above the receiver's antenna, m: its up coordinate (the origin is the
+        phone's first fix, so its height is the antenna's) when the tower's height is given, else 0 (as
+        ``--tower X,Y``).
+
+    Raises
+    ------
+    ValueError
+        The file has no geodetic origin (not an imported phone log).
+    """
+    origin = read_origin(sensors_path)
+    if origin is None:
+        raise ValueError(f"{sensors_path}: no geodetic origin (/gnss attributes origin_lat_deg, origin_lon_deg, "
+                         "origin_height_m, written by 'dtmbnav sensors'); give the tower in its frame with --tower X,Y")
+    height = tower.height_m if tower.height_m is not None else origin.height_m
+    east, north, up = to_enu(np.array([tower.lat_deg]), np.array([tower.lon_deg]), np.array([height]), origin)
+    return float(east[0]), float(north[0]), float(up[0]) if tower.height_m is not None else 0.0

@@ -1,7 +1,7 @@
 """What a phone's own log means: its clock against another's, and the accuracy it states for a fix.
 
 The simulator writes a walk as a phone app would (``sim/phone_log_writer.py``) and ``dtmbnav sensors``
-reads such logs back (``dtmbnav/sensors_import.py``); both take these definitions from here.
+reads such logs back (``dtmbnav/field/sensors_import.py``); both take these definitions from here.
 
 Clock model. A phone stamps its samples on its own oscillator. Against a reference clock (the capture's,
 whose first sample has a known UTC time) it is off by a constant offset at the log's start and runs

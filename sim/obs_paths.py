@@ -60,7 +60,7 @@ Each carries its code range difference: the two first paths' delays less the
 towers' transmit delay offsets (known, as the simulated network plan is), each
 with its own code error, the clock cancelling here too.
 The model is checked against the IQ receiver on the same walks by
-``dtmbnav/obs_vs_iq.py``.
+``dtmbnav/evaluation/obs_vs_iq.py``.
 """
 
 from __future__ import annotations

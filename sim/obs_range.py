@@ -129,7 +129,7 @@ class ObsRangeConfig:
         How far the receiver's SI carriers fall below the channel's power,
         dB: the IQ receiver's per-frame phase steps are as noisy as a channel
         this much weaker would make them (the calibration against the IQ
-        receiver, ``dtmbnav/obs_vs_iq.py``).
+        receiver, ``dtmbnav/evaluation/obs_vs_iq.py``).
     calibration_guard_s : float
         End the f_s calibration this long before the walker starts, s.
     noise_draw : int

@@ -5,6 +5,11 @@ file schema and its readers) is the bottom layer and imports nothing of the
 project; ``receiver``, ``sim`` and ``fusion`` stand on it and never on each
 other; only ``dtmbnav`` wires them. The real-data path (receive, fuse,
 report) must work without the simulator, so it must not import it.
+
+``dtmbnav`` itself is in rooms, each a package: the command line on top, then
+the research harness, the simulator's wiring, the processing chain on files and
+the field formats at the bottom. A room imports only the rooms below it; no
+module of ``dtmbnav`` lives outside a room.
 """
 
 from __future__ import annotations
@@ -30,6 +35,10 @@ FOUNDATION = "dtmbnav_core"
 STAGES = ("receiver", "sim", "fusion")
 APPLICATION = "dtmbnav"
 PACKAGES = (FOUNDATION, *STAGES, APPLICATION)
+#: The application's rooms, top to bottom: each may import itself and the rooms after it.
+ROOMS = ("cli", "evaluation", "simulation", "chain", "field")
+#: No module of the application is longer than this, lines.
+MAX_APPLICATION_MODULE_LINES = 600
 CAPTURES = ROOT / "captures"
 
 
@@ -123,6 +132,48 @@ def test_stage_packages_import_only_the_foundation_and_themselves(graph, package
         if name.split(".")[0] == package:
             wrong = top_packages(imports) - {FOUNDATION, package}
             assert not wrong, f"{name} imports {sorted(wrong)}"
+
+
+def room_of(module: str) -> str | None:
+    """The room of an application module (``dtmbnav.ROOM...``), None for the package itself."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else None
+
+
+def room_violations(graph: dict[str, set[str]], rooms: tuple[str, ...] = ROOMS) -> list[str]:
+    """Every import of an application module that points at its own room's superior or at no room, as text."""
+    wrong = []
+    for name, imports in sorted(graph.items()):
+        if name.split(".")[0] != APPLICATION or room_of(name) is None:
+            continue
+        if room_of(name) not in rooms:
+            wrong.append(f"{name} is in no room (rooms: {', '.join(rooms)})")
+            continue
+        allowed = set(rooms[rooms.index(room_of(name)):])
+        for target in sorted(imports):
+            if target.split(".")[0] == APPLICATION and room_of(target) is not None and room_of(target) not in allowed:
+                wrong.append(f"{name} imports {target}: an arrow up")
+    return wrong
+
+
+def test_the_application_is_in_rooms_and_its_arrows_point_down(graph):
+    assert room_violations(graph) == []
+
+
+def test_no_application_module_outside_a_room():
+    loose = sorted(p.name for p in (ROOT / APPLICATION).glob("*.py") if p.name != "__init__.py")
+    assert loose == []
+    for room in ROOMS:
+        init = ROOT / APPLICATION / room / "__init__.py"
+        assert init.exists() and ast.get_docstring(ast.parse(init.read_text())), f"{room} needs a docstring"
+
+
+def test_the_room_check_sees_an_arrow_up_and_a_module_without_a_room():
+    graph = {"dtmbnav.field.towers": {"dtmbnav.chain.files"}, "dtmbnav.chain.files": {"dtmbnav.field.towers"},
+             "dtmbnav.cli.main": {"dtmbnav.evaluation.bench", "dtmbnav_core.schema"}, "dtmbnav.loose": set(),
+             "dtmbnav": set()}
+    assert room_violations(graph) == ["dtmbnav.field.towers imports dtmbnav.chain.files: an arrow up",
+                                      "dtmbnav.loose is in no room (rooms: cli, evaluation, simulation, chain, field)"]
 
 
 def test_no_import_cycles(graph):

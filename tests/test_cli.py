@@ -62,7 +62,7 @@ def test_simulate_walk_is_the_evaluated_walk(tmp_path):
     """``--walk K`` writes the walk ``dtmbnav evaluate`` runs as Monte Carlo index K: its seed and its own layout."""
     import tomllib
 
-    from dtmbnav.evaluate import seed_scenario
+    from dtmbnav.evaluation.evaluate import seed_scenario
     from sim.scenario import load_scenario, scenario_from_dict
 
     assert main(["-q", "simulate", TINY, "--no-iq", "--walk", "203", "-o", str(tmp_path)]) == EXIT_OK
@@ -347,15 +347,15 @@ def test_ctrl_c_on_an_idle_pipe_stops_at_once_and_leaves_nothing(tmp_path, monke
 @in_main_thread
 def test_sigterm_mid_fuse_leaves_nothing(tiny_results, tiny_walk_truth, tmp_path, monkeypatch, capsys):
     """SIGTERM is handled like SIGINT: the atomic writer removes its partial file, exit 143."""
-    import dtmbnav.chain
+    import dtmbnav.chain.fuse
 
-    write_fusion = dtmbnav.chain.write_fusion
+    write_fusion = dtmbnav.chain.fuse.write_fusion
 
     def terminated_while_writing(h5, result):
         write_fusion(h5, result)
         os.kill(os.getpid(), signal.SIGTERM)
 
-    monkeypatch.setattr(dtmbnav.chain, "write_fusion", terminated_while_writing)
+    monkeypatch.setattr(dtmbnav.chain.fuse, "write_fusion", terminated_while_writing)
     code = main(["-q", "fuse", "--receiver", str(tiny_results), "--sensors", str(tiny_walk_truth),
                  "-o", str(tmp_path / "fused.h5"), "--filters", "ukf"])
     assert code == 143
@@ -428,7 +428,7 @@ def test_unwritable_numba_cache_falls_back_to_a_writable_folder(tmp_path):
 
 def test_no_writable_folder_at_all_means_no_numba_cache(tmp_path):
     env = _unwritable_cache_tree(tmp_path)
-    script = ("import dtmbnav.numba_cache as m; m.fallback_cache_folders = lambda environ: []; "
+    script = ("import dtmbnav.cli.numba_cache as m; m.fallback_cache_folders = lambda environ: []; "
               "print(m.configure_numba_cache()); import receiver.pipeline; "
               "from receiver.cfo import si_phase_kernel; print(si_phase_kernel._cache.__class__.__name__)")
     run = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env=env, capture_output=True, text=True,
@@ -438,7 +438,7 @@ def test_no_writable_folder_at_all_means_no_numba_cache(tmp_path):
 
 
 def test_cache_folder_choice(tmp_path):
-    from dtmbnav.numba_cache import choose_cache_folder
+    from dtmbnav.cli.numba_cache import choose_cache_folder
 
     blocker = tmp_path / "blocker"
     blocker.write_text("a file")

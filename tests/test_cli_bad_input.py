@@ -189,14 +189,14 @@ def _boom(*args, **kwargs):
 
 @case(EXIT_INTERNAL)
 def cli_internal_error_is_one_line(ctx):
-    ctx.monkeypatch.setattr("dtmbnav.chain.run_pdr", _boom)
+    ctx.monkeypatch.setattr("dtmbnav.chain.pdr.run_pdr", _boom)
     return ["-q", "pdr", str(ctx.sim / "truth.h5"), "-o", ctx.o()], ["internal error", "RuntimeError", "boom",
                                                                      "--debug"]
 
 
 @case(EXIT_INTERNAL)
 def cli_debug_shows_the_traceback(ctx):
-    ctx.monkeypatch.setattr("dtmbnav.chain.run_pdr", _boom)
+    ctx.monkeypatch.setattr("dtmbnav.chain.pdr.run_pdr", _boom)
     return ["pdr", str(ctx.sim / "truth.h5"), "-o", ctx.o(), "--debug", "-q"], ["Traceback", "_boom",
                                                                                "internal error"]
 

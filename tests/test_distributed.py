@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
-from dtmbnav import evaluate as ev
+from dtmbnav.evaluation import evaluate as ev
 from dtmbnav.cli import EXIT_NO_RESULT, EXIT_OK, main
-from dtmbnav.distributed import IN_PROCESS, ClusterConfig, Task, run_tasks
+from dtmbnav.evaluation.distributed import IN_PROCESS, ClusterConfig, Task, run_tasks
 from fusion.run import FusionConfig
 
 TINY = str(Path(__file__).parent / "data" / "tiny-walk.toml")

@@ -5,9 +5,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtmbnav import evaluate as ev
+from dtmbnav.evaluation import evaluate as ev
 from dtmbnav.cli import EXIT_OK, main
-from dtmbnav.iq_range import iq_observations, iq_ranges
+from dtmbnav.simulation.iq_range import iq_observations, iq_ranges
 from fusion.run import FusionConfig
 from sim.walk import simulate_walk
 
@@ -72,7 +72,7 @@ def test_iq_level_hands_the_first_path_to_the_fusion():
 
 
 def test_iq_source_is_the_level_source():
-    assert ev.level_range_source("iq").__module__ == "dtmbnav.iq_range"
+    assert ev.level_range_source("iq").__module__ == "dtmbnav.simulation.iq_range"
     assert ev.level_range_source("obs") is ev.obs_range_source
     with pytest.raises(ValueError, match="level"):
         ev.level_range_source("rf")

@@ -17,7 +17,7 @@ import h5py
 import pytest
 
 from dtmbnav.cli import EXIT_OK, main
-from dtmbnav.field_check import p95_errors_m
+from dtmbnav.evaluation.field_check import p95_errors_m
 from dtmbnav_core import schema
 from sim.scenario import load_scenario
 

@@ -1,11 +1,11 @@
-"""Real SDR front ends end to end (dtmbnav.frontends): a drifting crystal, a zero-IF front end's leakage and
+"""Real SDR front ends end to end (dtmbnav.evaluation.frontends): a drifting crystal, a zero-IF front end's leakage and
 I/Q imbalance, and dropped samples, each received against the same walk through an ideal front end or the
-simulator's truth. Short walks; ``python -m dtmbnav.frontends`` prints the full tables."""
+simulator's truth. Short walks; ``python -m dtmbnav.evaluation.frontends`` prints the full tables."""
 
 import numpy as np
 import pytest
 
-from dtmbnav.frontends import (MAX_LOW_QUALITY, TOLERANCE, FrontEndScore, drop_case, failures, ideal_front_end,
+from dtmbnav.evaluation.frontends import (MAX_LOW_QUALITY, TOLERANCE, FrontEndScore, drop_case, failures, ideal_front_end,
                                receive_walk)
 from sim.scenario import load_scenario
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from fusion_synth import make_pdr, polyline_truth
 
-from dtmbnav import evaluate as ev
+from dtmbnav.evaluation import evaluate as ev
 from fusion.metrics import error_stats, interpolate_track, place_pdr, position_errors_m, true_initial_heading_rad
 from fusion.run import FusionConfig
 

@@ -281,7 +281,7 @@ def test_default_epochs_have_no_path_columns():
     np.testing.assert_array_equal(copy.interval_s, epochs.interval_s)
 
 
-# --- the receiver file's path columns -> PathRanges (dtmbnav.chain) ---------------------------
+# --- the receiver file's path columns -> PathRanges (dtmbnav.chain.inputs) ---------------------------
 
 @pytest.mark.parametrize("name", ["pf", "ukf"])
 def test_a_code_range_difference_takes_out_the_fix_error_along_the_hyperbola(name):
@@ -417,9 +417,9 @@ def test_the_first_path_code_range_is_the_range_up_to_a_constant_on_a_drifting_c
 
 def test_the_sensors_file_gives_every_towers_height_above_the_antenna(tmp_path):
     """``dtmbnav fuse`` reads an SFN's further towers like the first: height above the receiver's antenna."""
-    from dtmbnav.chain import read_other_towers
+    from dtmbnav.chain.inputs import read_other_towers
     from dtmbnav_core.sensors import read_tower
-    from dtmbnav.simulation import simulate_capture_set
+    from dtmbnav.simulation.capture_set import simulate_capture_set
     from sim.scenario import load_scenario
 
     scn = load_scenario("sfn-park")

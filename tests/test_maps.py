@@ -21,9 +21,9 @@ import pymap3d
 import pytest
 
 from dtmbnav.cli import EXIT_OK, main
-from dtmbnav.maps import (GEOJSON_NAME, GPX_NAME, HTML_NAME, KIND_FILTER, KIND_FIX, KIND_PDR, KIND_TOWER,
+from dtmbnav.field.maps import (GEOJSON_NAME, GPX_NAME, HTML_NAME, KIND_FILTER, KIND_FIX, KIND_PDR, KIND_TOWER,
                           KIND_TRUTH)
-from dtmbnav.report import NO_MAP_NOTE
+from dtmbnav.chain.report import NO_MAP_NOTE
 from dtmbnav_core import schema
 from dtmbnav_core.h5io import atomic_h5, read_attrs, read_columns, write_columns
 from dtmbnav_core.records import PdrSteps

@@ -15,8 +15,8 @@ import pytest
 from fusion_synth import polyline_truth
 
 from dtmbnav_core.records import PathRangeSeries, RangeSeries
-from dtmbnav.obs_vs_iq import AGREEMENT, CASES, code_errors, compare, range_errors
-from dtmbnav.seeds import REPORTING_SEEDS
+from dtmbnav.evaluation.obs_vs_iq import AGREEMENT, CASES, code_errors, compare, range_errors
+from dtmbnav.evaluation.seeds import REPORTING_SEEDS
 from sim.scenario import load_scenario
 
 STILL_S = 2.0

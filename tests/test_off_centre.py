@@ -18,7 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dtmbnav.accuracy import match_truth
+from dtmbnav.evaluation.accuracy import match_truth
 from dtmbnav.cli import EXIT_OK, EXIT_USAGE, main
 from dtmbnav_core import schema
 from dtmbnav_core.h5io import read_columns

@@ -19,7 +19,7 @@ import pytest
 from conftest import TINY_WALK
 
 from dtmbnav.cli import EXIT_OK, EXIT_USAGE, main
-from dtmbnav.phone_logs import read_phone_log
+from dtmbnav.field.phone_logs import read_phone_log
 from dtmbnav_core import schema
 from dtmbnav_core.geodetic import to_enu
 from dtmbnav_core.phone import PHONE_LOG_FORMATS, PhoneClock

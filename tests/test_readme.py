@@ -12,7 +12,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from dtmbnav import results
+from dtmbnav.evaluation import results
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"

@@ -6,13 +6,13 @@ a park-loop segment (line of sight, C/N 15 dB, GNSS-disciplined clock) the
 radial velocity and the integrated range, SI carriers and first path, meet the
 brief's accuracy; on an sfn-park segment (two towers, free-running TCXO) the
 tower-differenced range does. The 60 s and whole-walk figures come from
-``python -m dtmbnav.accuracy``.
+``python -m dtmbnav.evaluation.accuracy``.
 """
 
 import h5py
 import numpy as np
 import pytest
-from dtmbnav.accuracy import accuracy, match_truth, path_accuracy, run_capture
+from dtmbnav.evaluation.accuracy import accuracy, match_truth, path_accuracy, run_capture
 
 from dtmbnav_core.records import FrameFlag
 from receiver.capture import open_capture

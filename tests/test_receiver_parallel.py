@@ -262,7 +262,7 @@ def test_receive_path_imports_only_the_receiver():
 
     (``import numba`` loads the top-level ``scipy`` package itself; its subpackages are what cost.)
     """
-    code = ("import sys, dtmbnav.cli, dtmbnav.receive, receiver.pipeline; "
+    code = ("import sys, dtmbnav.cli, dtmbnav.chain.receive, receiver.pipeline; "
             "print(' '.join(m for m in sys.modules if m.split('.')[0] in ('sim', 'matplotlib', 'pyfftw', 'dask') "
             "or m.startswith('fusion.') or m.startswith('scipy.') and m.split('.')[1] in "
             "('signal', 'fft', 'fftpack', 'linalg', 'stats', 'interpolate', 'ndimage', 'spatial', 'optimize')))")

@@ -4,14 +4,14 @@ and narrowband (RTL-SDR) rates.
 Each test builds the impairment into a simulated capture (sim.rf) or a
 symbol-rate test signal and checks the receiver's output against the truth.
 The narrowband figures over 40 s of walking come from
-``python -m dtmbnav.accuracy --narrowband``; here a few seconds.
+``python -m dtmbnav.evaluation.accuracy --narrowband``; here a few seconds.
 """
 
 from dataclasses import replace
 
 import numpy as np
 import pytest
-from dtmbnav.accuracy import accuracy, match_truth, run_capture
+from dtmbnav.evaluation.accuracy import accuracy, match_truth, run_capture
 from receiver_signals import make_signal
 
 from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ
@@ -196,7 +196,7 @@ def test_narrowband_capture_ranges_like_a_wideband_one():
     """An RTL-SDR's 2.4 Msps: 2 s standing (f_s over 1.5 s) then 3 s of walking; the issue's accuracy targets.
 
     Velocity RMSE of 1 s means <= 0.05 m/s and range 95 % <= 0.5 m, which the 40 s walks at 2.048, 2.4
-    and 3.2 Msps meet by a wide margin (README, ``python -m dtmbnav.accuracy --narrowband``); over
+    and 3.2 Msps meet by a wide margin (README, ``python -m dtmbnav.evaluation.accuracy --narrowband``); over
     3 s the range error has less time to grow. (Every narrowband rate is received in
     tests/test_receiver_rates.py.)
     """

@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dtmbnav import results
-from dtmbnav.evaluate import EvaluationRow
-from dtmbnav.seeds import BURNED_SEEDS, REPORTING_SEEDS
-from dtmbnav.report import RANGE_CHANNELS, direct_path_ranges, plot_ranges, true_channel_m
+from dtmbnav.evaluation import results
+from dtmbnav.evaluation.evaluate import EvaluationRow
+from dtmbnav.evaluation.seeds import BURNED_SEEDS, REPORTING_SEEDS
+from dtmbnav.chain.report import RANGE_CHANNELS, direct_path_ranges, plot_ranges, true_channel_m
 
 
 def _rows(scenario: str, level: str, pf_95: float, seeds: int = 2) -> list[EvaluationRow]:

@@ -1,6 +1,6 @@
 """``dtmbnav results --check``: the printed figures read back, a short re-run compared with them.
 
-The parser must read exactly what :mod:`dtmbnav.results` writes (a round
+The parser must read exactly what :mod:`dtmbnav.evaluation.results` writes (a round
 trip through the writer), the check must pass where the re-run walks give
 the printed figures again and fail, naming the row, where the file claims
 better figures than the walks give by more than their spread; it must never
@@ -17,10 +17,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from dtmbnav import results, results_check
+from dtmbnav.evaluation import results, results_check
 from dtmbnav.cli import EXIT_BAD_INPUT, EXIT_NO_RESULT, EXIT_OK, EXIT_USAGE, main
-from dtmbnav.evaluate import RunSettings, SeedResult, summarise, walk_record
-from dtmbnav.seeds import TUNING_SEEDS, monte_carlo_seed
+from dtmbnav.evaluation.evaluate import RunSettings, SeedResult, summarise, walk_record
+from dtmbnav.evaluation.seeds import TUNING_SEEDS, monte_carlo_seed
 from fusion import FILTER_NAMES
 
 #: The campaign the tests print and check: a few exact-range walks of one scenario on the tuning range.
@@ -40,7 +40,7 @@ def campaign() -> tuple[list, list[dict[str, object]]]:
 def _printed(rows: list, walks: list[dict[str, object]], per_walk: bool = True,
              scenarios: tuple[str, ...] = (SCENARIO,), level: str = "exact", first_seed: int = CONFIG.first_seed
              ) -> str:
-    """The results file :mod:`dtmbnav.results` prints from these rows and walks (one ``fusion-exact`` section)."""
+    """The results file :mod:`dtmbnav.evaluation.results` prints from these rows and walks (one ``fusion-exact`` section)."""
     seeds = len(walks) // len(scenarios)
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(results, "fusion_walks", lambda *args: (rows, walks, 60.0))
@@ -70,7 +70,7 @@ def _printed_verdicts(out: str) -> dict[str, str]:
 
 @st.composite
 def campaigns(draw) -> tuple[list, list[dict[str, object]], int]:
-    """Rows and walk records of a drawn campaign (:func:`dtmbnav.evaluate.summarise` and ``walk_record`` of drawn
+    """Rows and walk records of a drawn campaign (:func:`dtmbnav.evaluation.evaluate.summarise` and ``walk_record`` of drawn
     errors), and its first Monte Carlo index."""
     scenarios = draw(st.lists(st.sampled_from(results.FUSION_SCENARIOS), min_size=1, max_size=2, unique=True))
     filters = draw(st.lists(st.sampled_from(FILTER_NAMES), max_size=len(FILTER_NAMES), unique=True))

@@ -14,7 +14,7 @@ import pytest
 from conftest import TINY_WALK
 from receiver_signals import SignalPath, frame_start_samples, make_paths_signal
 
-from dtmbnav.accuracy import direct_range_m
+from dtmbnav.evaluation.accuracy import direct_range_m
 from dtmbnav_core import gb20600
 from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
 from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ, PnMode

@@ -1,4 +1,4 @@
-"""Capture-to-phone time alignment (fusion/time_alignment.py; dtmbnav.chain's coarse/fine choice)."""
+"""Capture-to-phone time alignment (fusion/time_alignment.py; dtmbnav.chain.fuse's coarse/fine choice)."""
 
 from __future__ import annotations
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from fusion_synth import exact_paths, park_like_walk
 
-from dtmbnav.evaluate import load_evaluation_scenario, scenario_transmit_delays, with_transmit_delays
+from dtmbnav.evaluation.evaluate import load_evaluation_scenario, scenario_transmit_delays, with_transmit_delays
 from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
 from fusion.observations import aggregate_paths, epoch_times
 from fusion.run import FusionConfig

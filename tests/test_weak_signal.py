@@ -1,5 +1,5 @@
-"""Weak signals (dtmbnav.weak_signal): the table's rows and format, and the tiny walk received above and below
-the C/N at which the receiver can lock. ``python -m dtmbnav.weak_signal`` prints the full table."""
+"""Weak signals (dtmbnav.evaluation.weak_signal): the table's rows and format, and the tiny walk received above and below
+the C/N at which the receiver can lock. ``python -m dtmbnav.evaluation.weak_signal`` prints the full table."""
 
 from pathlib import Path
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from fusion_synth import exact_paths, exact_ranges, park_like_walk
 
-from dtmbnav.weak_signal import (MAX_PF_OVER_FIX, WeakSignalWalk, per_walk_table, run_case, summarise,
+from dtmbnav.evaluation.weak_signal import (MAX_PF_OVER_FIX, WeakSignalWalk, per_walk_table, run_case, summarise,
                                  weak_signal_table)
 from dtmbnav_core.records import RangeSeries, Track
 from fusion import DEFAULT_SI_RANGE_USE

@@ -7,7 +7,7 @@ true step count, mean step length vs truth, and the heading drift (slope of a
 straight-line fit of the heading error over the walk, deg/min).
 
 ``dtmbnav evaluate --pdr [SCENARIO ...]`` prints these for the reference
-walks (:mod:`dtmbnav.pdr_table`).
+walks (:mod:`dtmbnav.evaluation.pdr_table`).
 """
 
 from __future__ import annotations

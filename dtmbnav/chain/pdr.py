@@ -1,0 +1,57 @@
+"""``dtmbnav pdr``'s work: a sensors file's ``/imu`` in, ``/pdr`` and ``/pdr/track`` out (atomically)."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import h5py
+import numpy as np
+
+from dtmbnav.chain.inputs import read_checked_imu
+from dtmbnav_core import schema
+from dtmbnav_core.h5io import atomic_h5, write_columns
+from dtmbnav_core.sensors import read_has_magnetometer, read_weinberg_k_m
+from fusion.pdr import PdrConfig, PdrResult, run_pdr
+from receiver.writer import write_csv
+
+
+def resolve_pdr_config(config: PdrConfig, sensors_path: str | os.PathLike) -> PdrConfig:
+    """The PDR settings a sensors file needs: its Weinberg gain, and no magnetometer where it has none.
+
+    A file without a calibrated gain falls back to the linear step-frequency
+    model, which needs no calibration (docs/method.md §3), when the user gave
+    no gain. A file whose log had no magnetometer (``has_magnetometer``
+    False) gets the attitude from the gyro and accelerometer alone, whatever
+    the settings say: the zeros that stand in for the magnetometer would
+    otherwise be taken for a field.
+    """
+    if not read_has_magnetometer(sensors_path) and config.attitude.use_magnetometer:
+        config = dataclasses.replace(config, attitude=dataclasses.replace(config.attitude, use_magnetometer=False))
+    if config.step_model != "weinberg" or config.weinberg_k_m is not None:
+        return config
+    k_m = read_weinberg_k_m(sensors_path)
+    if k_m is None:
+        return dataclasses.replace(config, step_model="frequency")
+    return dataclasses.replace(config, weinberg_k_m=k_m)
+
+
+def write_pdr(h5: h5py.File, result: PdrResult, config: PdrConfig) -> None:
+    """Write ``/pdr`` (per step) and ``/pdr/track`` (resampled)."""
+    attrs = {"step_model": config.step_model, "weinberg_k_m": config.weinberg_k_m or np.nan,
+             "frame": "PDR frame: starts at (0, 0), heading relative to the initial one"}
+    write_columns(h5, schema.PDR, result.steps, attrs)
+    write_columns(h5, schema.PDR_TRACK, result.track, {"rate_hz": config.output_rate_hz})
+
+
+def run_pdr_file(sensors_path: str | os.PathLike, out_path: str | os.PathLike, config: PdrConfig,
+                 csv_path: str | None = None) -> PdrResult:
+    """``dtmbnav pdr``: PDR on the ``/imu`` of a file, written to ``out_path`` (and the steps to ``csv_path``)."""
+    imu = read_checked_imu(sensors_path)
+    config = resolve_pdr_config(config, sensors_path)
+    result = run_pdr(imu, config)
+    with atomic_h5(out_path) as h5:
+        write_pdr(h5, result, config)
+        if csv_path is not None:  # inside: a failing CSV leaves no HDF5 file either
+            write_csv(csv_path, result.steps.columns())
+    return result

@@ -1,0 +1,67 @@
+"""The ``receive`` command's work: one capture in, ``/receiver/frames`` out, and a summary.
+
+Kept apart from :mod:`dtmbnav.chain.fuse` so that ``dtmbnav receive`` imports the
+receiver only (no fusion, no simulator, no plotting): its start-up is part of
+every run's time.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+from dtmbnav_core.schema import ENDED_EARLY_ATTR
+from receiver.capture import CaptureSource
+from receiver.pipeline import ReceiverConfig, receive_file
+
+
+@dataclass(frozen=True)
+class ReceiveSummary:
+    """What one receiver run found (for the command line's diagnostics).
+
+    Attributes
+    ----------
+    frames : int
+        Frames written.
+    attrs : dict
+        The ``/receiver/frames`` attributes (mode, SI word, f_s, ...).
+    gaps : int
+        Frames flagged as the first after a loss of lock.
+    seconds : float
+        Span of the frames, s.
+    ended_early : str or None
+        Why the input ended before its end (an interrupt, a stream cut inside an IQ pair), None when it did not.
+    path_rows : int
+        Rows written to ``/receiver/paths``.
+    """
+
+    frames: int
+    attrs: dict
+    gaps: int
+    seconds: float
+    ended_early: str | None = None
+    path_rows: int = 0
+
+    def describe(self) -> str:
+        if not self.frames:
+            return "no lock: no DTMB signal found in the capture (no frames)"
+        a = self.attrs
+        text = (f"{self.frames} frames over {self.seconds:.1f} s, {a.get('pn_mode')}, SI word {a.get('si_index')}, "
+                f"f_s = {a.get('clock_offset_hz', float('nan')):.2f} Hz, {self.gaps} gap(s)")
+        if a.get("path_tracking"):
+            text += f", {self.path_rows} path rows"
+        return text
+
+
+def receive_capture(source: CaptureSource, out_path: str | os.PathLike, config: ReceiverConfig,
+                    csv_path: str | None = None, progress: bool = True,
+                    carrier_hz: float | None = None) -> ReceiveSummary:
+    """Receive a capture into ``out_path`` (``/receiver/frames``) and summarise it.
+
+    ``carrier_hz`` is the DTMB channel's centre, Hz (default: the capture's
+    centre plus ``config.channel_offset_hz``).
+    """
+    sink, attrs = receive_file(source, out_path, config, csv_path=csv_path, progress=progress, carrier_hz=carrier_hz)
+    span = sink.last_t_s - sink.first_t_s if sink.frames else 0.0
+    return ReceiveSummary(frames=sink.frames, attrs=attrs, gaps=sink.gaps, seconds=span,
+                          ended_early=attrs.get(ENDED_EARLY_ATTR), path_rows=sink.paths)

@@ -1,0 +1,151 @@
+"""``dtmbnav receive``: IQ capture -> per-frame CFO, Doppler, range (HDF5): its options and its handler."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+from dtmbnav.cli import options
+from dtmbnav.cli.exits import EXIT_NO_RESULT, EXIT_OK, UsageError
+from dtmbnav.cli.paths import IoPaths, given_paths
+from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH
+
+
+def add_parser(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``dtmbnav receive`` and its options."""
+    p = options.command_parser(subparsers, common, "receive", "IQ capture -> per-frame CFO, Doppler, range (HDF5)")
+    p.add_argument("capture", help="SigMF .sigmf-meta/.sigmf-data, raw file (+ .json sidecar), or - for stdin")
+    p.add_argument("-o", "--output", required=True, type=Path, help="output HDF5 file")
+    p.add_argument("--format", choices=options.IQ_FORMATS, help="sample format of a raw file/stdin")
+    p.add_argument("--rate", type=options.positive, help="sample rate of a raw file/stdin, Hz")
+    p.add_argument("--center", type=options.positive, help="RF centre frequency, Hz (needed for velocity and range)")
+    p.add_argument("--channel", type=options.positive, metavar="HZ",
+                   help="centre of the DTMB channel, Hz, for a capture tuned beside it (default: the channel the "
+                        "capture's metadata records, else its centre frequency)")
+    p.add_argument("--start-time", type=options.utc_time, metavar="ISO8601",
+                   help="UTC time of the capture's first sample, e.g. 2026-12-05T10:00:00.250Z, for a capture "
+                        "that does not record it (a raw file): fuse aligns the phone's log with it")
+    p.add_argument("--csv", metavar="FILE", help="also write the frame table as CSV ('-' for stdout)")
+    p.add_argument("--jobs", type=options.positive_int, default=1, metavar="N",
+                   help="threads for the per-frame work, the next batch's run ahead of the current one's "
+                        "sequential update (default 1); the output is the same for any N")
+    p.add_argument("--doppler-check", action="store_true",
+                   help="move the first path to the Doppler line whose earliest path comes first (off by default: "
+                        "it helped the street walk it was set on and hurt held-out ones; docs/paths.md)")
+    p.add_argument("--clock-path", choices=CLOCK_PATHS, default=DEFAULT_CLOCK_PATH,
+                   help="measure the path ranges' f_s at the standstill on the first path or on the path whose "
+                        f"phase is steadiest there (default {DEFAULT_CLOCK_PATH}; docs/paths.md)")
+    p.add_argument("--dump", metavar="FILE", type=Path,
+                   help="also write the stages' intermediate outputs, one row per frame, to an HDF5 file")
+    p.add_argument("--dump-stages", metavar="LIST",
+                   help="stages to dump, comma-separated from channel, tracking, body, ofdm, paths (default "
+                        "channel,tracking,paths; body is 30 kB a frame)")
+    p.add_argument("--dump-window", metavar="START:STOP", type=options.seconds_window,
+                   help="dump only the frames within these capture seconds")
+    options.add_receiver_options(p)
+    p.set_defaults(handler=run, io_paths=io_paths, usage_problem=usage_problem)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``dtmbnav receive``; its exit code."""
+    from dtmbnav.chain.receive import receive_capture
+    from receiver.capture import MissingCaptureOptions, open_capture
+
+    try:
+        source = open_capture(args.capture, sample_format=args.format, sample_rate_hz=args.rate,
+                              center_hz=args.center)
+    except MissingCaptureOptions as exc:
+        raise UsageError(f"{exc} (--format, --rate)") from None
+    if source.center_hz is None:
+        raise UsageError(f"{args.capture}: the capture does not say its RF centre frequency; give --center")
+    if args.start_time is not None:
+        if source.start_utc_unix_ns is not None and source.start_utc_unix_ns != args.start_time:
+            raise UsageError(f"{args.capture}: the capture says it starts at another time than --start-time")
+        source.start_utc_unix_ns = args.start_time
+    config = _receiver_config(args)
+    channel_hz = _channel_centre(args, source)
+    if channel_hz != source.center_hz:
+        config = dataclasses.replace(config, channel_offset_hz=channel_hz - source.center_hz)
+    dump = None
+    if args.dump is not None:
+        from receiver.dump import DEFAULT_DUMP_STAGES, StageDump
+
+        try:
+            stages = (DEFAULT_DUMP_STAGES if args.dump_stages is None
+                      else [name.strip() for name in args.dump_stages.split(",")])
+            dump = StageDump(args.dump, stages, args.dump_window)
+        except ValueError as exc:
+            raise UsageError(f"--dump-stages/--dump-window: {exc}") from None
+        config = dataclasses.replace(config, inspect=dump, inspect_stages=dump.stages)
+    try:
+        summary = receive_capture(source, args.output, config, csv_path=args.csv, progress=not args.quiet,
+                                  carrier_hz=channel_hz)
+    except BaseException:
+        if dump is not None:
+            dump.close(complete=False)
+        raise
+    if dump is not None:
+        dump.close()
+    print(summary.describe(), file=sys.stderr)
+    for note in filter(None, str(summary.attrs.get("notes", "")).split("\n")):
+        options.warn(args, note)
+    if summary.ended_early:
+        options.warn(args, f"the input ended early ({summary.ended_early}); {args.output} holds the "
+                           f"{summary.frames} frame(s) received before it and says so (attribute ended_early)")
+    return EXIT_OK if summary.frames else EXIT_NO_RESULT
+
+
+def _receiver_config(args: argparse.Namespace):
+    from receiver.delay_doppler import CHECK_FRAMES, DopplerConfig
+    from receiver.paths import PathConfig
+    from receiver.pipeline import ReceiverConfig
+
+    doppler = DopplerConfig(frames=CHECK_FRAMES if args.doppler_check else 0)
+    return ReceiverConfig(pn_mode=args.pn_mode, static_window_s=args.static_window,
+                          clock_offset_hz=args.clock_offset,
+                          iq_orientation="conjugate" if args.conjugate else "auto", jobs=args.jobs,
+                          track_paths=not args.no_paths, paths=PathConfig(doppler=doppler, clock_path=args.clock_path),
+                          remove_dc=not args.keep_dc, correct_iq=args.correct_iq)
+
+
+def _channel_centre(args: argparse.Namespace, source) -> float:
+    """The DTMB channel's centre, Hz: ``--channel``, else the capture's record of it, else its centre.
+
+    A channel whose SI carriers lie outside the recorded band is refused: a
+    usage error for ``--channel``, bad input when the file says so.
+    """
+    from receiver.mixer import check_channel_offset
+
+    channel = args.channel if args.channel is not None else source.channel_hz
+    if channel is None:
+        return source.center_hz
+    try:
+        check_channel_offset(channel - source.center_hz, source.sample_rate_hz)
+    except ValueError as exc:
+        if args.channel is not None:
+            raise UsageError(f"--channel {args.channel:g}: {exc} (capture centre {source.center_hz:g} Hz)") from None
+        raise ValueError(f"{args.capture}: the recorded channel centre {channel:g} Hz: {exc} "
+                         f"(capture centre {source.center_hz:g} Hz)") from None
+    return float(channel)
+
+
+def io_paths(args: argparse.Namespace) -> IoPaths:
+    """The command's inputs and outputs (:mod:`dtmbnav.cli.paths`); the inputs are every file the capture
+    stands for (both SigMF files, a raw file's sidecar), so that no output can overwrite one of them."""
+    from receiver.capture import capture_files
+
+    return given_paths([("CAPTURE", str(f)) for f in capture_files(args.capture)],
+                       [("-o", args.output), ("--csv", args.csv), ("--dump", args.dump)])
+
+
+def usage_problem(args: argparse.Namespace) -> str | None:
+    """Option combinations argparse cannot see; None when fine."""
+    if args.capture == "-" and (args.format is None or args.rate is None):
+        return "reading stdin (-) needs --format and --rate"
+    if args.static_window <= 0 and args.clock_offset is None:
+        return "--static-window must be positive unless --clock-offset gives f_s"
+    if args.dump is None and (args.dump_stages is not None or args.dump_window is not None):
+        return "--dump-stages and --dump-window need --dump FILE"
+    return None

@@ -1,0 +1,67 @@
+"""``dtmbnav results``: every result table, generated into docs/results.md: its options and its handler."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from dtmbnav.cli import options
+from dtmbnav.cli.exits import EXIT_NO_RESULT, EXIT_OK, UsageError
+from dtmbnav.cli.paths import IoPaths, given_paths
+from dtmbnav.evaluation.seeds import REPORTING_SEEDS
+
+
+def add_parser(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``dtmbnav results`` and its options."""
+    from dtmbnav.evaluation.seeds import CHECK_SEEDS, IQ_SEEDS, OBS_SEEDS
+    from dtmbnav.evaluation.seeds import RESULT_SECTIONS as SECTIONS
+
+    p = options.command_parser(subparsers, common, "results", "every result table, generated into one Markdown file")
+    p.add_argument("-o", "--output", type=Path, default=Path("docs/results.md"),
+                   help="the results file (default docs/results.md); sections not run are kept as they are")
+    p.add_argument("--sections", type=options.filter_list(SECTIONS, "section"), default=SECTIONS,
+                   help=f"comma-separated sections to run (default: all, {','.join(SECTIONS)})")
+    p.add_argument("--iq-seeds", type=options.positive_int, default=IQ_SEEDS,
+                   help=f"Monte Carlo walks per scenario at the IQ level (default {IQ_SEEDS})")
+    p.add_argument("--obs-seeds", type=options.positive_int, default=OBS_SEEDS,
+                   help=f"Monte Carlo walks per scenario at the observation and exact levels (default {OBS_SEEDS})")
+    p.add_argument("--first-seed", type=options.index, default=REPORTING_SEEDS.start, metavar="N",
+                   help=f"first Monte Carlo index (default {REPORTING_SEEDS.start}, the reporting range)")
+    p.add_argument("--readme", type=Path, metavar="FILE",
+                   help="also rewrite the headline table between this README's results markers")
+    p.add_argument("--check", action="store_true",
+                   help="write nothing: run the first walks of each printed section again (the walks its header "
+                        "names; --first-seed, --iq-seeds and --obs-seeds do not apply) and compare with the file; "
+                        "exit 1 on a regression beyond the walks' spread (docs/evaluation.md)")
+    p.add_argument("--check-seeds", type=options.positive_int, default=CHECK_SEEDS, metavar="N",
+                   help=f"with --check: walks of each scenario run again (default {CHECK_SEEDS})")
+    options.add_cluster_options(p)
+    p.set_defaults(handler=run, io_paths=io_paths)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``dtmbnav results``; its exit code."""
+    from dtmbnav.evaluation.results import ResultsConfig, write_results
+
+    config = ResultsConfig(iq_seeds=args.iq_seeds, obs_seeds=args.obs_seeds, first_seed=args.first_seed,
+                           cluster=options.cluster_config(args), progress=not args.quiet)
+    if args.check:
+        from dtmbnav.evaluation.results_check import check_results
+
+        if args.readme is not None:
+            raise UsageError("--check writes nothing, so it cannot rewrite --readme")
+        report = check_results(args.output, args.sections, args.check_seeds, config)
+        print(report.table())
+        for note in report.notes:
+            print(f"dtmbnav results: {note}", file=sys.stderr)
+        print(f"dtmbnav {report.summary()}", file=sys.stderr)
+        return EXIT_NO_RESULT if report.failed else EXIT_OK
+    write_results(args.output, args.sections, config, readme=args.readme)
+    print(f"results written to {args.output}", file=sys.stderr)
+    return EXIT_OK
+
+
+def io_paths(args: argparse.Namespace) -> IoPaths:
+    """The command's inputs and outputs (:mod:`dtmbnav.cli.paths`)."""
+    return given_paths(files=[("-o", args.output), ("--readme", args.readme)])

@@ -1,0 +1,44 @@
+"""``dtmbnav sensors``: a phone's own log -> sensors file: its options and its handler."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from dtmbnav.cli import options
+from dtmbnav.cli.exits import EXIT_OK
+from dtmbnav.cli.paths import IoPaths, given_paths
+
+
+def add_parser(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``dtmbnav sensors`` and its options."""
+    p = options.command_parser(subparsers, common, "sensors",
+                               "a phone's own log (GnssLogger, Sensor Logger) -> sensors file "
+                               "(/imu, /gnss)")
+    p.add_argument("logs", nargs="+", metavar="LOG",
+                   help="a GnssLogger text log, or a Sensor Logger export (its folder, zip, or CSV files)")
+    p.add_argument("-o", "--output", required=True, type=Path, help="output HDF5 file (/imu, /gnss)")
+    p.add_argument("--rate", type=options.positive, default=100.0, help="rate of the resampled /imu, Hz (default 100)")
+    p.add_argument("--origin", type=options.geodetic, metavar="LAT,LON[,H]",
+                   help="origin of the ENU frame, WGS84 deg and m above the ellipsoid (default: the first fix; "
+                        "without H, the first fix's height)")
+    p.set_defaults(handler=run, io_paths=io_paths)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``dtmbnav sensors``; its exit code."""
+    from dtmbnav.field.sensors_import import describe, gap_warnings, import_phone_log
+
+    result = import_phone_log(args.logs, args.output, rate_hz=args.rate, origin=args.origin)
+    for line in describe(result):
+        print(f"sensors: {line}", file=sys.stderr)
+    for message in [*gap_warnings(result), *result.notes]:
+        options.warn(args, message)
+    print(f"sensors: -> {args.output}", file=sys.stderr)
+    return EXIT_OK
+
+
+def io_paths(args: argparse.Namespace) -> IoPaths:
+    """The command's inputs and outputs (:mod:`dtmbnav.cli.paths`)."""
+    return given_paths([("LOG", log) for log in args.logs], [("-o", args.output)])

@@ -1,0 +1,1 @@
+"""What a field recording needs: the phone's own logs, the sensors import, the towers file and the map files."""
