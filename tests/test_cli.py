@@ -143,6 +143,25 @@ def test_demo_fuses_the_walk(tiny_demo):
         assert (tiny_demo / "report" / name).stat().st_size > 0
 
 
+def test_demo_puts_the_walk_on_the_map_at_the_scenarios_origin(tiny_demo):
+    """The demo's GeoJSON track of the truth, taken back to ENU about the scenario's [origin], is the truth."""
+    from dtmbnav_core.geodetic import to_enu
+    from dtmbnav_core.sensors import read_walk_truth
+    from sim.scenario import load_scenario
+
+    report = tiny_demo / "report"
+    assert {"tracks.geojson", "tracks.gpx", "map.html"} <= {p.name for p in report.iterdir()}
+    collection = json.loads((report / "tracks.geojson").read_text())
+    truth_line = next(f for f in collection["features"]
+                      if f["geometry"]["type"] == "LineString" and f["properties"]["name"] == "truth")
+    lon, lat = np.array(truth_line["geometry"]["coordinates"]).T
+    origin = load_scenario(TINY).origin.point
+    east, north, _ = to_enu(lat, lon, np.full(len(lat), origin.height_m), origin)
+    walk = read_walk_truth(tiny_demo / "truth.h5")
+    assert len(east) == len(walk.track)
+    assert np.max(np.hypot(east - walk.track.x_m, north - walk.track.y_m)) < 0.001
+
+
 def test_fuse_and_report_commands(tiny_demo, tmp_path):
     out = tmp_path / "fused.h5"
     assert main(["fuse", "--receiver", str(tiny_demo / "receiver.h5"), "--sensors", str(tiny_demo / "truth.h5"),
