@@ -168,6 +168,12 @@ def test_no_application_module_outside_a_room():
         assert init.exists() and ast.get_docstring(ast.parse(init.read_text())), f"{room} needs a docstring"
 
 
+def test_no_application_module_is_long():
+    long = {str(p.relative_to(ROOT)): n for p in (ROOT / APPLICATION).rglob("*.py")
+            if (n := len(p.read_text().splitlines())) > MAX_APPLICATION_MODULE_LINES}
+    assert long == {}
+
+
 def test_the_room_check_sees_an_arrow_up_and_a_module_without_a_room():
     graph = {"dtmbnav.field.towers": {"dtmbnav.chain.files"}, "dtmbnav.chain.files": {"dtmbnav.field.towers"},
              "dtmbnav.cli.main": {"dtmbnav.evaluation.bench", "dtmbnav_core.schema"}, "dtmbnav.loose": set(),
