@@ -1,9 +1,10 @@
 """The README is a reference: short, undated, its figures the generated results file's.
 
 The headline table between the README's markers must be exactly what
-``dtmbnav results --readme README.md`` writes from ``docs/results.md``, so a
-figure cannot be typed in or go stale; every table of the results file must
-name the command that printed it; the test command the README shows must be
+``dtmbnav results --readme README.md`` writes from the results data
+(``docs/results.json``, which ``docs/results.md`` renders), so a figure
+cannot be typed in or go stale; every section of the results must name the
+command that printed it; the test command the README shows must be
 the one CI runs; the links between the documents must resolve.
 """
 
@@ -13,10 +14,11 @@ import re
 from pathlib import Path
 
 from dtmbnav.evaluation import results
+from dtmbnav.evaluation.results_data import ResultsData
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
-RESULTS = ROOT / "docs" / "results.md"
+DATA = ROOT / "docs" / "results.json"
 DATE = re.compile(r"(?<![\w-])20\d\d-\d\d-\d\d(?![\w-])")
 
 
@@ -35,20 +37,17 @@ def test_the_readme_is_short_and_its_prose_undated():
 
 def test_the_headline_table_is_the_results_files():
     block = _headline_block(README.read_text(encoding="utf-8"))
-    assert block == results.headline_table(RESULTS.read_text(encoding="utf-8")) + "\n"
+    assert block == results.headline_table(ResultsData.load(DATA)) + "\n"
 
 
 def test_every_results_section_names_the_command_that_printed_it():
-    text = RESULTS.read_text(encoding="utf-8")
-    assert text.startswith(results.PREAMBLE)
-    sections = list(results.SECTION_RE.finditer(text))
-    # Nothing typed between the sections: every line after the preamble belongs to one.
-    assert sections and results.SECTION_RE.sub("", text[len(results.PREAMBLE):]).strip() == ""
-    for match in sections:
-        name = match.group("name")
-        assert name in results.SECTIONS
-        assert re.search(rf"Printed by `dtmbnav results --sections {name}\b[^`]*` at commit `[0-9a-f]{{10}}` on "
-                         r"20\d\d-\d\d-\d\d;", match.group(0)), name
+    # The Markdown is the data's rendering (tests/test_results_data.py): nothing is typed between the sections.
+    sections = ResultsData.load(DATA).sections
+    assert sections
+    for section in sections:
+        assert section.name in results.SECTIONS
+        assert re.match(rf"dtmbnav results --sections {section.name}\b", section.command), section.name
+        assert re.fullmatch(r"[0-9a-f]{10}", section.commit) and re.fullmatch(r"20\d\d-\d\d-\d\d", section.date)
 
 
 def test_the_readme_shows_the_test_command_ci_runs():

@@ -1,25 +1,28 @@
-"""``dtmbnav results --check``: re-run the first walks of printed sections and compare with the results file.
+"""``dtmbnav results --check``: re-run the first walks of printed sections and compare with the results data.
 
 A walk depends only on its seed (docs/evaluation.md), so the first walks of
 a printed section, run again on the commit that printed it, give its
 figures again; after a change they move, and this module says whether they
-moved further than the walks' spread. Nothing is written.
+moved further than the walks' spread. Every figure is read from the data
+file (:mod:`dtmbnav.evaluation.results_data`), never from the Markdown
+rendered from it; nothing is written.
 
 What is compared
 ----------------
-*Fusion sections* (any section whose body holds the table of
+*Fusion sections* (any section with the table of
 :func:`dtmbnav.evaluation.results.fusion_table`: ``fusion-iq``, ``fusion-obs``,
 ``fusion-exact``). The walks are the printed ones: the first index, the
-count and the level come from the section's own ``Walks:`` line, the
-scenarios from its rows; ``check_seeds`` walks of each scenario are run
-again (all of them when the section printed fewer). For each scenario and
-each track of the table (``PDR``, ``PDR@fix`` and every filter) the mean 95 %
-error of the re-run walks is compared with a printed reference:
+count and the level come from the section's walks, the scenarios from its
+table's rows; ``check_seeds`` walks of each scenario are run again (all of
+them when the section printed fewer). For each scenario and each track of
+the table (``PDR``, ``PDR@fix`` and every filter) the mean 95 % error of the
+re-run walks is compared with a printed reference:
 
-- where the section prints the 95 % error of each walk (the per-walk table
-  of ``fusion-iq``: PDR, PDR@fix, PF, UKF), the reference is the mean of the
-  printed figures of the *same* walks, and each walk is also compared on its
-  own;
+- where the section keeps the 95 % error of each walk (its ``per_walk``
+  data: every track of a section printed with it; for ``fusion-iq`` printed
+  before, the tracks of its per-walk table), the reference is the mean of
+  the printed figures of the *same* walks, and each walk is also compared
+  on its own;
 - otherwise the reference is the printed row, the mean over all ``N``
   printed walks, of which the re-run walks are the first ``n``.
 
@@ -27,8 +30,10 @@ The *spread* is the half-width of the two-sided 95 % confidence interval of
 a mean of ``n`` walks, ``t(0.975, nu) * s / sqrt(n)``, where ``s`` is the
 standard deviation (``ddof=1``) of the single walks' 95 % errors of that
 scenario and track: those of the ``N`` printed walks where the section
-prints them (``nu = N - 1``), else those of the ``n`` re-run walks
-(``nu = n - 1``); it is 0 with a single walk. A row is a ``REGRESSION``
+keeps them (``nu = N - 1``: the section's own scatter), else those of the
+``n`` re-run walks (``nu = n - 1``, which misjudges the scatter when the
+few re-run walks happen to lie close together: reprint such a section to
+keep its walks); it is 0 with a single walk. A row is a ``REGRESSION``
 when the re-run mean exceeds the reference by more than the spread plus
 the printed rounding (half a unit of the figure's last printed digit),
 ``better`` when it is below by as much, and ``ok`` otherwise. A change
@@ -44,29 +49,31 @@ unit says which way is worse: a share (``%``) is better higher, a count of
 seconds only says which stretch was scored (a change is ``moved``), every
 other figure is an error whose magnitude is better lower.
 
-Where the checkout's code is that of the commit that printed a section
-(:func:`code_unchanged_since`: no tracked file but the Markdown documents
-differs from it, local changes included), a figure of the same walks that
-differs beyond its rounding is ``NOT REPRODUCED``: the walks did not depend
+Where the checkout's code is that which printed a section
+(:func:`dtmbnav.evaluation.results_status.same_code`: the files of its
+fingerprint unchanged, or for a section printed without one no tracked
+file but the documents differs from its commit), a figure of the same walks
+that differs beyond its rounding is ``NOT REPRODUCED``: the walks did not depend
 on their seeds alone. Elsewhere a moved walk is ``moved``, which does not
-fail the check.
-``REGRESSION`` and ``NOT REPRODUCED`` fail it.
+fail the check. ``REGRESSION`` and ``NOT REPRODUCED`` fail it.
 
-The other sections are not checked (:data:`UNCHECKED` says why).
+The other sections are not checked (:data:`UNCHECKED` says why). The report
+also carries each section's status (up to date, out of date, unknown:
+:mod:`dtmbnav.evaluation.results_status`), which the command prints first.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import re
-import subprocess
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from dtmbnav.evaluation import results
+from dtmbnav.evaluation import results, results_status
+from dtmbnav.evaluation.results_data import Cell, Figure, ResultsData, Section
+from dtmbnav.evaluation.results_status import SectionStatus
 from dtmbnav.evaluation.seeds import CHECK_SEEDS
 
 #: Sections of fixed walks, one per row, run again whole and compared figure by figure.
@@ -89,91 +96,6 @@ FAILING = ("REGRESSION", "NOT REPRODUCED")
 #: Confidence of the spread's interval (two-sided).
 CONFIDENCE = 0.95
 
-_HEADER = re.compile(r"^Printed by `dtmbnav results (?P<options>[^`]*)` at commit `(?P<commit>[^`]*)`", re.M)
-_WALKS = re.compile(r"^Walks: Monte Carlo indices (?P<first>\d+)-(?P<last>\d+) \(.*\), (?P<level>\w+) level, ", re.M)
-_ROW_LABEL = re.compile(r"^(?P<scenario>.+) \([^()]*\)$")
-#: A printed figure and its unit; ``m/s`` before ``m``, so a velocity is not read as a distance.
-_FIGURE = re.compile(r"(?<![\w.])(?P<value>[-+]?\d+(?:\.\d+)?)(?:\s*(?P<unit>%|m/s|Hz|deg|m|s)(?![\w/]))?")
-
-
-@dataclass(frozen=True)
-class Table:
-    """A Markdown table: its header's cells and each row's cells (separator line dropped)."""
-
-    header: tuple[str, ...]
-    rows: tuple[tuple[str, ...], ...]
-
-
-def _cells(line: str) -> tuple[str, ...]:
-    return tuple(cell.strip() for cell in line.strip().strip("|").split("|"))
-
-
-def parse_tables(text: str) -> list[Table]:
-    """Every Markdown table of ``text``, in order: runs of lines starting with ``|`` whose second line is the
-    ``|---|`` separator."""
-    tables = []
-    block: list[str] = []
-    for line in [*text.splitlines(), ""]:
-        if line.startswith("|"):
-            block.append(line)
-            continue
-        if len(block) >= 2 and set(block[1].replace("|", "").strip()) <= set("-: "):
-            tables.append(Table(_cells(block[0]), tuple(_cells(row) for row in block[2:])))
-        block = []
-    return tables
-
-
-def _header(table_text: str) -> tuple[str, ...]:
-    """The header cells of a table the writer printed (its first line)."""
-    return _cells(table_text.splitlines()[0])
-
-
-@dataclass(frozen=True)
-class PrintedSection:
-    """A section of the results file: its name, the options and commit of its header, its whole text."""
-
-    name: str
-    options: str
-    commit: str
-    text: str
-
-
-def parse_sections(text: str) -> dict[str, PrintedSection]:
-    """The sections of a results file (:func:`dtmbnav.evaluation.results.render_section`), by name.
-
-    Raises
-    ------
-    ValueError
-        A section without its ``Printed by`` header.
-    """
-    out = {}
-    for match in results.SECTION_RE.finditer(text):
-        header = _HEADER.search(match.group(0))
-        if header is None:
-            raise ValueError(f"results file: section {match.group('name')} has no 'Printed by' header")
-        out[match.group("name")] = PrintedSection(match.group("name"), header.group("options"),
-                                                  header.group("commit"), match.group(0))
-    return out
-
-
-@dataclass(frozen=True)
-class Figure:
-    """A printed figure: its value and the half unit of its last printed digit (its rounding)."""
-
-    value: float
-    rounding: float
-
-    @classmethod
-    def parse(cls, text: str) -> Figure:
-        """The figure of a printed number (``"4.95"``, ``"+0.005"``)."""
-        decimals = len(text.partition(".")[2])
-        return cls(float(text), 0.5 * 10.0 ** -decimals)
-
-
-def _first_figure(cell: str) -> Figure | None:
-    match = _FIGURE.search(cell)
-    return None if cell == "-" or match is None else Figure.parse(match.group("value"))
-
 
 @dataclass(frozen=True)
 class FusionFigures:
@@ -188,9 +110,9 @@ class FusionFigures:
     means : dict of (str, str) -> Figure
         Mean 95 % error, m, by (scenario, track); tracks the table marks ``-`` are absent.
     per_walk : dict of (str, int, str) -> Figure
-        95 % error of each walk, m, by (scenario, Monte Carlo index, track), where the section prints them.
+        95 % error of each walk, m, by (scenario, Monte Carlo index, track), where the section keeps them.
     seeds : dict of (str, int) -> int
-        Scenario seed of each printed walk, by (scenario, Monte Carlo index).
+        Scenario seed of each kept walk, by (scenario, Monte Carlo index).
     """
 
     level: str
@@ -211,48 +133,37 @@ class FusionFigures:
 FUSION_TRACKS = (*results.BASELINE_COLUMNS, ("pf", results.PF_COLUMN), *results.KALMAN_COLUMNS)
 
 
-def parse_fusion(section: PrintedSection) -> FusionFigures | None:
-    """The figures of a fusion section, or None when the section holds no fusion table.
+def fusion_figures(section: Section) -> FusionFigures | None:
+    """The figures of a fusion section's data, or None when the section holds no fusion table.
 
     Raises
     ------
     ValueError
-        A fusion table without its ``Walks:`` line, or whose walk counts disagree with it.
+        A fusion table without the section's walks, or whose walk counts disagree with them.
     """
-    tables = {table.header: table for table in parse_tables(section.text)}
-    fusion = tables.get(_header(results.fusion_table([], [])[0]))
-    if fusion is None:
+    table = section.table("fusion")
+    if table is None:
         return None
-    walks_line = _WALKS.search(section.text)
-    if walks_line is None:
-        raise ValueError(f"results file: section {section.name} has a fusion table but no 'Walks:' line")
-    first, last = int(walks_line.group("first")), int(walks_line.group("last"))
-    column = {title: i for i, title in enumerate(fusion.header)}
+    if section.walks is None:
+        raise ValueError(f"results data: section {section.name} has a fusion table but no walks")
+    walks = section.walks
     means: dict[tuple[str, str], Figure] = {}
-    for row in fusion.rows:
-        label = _ROW_LABEL.match(row[0])
-        scenario = label.group("scenario") if label else row[0]
-        if int(row[column["walks"]]) != last - first + 1:
-            raise ValueError(f"results file: section {section.name}, {scenario}: {row[column['walks']]} walks, "
-                             f"but its 'Walks:' line says {first}-{last}")
+    for scenario, row in zip(table.keys, table.rows):
+        count = row[table.column("walks")].figures[0].value
+        if count != walks.count:
+            raise ValueError(f"results data: section {section.name}, {scenario}: {count} walks, but the section's "
+                             f"walks are {walks.first}-{walks.indices[-1]}")
         for track, title in FUSION_TRACKS:
-            figure = _first_figure(row[column[title]])
-            if figure is not None:
-                means[(scenario, track)] = figure
+            figures = row[table.column(title)].figures
+            if figures:
+                means[(scenario, track)] = figures[0]
     per_walk: dict[tuple[str, int, str], Figure] = {}
     seeds: dict[tuple[str, int], int] = {}
-    per_walk_table = tables.get(_header(results.per_walk_table([])))
-    if per_walk_table is not None:
-        column = {title: i for i, title in enumerate(per_walk_table.header)}
-        titles = [*results.BASELINE_COLUMNS, *((f, f.upper()) for f in results.PER_WALK_FILTERS)]
-        for row in per_walk_table.rows:
-            key = (row[column["walk"]], int(row[column["index"]]))
-            seeds[key] = int(row[column["seed"]])
-            for track, title in titles:
-                figure = _first_figure(row[column[title]])
-                if figure is not None:
-                    per_walk[(*key, track)] = figure
-    return FusionFigures(walks_line.group("level"), first, last - first + 1, means, per_walk, seeds)
+    for walk in section.per_walk.walks if section.per_walk else ():
+        seeds[(walk.scenario, walk.index)] = walk.seed
+        per_walk.update({(walk.scenario, walk.index, track): Figure(value, section.per_walk.decimals, "m")
+                         for track, value in walk.p95_m.items()})
+    return FusionFigures(walks.level, walks.first, walks.count, means, per_walk, seeds)
 
 
 @dataclass(frozen=True)
@@ -343,7 +254,7 @@ def compare_fusion(name: str, figures: FusionFigures, walks: Sequence[dict[str, 
     walks : sequence of dict
         The re-run walks' records (:func:`dtmbnav.evaluation.evaluate.walk_record`): the first walks of each scenario.
     same_code : bool
-        The checkout's code is that of the commit that printed the section (:func:`code_unchanged_since`).
+        The checkout runs the code that printed the section (:func:`dtmbnav.evaluation.results_status.same_code`).
 
     Raises
     ------
@@ -387,7 +298,7 @@ def compare_fusion(name: str, figures: FusionFigures, walks: Sequence[dict[str, 
     return out + walk_rows
 
 
-def check_fusion(section: PrintedSection, figures: FusionFigures, check_seeds: int, config: results.ResultsConfig,
+def check_fusion(section: Section, figures: FusionFigures, check_seeds: int, config: results.ResultsConfig,
                  same_code: bool) -> list[Comparison]:
     """Run the first ``check_seeds`` printed walks of each scenario of a fusion section again and compare."""
     n = min(check_seeds, figures.walks)
@@ -402,25 +313,24 @@ _DIRECTION = {"%": 1, "s": 0}
 _SEVERITY = ("ok", "better", "moved", "REGRESSION", "NOT REPRODUCED")
 
 
-def _cell_verdict(printed: str, rerun: str, same_code: bool) -> str | None:
+def _cell_verdict(printed: Cell, rerun: Cell, same_code: bool) -> str | None:
     """The verdict on a table cell of one walk (spread 0), None when it holds no figure on either side."""
-    ours, theirs = list(_FIGURE.finditer(printed)), list(_FIGURE.finditer(rerun))
+    ours, theirs = printed.figures, rerun.figures
     if not ours and not theirs:
         return None
     if len(ours) != len(theirs):  # a figure became "-" (not found, not finite) or appeared
         return "NOT REPRODUCED" if same_code else "REGRESSION" if len(theirs) < len(ours) else "better"
     verdicts = []
-    for a, b in zip(ours, theirs):
-        figure = Figure.parse(a.group("value"))
-        direction = _DIRECTION.get(a.group("unit") or "", -1)
-        value = float(b.group("value"))
+    for figure, again in zip(ours, theirs):
+        direction = _DIRECTION.get(figure.unit, -1)
+        printed_value, value = figure.value, again.value
         if direction == -1:  # an error: its magnitude (a signed offset is as bad either way)
-            figure, value = Figure(abs(figure.value), figure.rounding), abs(value)
-        verdicts.append(judge(figure.value, value, 0.0, figure.rounding, same_code, direction))
+            printed_value, value = abs(printed_value), abs(value)
+        verdicts.append(judge(printed_value, value, 0.0, figure.rounding, same_code, direction))
     return max(verdicts, key=_SEVERITY.index)
 
 
-def compare_tables(name: str, printed: str, rerun: str, same_code: bool) -> list[Comparison]:
+def compare_tables(printed: Section, rerun: Section, same_code: bool) -> list[Comparison]:
     """Every figure of a printed row section against the same section run again (module docstring).
 
     Raises
@@ -428,28 +338,33 @@ def compare_tables(name: str, printed: str, rerun: str, same_code: bool) -> list
     ValueError
         The tables or their rows differ (the section's layout changed since it was printed: reprint it).
     """
-    ours, theirs = parse_tables(printed), parse_tables(rerun)
+    name = printed.name
+    ours, theirs = printed.tables(), rerun.tables()
     if [t.header for t in ours] != [t.header for t in theirs]:
         raise ValueError(f"results --check {name}: its tables changed since it was printed; reprint the section")
     out = []
     for mine, other in zip(ours, theirs):
-        rows = {row[0]: row for row in other.rows}
+        rows = {row[0].text: row for row in other.rows}
         for row in mine.rows:
-            if row[0] not in rows:
-                raise ValueError(f"results --check {name}: row {row[0]!r} is no longer printed; reprint the section")
-            for title, cell, again in zip(mine.header[1:], row[1:], rows[row[0]][1:]):
+            label = row[0].text
+            if label not in rows:
+                raise ValueError(f"results --check {name}: row {label!r} is no longer printed; reprint the section")
+            for title, cell, again in zip(mine.header[1:], row[1:], rows[label][1:]):
                 verdict = _cell_verdict(cell, again, same_code)
                 if verdict is not None:
-                    out.append(Comparison(name, f"{row[0]}: {title}", "the same walk", cell, again, "-", verdict))
+                    out.append(Comparison(name, f"{label}: {title}", "the same walk", cell.text, again.text, "-",
+                                          verdict))
     return out
 
 
 @dataclass
 class CheckReport:
-    """What a check compared, and the sections it did not check (with why)."""
+    """What a check compared, the status of each section it was asked for, and the sections it did not check
+    (with why)."""
 
     comparisons: list[Comparison] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    statuses: list[SectionStatus] = field(default_factory=list)
 
     @property
     def failed(self) -> list[Comparison]:
@@ -472,31 +387,16 @@ class CheckReport:
                 + "; ".join(f"{c.section} {c.row} {c.verdict}" for c in failed))
 
 
-def code_unchanged_since(commit: str, root: Path | None = None) -> bool:
-    """Whether the checkout's code is that of ``commit``: no tracked file but the Markdown documents (the results
-    file, the docs) differs from it, local changes included. False for a commit git does not know, or outside a
-    git checkout."""
-    if re.fullmatch(r"[0-9a-f]{7,40}", commit) is None:  # "unknown", or printed from a modified checkout
-        return False
-    root = root or Path(results.__file__).resolve().parents[1]
-    try:
-        done = subprocess.run(["git", "diff", "--quiet", commit, "--", ".", ":(exclude)*.md"], cwd=root,
-                              capture_output=True, timeout=60)
-    except (OSError, subprocess.SubprocessError):
-        return False
-    return done.returncode == 0
-
-
-def check_results(path: Path, sections: Sequence[str], check_seeds: int = CHECK_SEEDS,
+def check_results(data_file: Path, sections: Sequence[str], check_seeds: int = CHECK_SEEDS,
                   config: results.ResultsConfig = results.ResultsConfig()) -> CheckReport:
-    """Check the printed ``sections`` of the results file at ``path`` against a short re-run (module docstring).
+    """Check the printed ``sections`` of the results data against a short re-run (module docstring).
 
     Parameters
     ----------
-    path : Path
-        The results file; it is only read.
+    data_file : Path
+        The results data (:mod:`dtmbnav.evaluation.results_data`); it is only read.
     sections : sequence of str
-        Sections to check; those that cannot be checked, or that the file lacks, are named in the report's notes.
+        Sections to check; those that cannot be checked, or that the data lacks, are named in the report's notes.
     check_seeds : int
         Walks of each scenario a fusion section runs again (its first ones).
     config : ResultsConfig
@@ -507,22 +407,21 @@ def check_results(path: Path, sections: Sequence[str], check_seeds: int = CHECK_
     ValueError
         None of ``sections`` could be checked, or a section's figures cannot be compared (the message says why).
     """
-    printed = parse_sections(path.read_text(encoding="utf-8"))
-    report = CheckReport()
+    data = ResultsData.load(data_file)
+    report = CheckReport(statuses=results_status.statuses(data, sections))
     for name in sections:
-        if name not in printed:
-            report.notes.append(f"{name}: not in {path}, nothing to check")
+        if name not in data:
+            report.notes.append(f"{name}: not in {data_file}, nothing to check")
             continue
-        section = printed[name]
-        same_code = code_unchanged_since(section.commit)
-        figures = parse_fusion(section)
+        section = data[name]
+        same_code = results_status.same_code(section)
+        figures = fusion_figures(section)
         if figures is not None:
             report.comparisons += check_fusion(section, figures, check_seeds, config, same_code)
         elif name in ROW_SECTIONS:
-            rerun = results._sections(config)[name]()
-            report.comparisons += compare_tables(name, section.text, rerun.body, same_code)
+            report.comparisons += compare_tables(section, results.section_runners(config)[name](), same_code)
         else:
             report.notes.append(f"{name}: not checked: {UNCHECKED.get(name, 'no check is defined for it')}")
     if not report.comparisons:
-        raise ValueError(f"results --check: nothing to check in {path} ({'; '.join(report.notes)})")
+        raise ValueError(f"results --check: nothing to check in {data_file} ({'; '.join(report.notes)})")
     return report
