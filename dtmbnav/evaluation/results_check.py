@@ -41,13 +41,15 @@ that moves the figures no further than the walks themselves scatter is not
 told apart from the luck of the walks; a short check can only see a large
 regression, and ``check_seeds`` buys a tighter one.
 
-*Row sections* (``receiver``, ``paths``): every row is one fixed walk (the
-scenario file's own seed), so the whole section is run again and every
-figure compared with its printed one. One walk has no spread: a figure
-worse than the printed one beyond its rounding is a ``REGRESSION``. The
-unit says which way is worse: a share (``%``) is better higher, a count of
-seconds only says which stretch was scored (a change is ``moved``), every
-other figure is an error whose magnitude is better lower.
+*Row sections* (``receiver``, ``paths``, ``pdr``): every row is one fixed
+walk (the scenario file's own seed), so the whole section is run again and
+every figure compared with its printed one. One walk has no spread: a figure
+worse than the printed one beyond its rounding is a ``REGRESSION``. In
+``receiver`` and ``paths`` the unit says which way is worse: a share (``%``)
+is better higher, a count of seconds only says which stretch was scored (a
+change is ``moved``), every other figure is an error whose magnitude is
+better lower. ``pdr``'s figures describe the walk (step counts, a gain,
+drifts) more than they score it, so any of them that changes is ``moved``.
 
 Where the checkout's code is that which printed a section
 (:func:`dtmbnav.evaluation.results_status.same_code`: the files of its
@@ -77,7 +79,9 @@ from dtmbnav.evaluation.results_status import SectionStatus
 from dtmbnav.evaluation.seeds import CHECK_SEEDS
 
 #: Sections of fixed walks, one per row, run again whole and compared figure by figure.
-ROW_SECTIONS = ("receiver", "paths")
+ROW_SECTIONS = ("receiver", "paths", "pdr")
+#: Row sections whose figures have no better direction: a change is ``moved``.
+UNDIRECTED_SECTIONS = ("pdr",)
 #: Why the other sections are not checked.
 UNCHECKED = {
     "frontends": "it is a check of its own (each row passes or fails against the ideal front end; "
@@ -85,8 +89,6 @@ UNCHECKED = {
                  "short campaign",
     "field": "it is a check of its own (each row passes or fails against the simulator's files; "
              "`python -m dtmbnav.evaluation.field_check` exits 1 on a failed row)",
-    "pdr": "its figures are a fixed-width text block, not a table; the PDR's 95 % error over the Monte Carlo "
-           "walks is checked in the fusion rows (PDR, PDR@fix)",
     "weak-signal": "it is a check of its own (a row with a walk worse than its PDR@fix fails; "
                    "`python -m dtmbnav.evaluation.weak_signal` exits 1 on it)",
     "bench": "every figure is a timing of the machine that printed it, which varies from run to run",
@@ -313,8 +315,9 @@ _DIRECTION = {"%": 1, "s": 0}
 _SEVERITY = ("ok", "better", "moved", "REGRESSION", "NOT REPRODUCED")
 
 
-def _cell_verdict(printed: Cell, rerun: Cell, same_code: bool) -> str | None:
-    """The verdict on a table cell of one walk (spread 0), None when it holds no figure on either side."""
+def _cell_verdict(printed: Cell, rerun: Cell, same_code: bool, directed: bool = True) -> str | None:
+    """The verdict on a table cell of one walk (spread 0), None when it holds no figure on either side; without
+    ``directed`` every figure is judged as one without a better direction."""
     ours, theirs = printed.figures, rerun.figures
     if not ours and not theirs:
         return None
@@ -322,7 +325,7 @@ def _cell_verdict(printed: Cell, rerun: Cell, same_code: bool) -> str | None:
         return "NOT REPRODUCED" if same_code else "REGRESSION" if len(theirs) < len(ours) else "better"
     verdicts = []
     for figure, again in zip(ours, theirs):
-        direction = _DIRECTION.get(figure.unit, -1)
+        direction = _DIRECTION.get(figure.unit, -1) if directed else 0
         printed_value, value = figure.value, again.value
         if direction == -1:  # an error: its magnitude (a signed offset is as bad either way)
             printed_value, value = abs(printed_value), abs(value)
@@ -350,7 +353,7 @@ def compare_tables(printed: Section, rerun: Section, same_code: bool) -> list[Co
             if label not in rows:
                 raise ValueError(f"results --check {name}: row {label!r} is no longer printed; reprint the section")
             for title, cell, again in zip(mine.header[1:], row[1:], rows[label][1:]):
-                verdict = _cell_verdict(cell, again, same_code)
+                verdict = _cell_verdict(cell, again, same_code, name not in UNDIRECTED_SECTIONS)
                 if verdict is not None:
                     out.append(Comparison(name, f"{label}: {title}", "the same walk", cell.text, again.text, "-",
                                           verdict))
