@@ -23,7 +23,7 @@ import argparse
 import subprocess
 import sys
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import h5py
@@ -37,7 +37,9 @@ from dtmbnav.simulation.capture_set import receiver_clock_model
 from dtmbnav_core import schema
 from dtmbnav_core.geodetic import GeodeticPoint, read_origin, to_enu, to_geodetic
 from dtmbnav_core.phone import PHONE_LOG_FORMATS, PhoneClock
+from dtmbnav_core.records import Track
 from dtmbnav_core.sensors import read_capture_start_s, read_gnss, read_walk_truth, read_weinberg_k_m
+from fusion.metrics import error_stats, position_errors_m
 
 #: The walks the field path is checked on (the issue's two: a park loop and a street).
 SCENARIOS = ("park-loop-cw", "street-out")
@@ -84,20 +86,32 @@ def _cli(*argv: str) -> None:
 
 
 def p95_errors_m(results: Path, truth_path: Path, origin: GeodeticPoint | None) -> dict[str, float]:
-    """Each filter's 95 % horizontal error against the truth track, m; with ``origin``, the track's latitude
-    and longitude put into the scenario's frame about it (a field run's), else its own x, y."""
+    """Each filter's 95 % horizontal error against the truth track, m (:func:`fusion.metrics.error_stats`);
+    with ``origin``, the track's latitude and longitude put into the scenario's frame about it (a field
+    run's), else its own x, y.
+
+    Raises
+    ------
+    ValueError
+        A track with an epoch outside the truth's span (a field run's times are on the phone's clock, which
+        runs fast: past the truth's end, it would be scored against a truth held still), naming the file
+        and the filter.
+    """
     truth = read_walk_truth(truth_path).track
     errors = {}
     with h5py.File(results, "r") as f:
         for name in f[schema.FUSION]:
-            track = f[schema.fusion_group(name)]
-            t = track["t_s"][:]
-            if origin is None:
-                x, y = track["x_m"][:], track["y_m"][:]
-            else:
-                x, y, _ = to_enu(track["lat_deg"][:], track["lon_deg"][:], np.zeros(len(t)), origin)
-            error = np.hypot(x - np.interp(t, truth.t_s, truth.x_m), y - np.interp(t, truth.t_s, truth.y_m))
-            errors[name] = float(np.percentile(error, 95))
+            group = f[schema.fusion_group(name)]
+            track = Track(**{column: group[column][:] for column in schema.TRACK_COLUMNS})
+            if origin is not None:
+                x, y, _ = to_enu(group["lat_deg"][:], group["lon_deg"][:], np.zeros(len(track)), origin)
+                track = replace(track, x_m=x, y_m=y)
+            try:
+                errors_m = position_errors_m(track, truth)
+            except ValueError as exc:
+                raise ValueError(f"{results}: {name}: not scored: its epochs leave the span of the truth "
+                                 f"{truth_path}, which is not extrapolated ({exc})") from None
+            errors[name] = error_stats(errors_m).p95_m
     return errors
 
 
