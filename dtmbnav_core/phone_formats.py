@@ -131,6 +131,9 @@ FIX_COLUMNS = {
 #: The Status columns that give a fix's C/N0: the fix's UTC time (ms), a signal's C/N0 (dB-Hz), and whether
 #: the fix used it (``1``).
 STATUS_COLUMNS = ("UnixTimeMillis", "Cn0DbHz", "UsedInFix")
+#: How far (ms, on the UTC clock) the Status report that gives a fix its C/N0 may be from the fix: half the
+#: 1 s between GnssLogger's fixes and between its status reports, so a fix takes the report of its own epoch.
+CN0_JOIN_WINDOW_MS = 500
 #: Fix providers in order of preference: the GNSS chipset's own fixes, then the fused and network ones.
 PROVIDERS = ("gps", "flp", "nlp")
 

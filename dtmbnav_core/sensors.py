@@ -72,15 +72,15 @@ def write_imu(h5file: h5py.File, imu: ImuLog, attrs: Mapping[str, Any]) -> None:
     write_columns(h5file, schema.IMU, imu, attrs=attrs)
 
 
-def write_gnss(h5file: h5py.File, gnss: GnssLog, fix: StartFix, attrs: Mapping[str, Any],
+def write_gnss(h5file: h5py.File, gnss: GnssLog, fix: StartFix | None, attrs: Mapping[str, Any],
                extra_columns: Mapping[str, np.ndarray] | None = None) -> None:
-    """Write ``/gnss`` and the start fix P0 as its attributes.
+    """Write ``/gnss`` and the start fix P0 as its attributes (none where ``fix`` is None: a phone log without fixes).
 
     ``extra_columns`` are further columns of the same length (an imported phone log's
     :data:`~dtmbnav_core.schema.GNSS_GEODETIC_COLUMNS`); readers take only the columns they know.
     """
     columns = {**gnss.columns(), **(extra_columns or {})}
-    write_columns(h5file, schema.GNSS, columns, attrs={**attrs, **start_fix_attrs(fix)})
+    write_columns(h5file, schema.GNSS, columns, attrs={**attrs, **(start_fix_attrs(fix) if fix else {})})
 
 
 def read_walk_truth(path: str | os.PathLike) -> WalkTruth:
@@ -120,6 +120,13 @@ def read_gnss(path: str | os.PathLike) -> tuple[GnssLog, StartFix]:
     _need(cols, schema.GNSS_COLUMNS, f"{path}: /{schema.GNSS}")
     fix = _start_fix_from(read_attrs(path, schema.GNSS), f"{path}: /{schema.GNSS}")
     return GnssLog(**{k: cols[k] for k in schema.GNSS_COLUMNS}), fix
+
+
+def read_fix_count(path: str | os.PathLike) -> int:
+    """How many fixes the file's ``/gnss`` holds: 0 without ``/gnss`` or for a phone log without fixes (whose
+    ``/gnss`` has no rows and no start fix)."""
+    with open_h5(path) as f:
+        return len(f[schema.GNSS]["t_s"]) if schema.GNSS in f and "t_s" in f[schema.GNSS] else 0
 
 
 def read_geodetic_origin(path: str | os.PathLike) -> tuple[float, float, float] | None:

@@ -795,10 +795,23 @@ def sensors_text_timestamp(ctx):
     return _sensors(ctx, log), [where, "elapsedRealtimeNanos", "'soon'"]
 
 
-@case(EXIT_BAD_INPUT)
-def sensors_log_without_fix_rows(ctx):
+@case(EXIT_OK)
+def sensors_log_without_fix_rows_gives_imu_and_a_warning(ctx):
     log = _gnss_log(ctx, [line for line in _static_lines() if not line.startswith("Fix,")])
-    return _sensors(ctx, log), [log, "no Fix rows"]
+    return _sensors(ctx, log)[1:], [log, "no Fix rows", "--start X,Y"]
+
+
+@case(EXIT_OK)
+def sensors_sensor_logger_empty_location_gives_imu_and_a_warning(ctx):
+    folder = _export(ctx)
+    (folder / "Location.csv").write_text("")
+    return _sensors(ctx, str(folder))[1:], ["Location.csv", "no fixes", "--start X,Y"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_sensor_far_slower_than_the_grid(ctx):
+    log = _gnss_log(ctx, gnsslogger_lines(*static_log(seconds=4.0, rate_hz=2.0), flp=False))
+    return _sensors(ctx, log), [log, "accelerometer sampled at 2 Hz", "8 samples", "below the 20 Hz"]
 
 
 @case(EXIT_BAD_INPUT)
@@ -990,6 +1003,19 @@ def fuse_gnss_without_start_fix(ctx):
             del f[schema.GNSS].attrs[key]
     sensors = ctx.h5(ctx.sim / "truth.h5", "sensors.h5", edit)
     return _fuse(ctx, ctx.rx, sensors), [sensors, "/gnss", "start-fix"]
+
+
+@case(EXIT_USAGE)
+def fuse_sensors_without_fixes_needs_start(ctx):
+    """A sensors file of a phone log without fixes: /gnss without rows and without a start fix."""
+    def edit(f):
+        for name in list(f[schema.GNSS]):
+            del f[schema.GNSS][name]
+            f[schema.GNSS].create_dataset(name, data=np.zeros(0))
+        for key in schema.START_FIX_ATTRS:
+            del f[schema.GNSS].attrs[key]
+    sensors = ctx.h5(ctx.sim / "truth.h5", "sensors.h5", edit)
+    return _fuse(ctx, ctx.rx, sensors), [sensors, "no fixes", "--start X,Y"]
 
 
 @case(EXIT_BAD_INPUT)

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from dtmbnav.cli import options
-from dtmbnav.cli.exits import EXIT_OK
+from dtmbnav.cli.exits import EXIT_OK, UsageError
 from dtmbnav.cli.paths import IoPaths, given_paths
 from fusion import CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_PARTICLES, FILTER_NAMES
 
@@ -51,7 +51,11 @@ def add_parser(subparsers: argparse._SubParsersAction, common: argparse.Argument
 def run(args: argparse.Namespace) -> int:
     """Run ``dtmbnav fuse``; its exit code."""
     from dtmbnav.chain.fuse import fuse_files
+    from dtmbnav_core.sensors import read_fix_count
 
+    if args.start is None and read_fix_count(args.sensors) == 0:
+        raise UsageError(f"{args.sensors}: /gnss holds no fixes (the phone log had none), so no start fix: give "
+                         "--start X,Y (ENU m; with --tower-ll or --towers, about the origin 'sensors --origin' gave)")
     config = options.fusion_config(args, seed=args.seed, clock_model=args.clock_model)
     tower, tower_height_m = args.tower, 0.0
     if args.tower_ll is not None:

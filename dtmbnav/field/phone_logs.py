@@ -52,6 +52,9 @@ from dtmbnav_core.text_tables import (
 
 GNSSLOGGER = "GnssLogger"
 SENSOR_LOGGER = "Sensor Logger"
+#: What a log without fixes gives, for its note.
+NO_FIXES = ("the sensors file gets no fixes, and fuse will need --start X,Y (and --tower X,Y, or 'sensors "
+            "--origin LAT,LON' for a tower by latitude and longitude)")
 _ROW_TYPE = re.compile(r"[A-Za-z][A-Za-z0-9]*")
 
 
@@ -125,7 +128,8 @@ class PhoneLog:
     accelerometer, gyroscope : SensorSeries
     magnetometer : SensorSeries or None
         None when the log has no magnetometer.
-    fixes : FixSeries
+    fixes : FixSeries or None
+        None when the log holds no fix (a GnssLogger log without ``Fix`` rows, an empty ``Location.csv``).
     utc_offset_ns : int
         UTC time (ns since the Unix epoch) minus the log's clock, ns.
     notes : tuple of str
@@ -137,7 +141,7 @@ class PhoneLog:
     accelerometer: SensorSeries
     gyroscope: SensorSeries
     magnetometer: SensorSeries | None
-    fixes: FixSeries
+    fixes: FixSeries | None
     utc_offset_ns: int
     notes: tuple[str, ...] = ()
 
@@ -270,14 +274,16 @@ def _gnsslogger_utc_offset(table: Table) -> int:
     return int(np.median(utc_ms * 1_000_000 - elapsed))
 
 
-def _status_cn0(tables: dict[str, Table]) -> dict[int, float]:
-    """Mean C/N0 of the satellites used in each fix, by the fix's UTC time (ms), from the Status rows."""
+def _status_cn0(tables: dict[str, Table]) -> tuple[np.ndarray, np.ndarray]:
+    """Each Status report's UTC time (ms, increasing) and the mean C/N0 of the satellites it says the fix used,
+    dB-Hz; empty arrays without Status rows."""
     table = tables.get("Status")
+    none = np.zeros(0, dtype=np.int64), np.zeros(0)
     if table is None or not table.texts:
-        return {}
+        return none
     columns = [table.index((name,)) for name in fmt.STATUS_COLUMNS]
     if None in columns:
-        return {}
+        return none
     sums: dict[int, list[float]] = {}
     for time_text, cn0_text, used_text, number in zip(*(table.cells(c) for c in columns), table.lines):
         if not time_text or not cn0_text or used_text != "1":
@@ -286,7 +292,23 @@ def _status_cn0(tables: dict[str, Table]) -> dict[int, float]:
             sums.setdefault(int(time_text), []).append(float(cn0_text))
         except ValueError:
             raise ValueError(f"{table.where}:{number}: Status row with a malformed UnixTimeMillis or Cn0DbHz") from None
-    return {t: float(np.mean(v)) for t, v in sums.items()}
+    times = sorted(sums)
+    return np.array(times, dtype=np.int64), np.array([float(np.mean(sums[t])) for t in times])
+
+
+def _nearest_cn0(fix_ms: np.ndarray, status_ms: np.ndarray, status_cn0: np.ndarray) -> np.ndarray:
+    """The C/N0 of the Status report nearest each fix's UTC time (ms; NaN: none) within
+    :data:`fmt.CN0_JOIN_WINDOW_MS`, NaN where none is that close.
+
+    Real logs seldom stamp a fix and its status report with the same millisecond, so an exact join
+    would leave most fixes without C/N0."""
+    if not status_ms.size:
+        return np.full(len(fix_ms), np.nan)
+    right = np.clip(np.searchsorted(status_ms, fix_ms), 0, len(status_ms) - 1)
+    left = np.maximum(right - 1, 0)
+    nearest = np.where(np.abs(status_ms[left] - fix_ms) <= np.abs(status_ms[right] - fix_ms), left, right)
+    close = np.abs(status_ms[nearest] - fix_ms) <= fmt.CN0_JOIN_WINDOW_MS  # False where the fix has no time (NaN)
+    return np.where(close, status_cn0[nearest], np.nan)
 
 
 def _provider_rows(table: Table, notes: list[str]) -> tuple[Table, str]:
@@ -301,10 +323,12 @@ def _provider_rows(table: Table, notes: list[str]) -> tuple[Table, str]:
 
 
 def _gnsslogger_fixes(tables: dict[str, Table], utc_offset_ns: int, path: str | Path,
-                      notes: list[str]) -> FixSeries:
+                      notes: list[str]) -> FixSeries | None:
+    """The fixes of one provider with their C/N0 (:func:`_nearest_cn0`); None (noted) when the log has none."""
     table = tables.get("Fix")
     if table is None or not table.texts:
-        raise ValueError(f"{path}: no Fix rows (location fixes); log with the location provider on")
+        notes.append(f"{path}: no Fix rows (location fixes): {NO_FIXES}")
+        return None
     table, provider = _provider_rows(table, notes)
     lat = float_column(table, table.need(fmt.FIX_COLUMNS["lat"]), "latitude")
     lon = float_column(table, table.need(fmt.FIX_COLUMNS["lon"]), "longitude")
@@ -316,12 +340,16 @@ def _gnsslogger_fixes(tables: dict[str, Table], utc_offset_ns: int, path: str | 
     accuracy = (float_column(table, accuracy_column, "accuracy", empty_ok=True) if accuracy_column is not None
                 else np.full(len(lat), np.nan))
     t_ns = _fix_times(table, utc_offset_ns)
-    unix_ms = _optional_cells(table, fmt.FIX_COLUMNS["unix_ms"])
-    cn0_by_time = _status_cn0(tables)
-    cn0 = np.array([cn0_by_time.get(int(text), np.nan) if text.isdigit() else np.nan for text in unix_ms])
+    unix_ms = np.array([float(text) if text.isdigit() else np.nan
+                        for text in _optional_cells(table, fmt.FIX_COLUMNS["unix_ms"])])
+    cn0 = _nearest_cn0(unix_ms, *_status_cn0(tables))
     line = np.asarray(table.lines)
     source = f"{path} (Fix rows, provider {provider.upper()})"
     keep = _ordered(t_ns, line, str(path), f"Fix rows of provider {provider.upper()}", notes)
+    missing = int(np.isnan(cn0[keep]).sum())
+    if missing:
+        notes.append(f"{path}: {missing} of {keep.size} fixes have no C/N0 (no Status report of the satellites used "
+                     f"within {fmt.CN0_JOIN_WINDOW_MS} ms): those fixes are weighed by their stated accuracy alone")
     return FixSeries(source=source, t_ns=t_ns[keep], lat_deg=lat[keep], lon_deg=lon[keep], height_m=height[keep],
                      accuracy_m=accuracy[keep], cn0_dbhz=cn0[keep], line=line[keep])
 
@@ -405,13 +433,15 @@ class _Export:
     def __contains__(self, name: str) -> bool:
         return name.lower() in self.paths
 
-    def text(self, name: str) -> tuple[str, str]:
-        """(the file's path for messages, its text)."""
+    def text(self, name: str, empty_ok: bool = False) -> tuple[str, str]:
+        """(the file's path for messages, its text); an empty file is ``""`` where ``empty_ok``, else a ValueError."""
         path = self.paths[name.lower()]
         if self.archive is None:
-            return path, read_text(path)
-        with zipfile.ZipFile(self.archive) as archive:
-            return f"{self.archive}:{path}", read_text(f"{self.archive}:{path}", archive.read(path))
+            where, data = path, Path(path).read_bytes()
+        else:
+            with zipfile.ZipFile(self.archive) as archive:
+                where, data = f"{self.archive}:{path}", archive.read(path)
+        return where, ("" if empty_ok and not data.strip() else read_text(where, data))
 
     def sources(self) -> tuple[str, ...]:
         return tuple(path if self.archive is None else f"{self.archive}:{path}" for path in self.paths.values())
@@ -484,14 +514,16 @@ def _sensor_logger_accelerometer(files: _Export, notes: list[str]) -> SensorSeri
     return SensorSeries("accelerometer", source, acc.t_ns, values, acc.line)
 
 
-def _sensor_logger_fixes(files: _Export, notes: list[str]) -> FixSeries:
-    """``Location.csv``: latitude, longitude, ellipsoidal height, horizontal accuracy (negative: not given)."""
+def _sensor_logger_fixes(files: _Export, notes: list[str]) -> FixSeries | None:
+    """``Location.csv``: latitude, longitude, ellipsoidal height, horizontal accuracy (negative: not given);
+    None (noted) when it holds no fix (empty, or its header alone: the phone got none)."""
     if fmt.LOCATION not in files:
         raise ValueError(f"{files.where}: no {fmt.LOCATION} (location fixes); export the location too")
-    name, text = files.text(fmt.LOCATION)
-    table = csv_table(name, text)
-    if not table.texts:
-        raise ValueError(f"{name}: no fixes")
+    name, text = files.text(fmt.LOCATION, empty_ok=True)
+    table = csv_table(name, text) if text else None
+    if table is None or not table.texts:
+        notes.append(f"{name}: no fixes: {NO_FIXES}")
+        return None
     t_ns = integer_column(table, table.need((fmt.SENSOR_LOGGER_TIME,)), fmt.SENSOR_LOGGER_TIME)
     lat = float_column(table, table.need((fmt.LOCATION_COLUMNS["lat"],)), "latitude")
     lon = float_column(table, table.need((fmt.LOCATION_COLUMNS["lon"],)), "longitude")

@@ -11,13 +11,17 @@ The log is read by :mod:`dtmbnav.field.phone_logs`; this module
 - keeps the phone's axes (Android's device frame is the project's phone frame, ``docs/conventions.md``)
   and the units (m/s^2, rad/s, uT); a log without a magnetometer gets zeros and
   ``has_magnetometer = False``;
+- refuses a sensor sampled below :data:`MIN_RATE_HZ` (its median rate) rather than interpolate a few
+  samples into a walk;
 - converts the fixes to ENU metres about an origin (the first fix, or one given) with ``pymap3d``,
   keeping each fix's stated accuracy, and the origin as ``/gnss`` attributes;
 - chooses the start fix P0: the last fix (with a stated accuracy) at or before the walk starts,
   the walk's start being the first moment the accelerometer magnitude's standard deviation over
   :data:`MOTION_WINDOW_S` exceeds :data:`MOTION_THRESHOLD_MPS2`. Android states a fix's accuracy
   as the radius of 68 % confidence; for a circular normal error that radius is
-  sqrt(-2 ln 0.32) = 1.51 sigma, so P0's per-axis sigma is the accuracy over 1.51.
+  sqrt(-2 ln 0.32) = 1.51 sigma, so P0's per-axis sigma is the accuracy over 1.51;
+- writes a log without fixes with an empty ``/gnss`` (no rows, no start fix; the origin only where
+  ``origin`` gives one): ``dtmbnav fuse`` then asks for ``--start X,Y``.
 
 Nothing here imports the simulator: the real-data path must run without it.
 """
@@ -52,6 +56,11 @@ MOTION_THRESHOLD_MPS2 = 0.2
 PHONE_FRAME = ("phone (Android device frame, kept as logged): x right, y forward (up the screen, towards the top "
                "of the phone), z out of the screen")
 IMU_UNITS = "acc_mps2 m/s^2, gyro_radps rad/s, mag_ut uT"
+#: Lowest median sample rate each motion sensor is read at, Hz. Walking puts step cadence at up to ~3 Hz and
+#: its harmonics, which the step detector's peaks ride on, at up to ~10 Hz: 20 Hz is their Nyquist rate. The
+#: magnetometer gives the heading, which changes far slower. Below these, interpolation onto the grid would
+#: invent the walk between samples, so the log is refused.
+MIN_RATE_HZ = {"accelerometer": 20.0, "gyroscope": 20.0, "magnetometer": 5.0}
 
 
 @dataclass(frozen=True)
@@ -97,13 +106,15 @@ class ImportedSensors:
     imu : ImuLog
         Resampled motion sensors, t_s = 0 at the grid's first sample.
     gnss : GnssLog
-        Fixes in ENU (east ``x_m``, north ``y_m``), times on the ``/imu`` clock.
+        Fixes in ENU (east ``x_m``, north ``y_m``), times on the ``/imu`` clock; no rows for a log without fixes.
     geodetic : dict of str -> ndarray
         The further ``/gnss`` columns (:data:`dtmbnav_core.schema.GNSS_GEODETIC_COLUMNS`).
-    start_fix : StartFix
+    start_fix : StartFix or None
+        None for a log without fixes.
     walk_start_s : float
         Detected start of the walk, s (inf when no motion was found).
-    origin : GeodeticPoint
+    origin : GeodeticPoint or None
+        None for a log without fixes and no origin given.
     start_utc_ns : int
         UTC of t_s = 0, ns since the Unix epoch.
     rate_hz : float
@@ -118,9 +129,9 @@ class ImportedSensors:
     imu: ImuLog
     gnss: GnssLog
     geodetic: dict[str, np.ndarray]
-    start_fix: StartFix
+    start_fix: StartFix | None
     walk_start_s: float
-    origin: GeodeticPoint
+    origin: GeodeticPoint | None
     start_utc_ns: int
     rate_hz: float
     timings: tuple[SensorTiming, ...]
@@ -151,6 +162,24 @@ def common_grid(series: Sequence[SensorSeries], rate_hz: float) -> tuple[int, np
         spans = ", ".join(f"{s.sensor} {(s.t_ns[-1] - s.t_ns[0]) / 1e9:.3f} s" for s in series)
         raise ValueError(f"{series[0].source}: the motion sensors overlap for less than {2 / rate_hz:g} s ({spans})")
     return t0_ns, t_s
+
+
+def check_rate(series: SensorSeries, grid_rate_hz: float) -> None:
+    """Refuse a sensor whose median sample rate is below its :data:`MIN_RATE_HZ`.
+
+    The median interval, not the mean, so that a gap in a fast sensor does not count against it.
+
+    Raises
+    ------
+    ValueError
+        Naming the sensor's source, its measured rate and its sample count and span.
+    """
+    rate_hz = 1e9 / float(np.median(np.diff(series.t_ns)))
+    if rate_hz < MIN_RATE_HZ[series.sensor]:
+        span_s = (series.t_ns[-1] - series.t_ns[0]) / 1e9
+        raise ValueError(f"{series.source}: {series.sensor} sampled at {rate_hz:.3g} Hz ({len(series.t_ns)} samples "
+                         f"over {span_s:.1f} s), below the {MIN_RATE_HZ[series.sensor]:g} Hz a walk needs; it would be "
+                         f"interpolated onto the {grid_rate_hz:g} Hz grid: log the sensor at its full rate")
 
 
 def resample(series: SensorSeries, t0_ns: int, t_s: np.ndarray) -> np.ndarray:
@@ -189,8 +218,15 @@ def choose_start_fix(gnss: GnssLog, accuracy_m: np.ndarray, walk_start: float, w
                     sigma_m=float(accuracy_m[i] / ACCURACY_RADIUS_SIGMAS))
 
 
-def _origin_of(fixes: FixSeries, origin: GeodeticPoint | None, notes: list[str]) -> GeodeticPoint:
-    """The given origin, else the first fix; a height not given is the first fix's (0 if it states none)."""
+def _origin_of(fixes: FixSeries | None, origin: GeodeticPoint | None, where: str,
+               notes: list[str]) -> GeodeticPoint | None:
+    """The given origin, else the first fix; a height not given is the first fix's (0 if it states none). None
+    without fixes and origin."""
+    if fixes is None:
+        if origin is not None and origin.height_m is None:
+            notes.append(f"{where}: no fixes: the origin's height is 0 m")
+            return origin.with_height(0.0)
+        return origin
     height = float(fixes.height_m[0])
     if not math.isfinite(height) and (origin is None or origin.height_m is None):
         notes.append(f"{fixes.source}: the first fix states no altitude: the origin's height is 0 m")
@@ -226,6 +262,7 @@ def build_sensors(log: PhoneLog, rate_hz: float = DEFAULT_RATE_HZ,
     for series in motion:
         if len(series.t_ns) < 2:
             raise ValueError(f"{series.source}: {len(series.t_ns)} sample(s); a sensor needs at least two")
+        check_rate(series, rate_hz)
     t0_ns, t_s = common_grid(motion, rate_hz)
     timings = tuple(sensor_timing(s, t0_ns) for s in motion)
     acc, gyro = resample(log.accelerometer, t0_ns, t_s), resample(log.gyroscope, t0_ns, t_s)
@@ -237,13 +274,18 @@ def build_sensors(log: PhoneLog, rate_hz: float = DEFAULT_RATE_HZ,
         notes.append(f"{log.sources[0]}: no magnetometer: /imu/mag_ut holds zeros (has_magnetometer False); the PDR's "
                      "attitude will come from the gyro and accelerometer alone")
     imu = ImuLog(t_s=t_s, acc_mps2=acc, gyro_radps=gyro, mag_ut=mag)
-    ground = _origin_of(log.fixes, origin, notes)
-    gnss, geodetic = fixes_in_enu(log.fixes, ground, t0_ns, notes)
+    ground = _origin_of(log.fixes, origin, log.sources[0], notes)
     walk_start = walk_start_s(t_s, acc, rate_hz)
-    if not math.isfinite(walk_start):
-        notes.append(f"{log.accelerometer.source}: no walking found (accelerometer never moving); the start fix is "
-                     "the last fix")
-    fix = choose_start_fix(gnss, geodetic["accuracy_m"], walk_start, log.fixes.source, notes)
+    if log.fixes is None:
+        gnss = GnssLog(t_s=np.zeros(0), x_m=np.zeros(0), y_m=np.zeros(0), cn0_dbhz=np.zeros(0))
+        geodetic = {name: np.zeros(0) for name in schema.GNSS_GEODETIC_COLUMNS}
+        fix = None
+    else:
+        gnss, geodetic = fixes_in_enu(log.fixes, ground, t0_ns, notes)
+        if not math.isfinite(walk_start):
+            notes.append(f"{log.accelerometer.source}: no walking found (accelerometer never moving); the start fix "
+                         "is the last fix")
+        fix = choose_start_fix(gnss, geodetic["accuracy_m"], walk_start, log.fixes.source, notes)
     return ImportedSensors(imu=imu, gnss=gnss, geodetic=geodetic, start_fix=fix, walk_start_s=walk_start,
                            origin=ground, start_utc_ns=t0_ns + log.utc_offset_ns, rate_hz=rate_hz, timings=timings,
                            has_magnetometer=has_mag, log=log, notes=tuple(notes))
@@ -279,12 +321,15 @@ def imu_attrs(result: ImportedSensors) -> dict[str, object]:
 
 
 def gnss_attrs(result: ImportedSensors) -> dict[str, object]:
-    """The ``/gnss`` attributes of an imported log: origin, source, accuracy convention, start-fix rule."""
+    """The ``/gnss`` attributes of an imported log: origin (where known), source, accuracy convention, start-fix
+    rule."""
     t_s = result.gnss.t_s
     rate = 1.0 / float(np.median(np.diff(t_s))) if len(t_s) > 1 else math.nan
+    origin = result.origin
     return {
-        **dict(zip(schema.ORIGIN_ATTRS, (result.origin.lat_deg, result.origin.lon_deg, result.origin.height_m))),
-        "rate_hz": rate, "source": result.log.fixes.source, "frame": "ENU about the origin (pymap3d, WGS84)",
+        **(dict(zip(schema.ORIGIN_ATTRS, (origin.lat_deg, origin.lon_deg, origin.height_m))) if origin else {}),
+        "rate_hz": rate, "source": result.log.fixes.source if result.log.fixes else "none: the log has no fixes",
+        "frame": "ENU about the origin (pymap3d, WGS84)",
         "accuracy_definition": f"stated horizontal accuracy radius ({ACCURACY_CONFIDENCE:.0%} confidence on Android); "
                                f"start_fix_sigma_m = accuracy / {ACCURACY_RADIUS_SIGMAS:.3f}",
         schema.WALK_START_ATTR: result.walk_start_s,
@@ -294,7 +339,7 @@ def gnss_attrs(result: ImportedSensors) -> dict[str, object]:
 
 
 def write_sensors(path: str | os.PathLike, result: ImportedSensors) -> None:
-    """Write ``/imu`` and ``/gnss`` (with P0) to a new file, atomically."""
+    """Write ``/imu`` and ``/gnss`` (with P0; without fixes, no rows and no P0) to a new file, atomically."""
     with atomic_h5(path) as h5:
         write_imu(h5, result.imu, imu_attrs(result))
         write_gnss(h5, result.gnss, result.start_fix, gnss_attrs(result), extra_columns=result.geodetic)
@@ -324,6 +369,10 @@ def describe(result: ImportedSensors) -> list[str]:
     o, fix = result.origin, result.start_fix
     walk = (f"the walk starts at {result.walk_start_s:.2f} s" if math.isfinite(result.walk_start_s)
             else "no walk found")
+    if fix is None:
+        about = f"about the given origin {o.lat_deg:.8f}, {o.lon_deg:.8f}" if o else "and no geodetic origin"
+        lines.append(f"/gnss: no fixes {about}; no start fix ({walk})")
+        return lines
     lines.append(f"/gnss: {len(result.gnss.t_s)} fixes about the origin {o.lat_deg:.8f}, {o.lon_deg:.8f}, "
                  f"{o.height_m:.2f} m; start fix at {fix.t_s:.2f} s: ({fix.x_m:.2f}, {fix.y_m:.2f}) m, sigma "
                  f"{fix.sigma_m:.2f} m ({walk})")
