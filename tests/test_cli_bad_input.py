@@ -815,6 +815,16 @@ def sensors_sensor_far_slower_than_the_grid(ctx):
 
 
 @case(EXIT_BAD_INPUT)
+def sensors_accel_rows_without_utc_time(ctx):
+    """An accelerometer header without utcTimeMillis: no tie between the UTC clock and the sensors' clock."""
+    lines = [line.replace("# UncalAccel,utcTimeMillis,", "# UncalAccel,") if line.startswith("# UncalAccel,")
+             else ",".join(line.split(",")[:1] + line.split(",")[2:]) if line.startswith("UncalAccel,") else line
+             for line in _static_lines()]
+    log = _gnss_log(ctx, lines)
+    return _sensors(ctx, log), [log, "has no utcTimeMillis", "UTC clock"]
+
+
+@case(EXIT_BAD_INPUT)
 def sensors_latitude_out_of_range(ctx):
     log, where = _log_with_field(ctx, "Fix,", 2, "91.5")
     return _sensors(ctx, log), [where, "latitude 91.5", "out of range"]

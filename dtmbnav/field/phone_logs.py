@@ -268,7 +268,13 @@ def _gnsslogger_sensor(tables: dict[str, Table], sensor: str,
 
 
 def _gnsslogger_utc_offset(table: Table) -> int:
-    """UTC minus elapsed realtime, ns: the median over a sensor's rows of ``utcTimeMillis`` less the row's time."""
+    """UTC minus elapsed realtime, ns: the median over a sensor's rows of ``utcTimeMillis`` less the row's time.
+
+    Without that column the two clocks cannot be tied: the log's UTC start, and fixes without their own
+    ``elapsedRealtimeNanos`` (older GnssLogger versions), would have no place on the sensor clock."""
+    if table.index((fmt.UTC_MILLIS,)) is None:
+        raise ValueError(f"{table.where}: the header (line {table.header_line}) has no {fmt.UTC_MILLIS}: the UTC "
+                         "clock cannot be tied to the sensors' clock; log with a GnssLogger version that writes it")
     utc_ms = integer_column(table, table.need((fmt.UTC_MILLIS,)), fmt.UTC_MILLIS)
     elapsed = integer_column(table, table.need((fmt.ELAPSED_NANOS,)), fmt.ELAPSED_NANOS)
     return int(np.median(utc_ms * 1_000_000 - elapsed))
