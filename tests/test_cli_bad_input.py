@@ -880,6 +880,21 @@ def sensors_sensor_logger_acceleration_without_gravity(ctx):
 
 
 @case(EXIT_BAD_INPUT)
+def sensors_sensor_logger_without_metadata_nor_total_acceleration(ctx):
+    """Without Metadata.csv nor TotalAcceleration.csv (Android's alone) the platform, and so the acceleration's
+    sign, is unknown: refused, never read with Android's sign."""
+    folder = write_sensor_logger(ctx.tmp / "export", *static_log(), gravity_split=True, ios=True)
+    (folder / "Metadata.csv").unlink()
+    return _sensors(ctx, str(folder)), [str(folder), "no platform (Metadata.csv)", "opposite sign"]
+
+
+@case(EXIT_OK)
+def sensors_sensor_logger_without_metadata_with_total_acceleration_is_android(ctx):
+    folder = _export(ctx, "Metadata.csv")
+    return _sensors(ctx, str(folder))[1:], [str(folder)]
+
+
+@case(EXIT_BAD_INPUT)
 def sensors_sensor_logger_without_gyroscope(ctx):
     folder = str(_export(ctx, "Gyroscope.csv"))
     return _sensors(ctx, folder), [folder, "no Gyroscope.csv"]

@@ -52,9 +52,8 @@ from dtmbnav_core.text_tables import (
 
 GNSSLOGGER = "GnssLogger"
 SENSOR_LOGGER = "Sensor Logger"
-#: What a log without fixes gives, for its note.
 NO_FIXES = ("the sensors file gets no fixes, and fuse will need --start X,Y (and --tower X,Y, or 'sensors "
-            "--origin LAT,LON' for a tower by latitude and longitude)")
+            "--origin LAT,LON' for a tower by latitude and longitude)")  # a log without fixes, for its note
 _ROW_TYPE = re.compile(r"[A-Za-z][A-Za-z0-9]*")
 
 
@@ -275,8 +274,7 @@ def _gnsslogger_utc_offset(table: Table) -> int:
     if table.index((fmt.UTC_MILLIS,)) is None:
         raise ValueError(f"{table.where}: the header (line {table.header_line}) has no {fmt.UTC_MILLIS}: the UTC "
                          "clock cannot be tied to the sensors' clock; log with a GnssLogger version that writes it")
-    utc_ms = integer_column(table, table.need((fmt.UTC_MILLIS,)), fmt.UTC_MILLIS)
-    elapsed = integer_column(table, table.need((fmt.ELAPSED_NANOS,)), fmt.ELAPSED_NANOS)
+    utc_ms, elapsed = (integer_column(table, table.need((name,)), name) for name in (fmt.UTC_MILLIS, fmt.ELAPSED_NANOS))
     return int(np.median(utc_ms * 1_000_000 - elapsed))
 
 
@@ -303,11 +301,8 @@ def _status_cn0(tables: dict[str, Table]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _nearest_cn0(fix_ms: np.ndarray, status_ms: np.ndarray, status_cn0: np.ndarray) -> np.ndarray:
-    """The C/N0 of the Status report nearest each fix's UTC time (ms; NaN: none) within
-    :data:`fmt.CN0_JOIN_WINDOW_MS`, NaN where none is that close.
-
-    Real logs seldom stamp a fix and its status report with the same millisecond, so an exact join
-    would leave most fixes without C/N0."""
+    """C/N0 of the Status report nearest each fix's UTC time (ms; NaN: none) within :data:`fmt.CN0_JOIN_WINDOW_MS`,
+    else NaN: real logs seldom stamp a fix and its report with the same millisecond."""
     if not status_ms.size:
         return np.full(len(fix_ms), np.nan)
     right = np.clip(np.searchsorted(status_ms, fix_ms), 0, len(status_ms) - 1)
@@ -483,13 +478,17 @@ def _sensor_logger_axes(sensor: str, where: str, text: str, notes: list[str]) ->
 
 def _ios_frames(files: _Export) -> bool:
     """True when ``Metadata.csv`` says iOS without "Standardise Units & Frames": acceleration and gravity
-    then carry the opposite sign to Android's."""
-    if fmt.METADATA not in files:
-        return False
-    table = csv_table(*files.text(fmt.METADATA))
-    platform, standard = table.index((fmt.METADATA_PLATFORM,)), table.index(fmt.METADATA_STANDARDISATION)
-    if not table.texts or platform is None:
-        return False
+    then carry the opposite sign to Android's. Where it states no platform, an export with ``TotalAcceleration.csv``
+    (only Android's app writes it) is Android's; any other is refused rather than read with Android's sign."""
+    table = csv_table(*files.text(fmt.METADATA)) if fmt.METADATA in files else None
+    platform = table.index((fmt.METADATA_PLATFORM,)) if table is not None and table.texts else None
+    if platform is None:
+        if fmt.TOTAL_ACCELERATION in files:
+            return False
+        raise ValueError(f"{files.where}: no platform ({fmt.METADATA}): an iPhone logs acceleration with the "
+                         f"opposite sign to Android's, and without {fmt.TOTAL_ACCELERATION} the data cannot say "
+                         f"which; export {fmt.METADATA} too")
+    standard = table.index(fmt.METADATA_STANDARDISATION)
     row = [text.strip().lower() for text in table.fields[0]]
     return row[platform] == "ios" and (standard is None or row[standard] not in ("true", "1"))
 
