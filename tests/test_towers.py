@@ -194,8 +194,9 @@ def _fuse_arguments(tmp_path, monkeypatch, capsys, *extra: str, carrier_hz: floa
     monkeypatch.setattr("dtmbnav.chain.fuse.fuse_files", fake_fuse)
     sensors = _sensors_with_origin(tmp_path / "sensors.h5")
     rx = _receiver_on(tmp_path / "rx.h5", carrier_hz)
+    # The sensors file holds an origin but no fixes, so the start fix is given.
     code = main(["-q", "fuse", "--receiver", str(rx), "--sensors", str(sensors), "-o", str(tmp_path / "f.h5"),
-                 "--towers", str(_write(tmp_path / "towers.toml", TOML)), *extra])
+                 "--towers", str(_write(tmp_path / "towers.toml", TOML)), "--start", "0,0", *extra])
     err = capsys.readouterr().err
     assert code == EXIT_BAD_INPUT and "stop here" in err
     return seen, err
