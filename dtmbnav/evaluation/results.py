@@ -23,7 +23,6 @@ import importlib
 import math
 import os
 import platform
-import subprocess
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -45,7 +44,7 @@ from dtmbnav.evaluation.results_data import (
     number,
     percent,
 )
-from dtmbnav.evaluation.results_status import ROOT, fingerprint
+from dtmbnav.evaluation.results_status import ROOT, fingerprint, run_git
 from dtmbnav.evaluation.seeds import IQ_SEEDS, OBS_SEEDS, REPORTING_SEEDS, RESULT_SECTIONS, TUNING_SEEDS
 
 #: Scenarios of the fusion tables, in the order they are printed.
@@ -108,14 +107,11 @@ SECTIONS = RESULT_SECTIONS
 def commit_id(root: Path = ROOT) -> str:
     """The checkout's commit (short hash, ``+modified`` where tracked files differ from it); ``unknown``
     outside a git checkout."""
-    try:
-        head = subprocess.run(["git", "rev-parse", "--short=10", "HEAD"], cwd=root, capture_output=True, text=True,
-                              check=True, timeout=30).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
-                               capture_output=True, text=True, check=True, timeout=30).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
+    head = run_git(root, "rev-parse", "--short=10", "HEAD", timeout_s=30.0)
+    dirty = run_git(root, "status", "--porcelain", "--untracked-files=no", timeout_s=30.0)
+    if head is None or dirty is None or head.returncode or dirty.returncode:
         return "unknown"
-    return head + ("+modified" if dirty else "")
+    return head.stdout.strip() + ("+modified" if dirty.stdout.strip() else "")
 
 
 def machine_description() -> str:

@@ -123,10 +123,10 @@ class SectionStatus:
         return f"{self.name}: out of date, {self.basis}: {', '.join(named[:LISTED])}{more}"
 
 
-def _git(root: Path, *args: str) -> subprocess.CompletedProcess | None:
-    """A git command in ``root``; None where git is missing or times out."""
+def run_git(root: Path, *args: str, timeout_s: float = 60.0) -> subprocess.CompletedProcess | None:
+    """A git command in ``root``, its output captured as text; None where git is missing or times out."""
     try:
-        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, timeout=60)
+        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, timeout=timeout_s)
     except (OSError, subprocess.SubprocessError):
         return None
 
@@ -141,7 +141,7 @@ def changes_since(commit: str, paths: Sequence[str], root: Path = ROOT) -> tuple
     changed or added, and those removed; None where git cannot tell (no git, an unknown commit)."""
     if not _known_commit(commit):
         return None
-    done = _git(root, "diff", "--name-status", "--no-renames", commit, "--", *paths)
+    done = run_git(root, "diff", "--name-status", "--no-renames", commit, "--", *paths)
     if done is None or done.returncode != 0:
         return None
     changed, removed = [], []
@@ -157,7 +157,7 @@ def code_unchanged_since(commit: str, root: Path = ROOT) -> bool:
     checkout."""
     if not _known_commit(commit):
         return False
-    done = _git(root, "diff", "--quiet", commit, "--", ".", ":(exclude)*.md", ":(exclude)docs/results.json")
+    done = run_git(root, "diff", "--quiet", commit, "--", ".", ":(exclude)*.md", ":(exclude)docs/results.json")
     return done is not None and done.returncode == 0
 
 
