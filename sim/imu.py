@@ -22,7 +22,11 @@ clockwise from north, like the heading), then about the sensor's x axis by
   pocket or a hand swinging at the side it rides on a limb that swings about
   the hip or the shoulder at half the step frequency (a pendulum that fades in
   over a leg's first step and out over its last); the pocket adds the pocket
-  leg's heel strikes and a stride-frequency asymmetry between the legs.
+  leg's heel strikes and a stride-frequency asymmetry between the legs. At
+  the ear it rides with the head, in a bag on a pendulum of its own; the walk
+  may hand the phone from one carriage to another
+  (``imu.carriage_changes``). The carriages' models live in
+  :mod:`sim.carriage`.
 - ``foot-mems``: strapped to the right foot. The foot stands still (stance)
   on the ground beside the path and swings to its next footprint in
   ``FOOT_SWING_S`` before each of its heel strikes (every other step), with a
@@ -56,12 +60,12 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
 from scipy.spatial.transform import Rotation
 
 from dtmbnav_core.constants import GRAVITY_MPS2
 from dtmbnav_core.records import ImuLog
 from dtmbnav_core.resampling import interpolate
+from sim.carriage import CARRIAGES, Motion, attitude_ypr, carriage_motion, change_carriage, resample_walk
 from sim.scenario import Building, ImuConfig, Scenario
 from sim.walk import Walk
 
@@ -151,75 +155,6 @@ PRESETS: dict[str, ImuPreset] = {
 
 
 @dataclass(frozen=True)
-class Carriage:
-    """How the phone rides on the walker (scenario ``imu.carriage``).
-
-    Attributes
-    ----------
-    bounce_scale : float
-        Part of the body's vertical bounce (Weinberg's relation) that reaches the phone.
-    pitch_rad : float
-        Pitch at which the phone is held, nose up, rad (for a limb: when the limb hangs straight).
-    roll_rad : float
-        Roll of the phone about its forward axis, rad (pi/2: the screen faces right).
-    limb_m : float
-        Distance from the joint the limb swings about (hip, shoulder) to the phone, m;
-        0 for a phone held in front.
-    swing_rad : float
-        Amplitude of the limb's swing about the lateral axis (at half the step frequency), rad.
-    swing_mean_rad : float
-        Mean angle of the limb forward of the vertical while walking, rad.
-    leg_asymmetry : float
-        Stride-frequency part of the vertical bounce, relative: the strike of the leg
-        that carries the phone peaks ``1 + a`` times the body's, the other leg's ``1 - a``.
-    strike_mps2 : float
-        Peak of the heel-strike transient of the leg that carries the phone, m/s^2 (the
-        other leg's reaches it through the pelvis at a third of that).
-    in_pocket : bool
-        The phone lies flat on the front of the thigh at an orientation drawn per walk
-        (``pitch_rad`` and ``roll_rad`` unused).
-    """
-
-    bounce_scale: float
-    pitch_rad: float
-    roll_rad: float = 0.0
-    limb_m: float = 0.0
-    swing_rad: float = 0.0
-    swing_mean_rad: float = 0.0
-    leg_asymmetry: float = 0.0
-    strike_mps2: float = 0.0
-    in_pocket: bool = False
-
-
-#: Carriages of the phone preset (``imu.carriage``). Typical values of the gait literature:
-#: - ``hand``: held in front at about 20 deg nose up, rigidly enough that the body's bounce reaches it;
-#: - ``texting``: held closer and steeper (the screen faced towards the eyes), and kept steady to be read,
-#:   so the arm damps the trunk's bounce to some 40 %; people walk slower and with a lower cadence
-#:   while texting (Lamberg & Muratori 2012, Gait & Posture 35:688; Schabrun et al. 2014, PLoS ONE
-#:   9:e84312): the scenario's ``[walk]`` sets that gait (e.g. 1.1 steps/s at 0.7 m/s);
-#: - ``pocket``: front trouser pocket about 0.2 m below the hip joint; the hip flexes and extends over
-#:   some 40 deg each stride (about +25 to -15 deg, Perry & Burnfield, Gait Analysis, 2010), the leg that
-#:   carries the phone dominates the signal, and its heel strike reaches the thigh as a transient of the
-#:   order of half a g (the shock at the shin, one to a few g, is damped up the leg);
-#: - ``swinging``: gripped across the palm (top forward, screen facing out) in an arm that hangs about
-#:   0.65 m from the shoulder and swings as a pendulum at half the step frequency, some +-20 deg at a
-#:   normal pace (arm swing reviewed by Meyns, Bruijn & Duysens 2013, Gait & Posture 38:555): angular
-#:   rates of well over 100 deg/s.
-CARRIAGES: dict[str, Carriage] = {
-    "hand": Carriage(bounce_scale=1.0, pitch_rad=np.radians(20.0)),
-    "texting": Carriage(bounce_scale=0.4, pitch_rad=np.radians(35.0)),
-    "pocket": Carriage(bounce_scale=1.0, pitch_rad=0.0, limb_m=0.2, swing_rad=np.radians(20.0),
-                       swing_mean_rad=np.radians(5.0), leg_asymmetry=0.4, strike_mps2=5.0, in_pocket=True),
-    "swinging": Carriage(bounce_scale=1.0, pitch_rad=0.0, roll_rad=np.radians(90.0), limb_m=0.65,
-                         swing_rad=np.radians(20.0)),
-}
-#: Width (standard deviation of the Gaussian it is built on) of a heel-strike transient, s.
-STRIKE_WIDTH_S = 0.02
-#: Moving-average window over which a swinging limb's phase follows the steps', s (about a stride).
-SWING_SMOOTHING_S = 1.0
-
-
-@dataclass(frozen=True)
 class ImuErrors:
     """The sensor errors a simulation drew (truth for tests and drift predictions).
 
@@ -247,155 +182,7 @@ class ImuErrors:
     weinberg_k_m: float
 
 
-@dataclass(frozen=True)
-class _Motion:
-    """True motion of the sensor: attitude and ENU acceleration at the sample times."""
-
-    attitude: Rotation
-    acc_enu_mps2: np.ndarray
-
-
-def _resample_walk(walk: Walk, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Truth position (N x 2, m) and unwrapped heading (rad) at times ``t_s``."""
-    tr = walk.track
-    xy = np.column_stack([np.interp(t_s, tr.t_s, tr.x_m), np.interp(t_s, tr.t_s, tr.y_m)])
-    return xy, np.interp(t_s, tr.t_s, np.unwrap(tr.heading_rad))
-
-
-def _second_difference(values: np.ndarray, dt_s: float) -> np.ndarray:
-    """Central second derivative along axis 0 (one-sided at the ends)."""
-    return np.gradient(np.gradient(values, dt_s, axis=0), dt_s, axis=0)
-
-
-def _attitude(yaw_rad: np.ndarray, pitch_rad: np.ndarray, roll_rad: np.ndarray) -> Rotation:
-    """Sensor-to-ENU rotation from yaw (clockwise from north), pitch and roll (module docstring)."""
-    return Rotation.from_euler("ZXY", np.column_stack([-yaw_rad, pitch_rad, roll_rad]))
-
-
-@dataclass(frozen=True)
-class _Gait:
-    """The body's part of a phone's motion at the sample times.
-
-    ``heading`` is the truth heading (unwrapped, rad); ``walking`` marks the samples
-    inside a step; ``cycle`` is the step's phase angle (2 pi per step) and ``stride``
-    the stride's (pi per step, continuous from step to step); ``bounce_pp`` the
-    peak-to-peak bounce reaching the phone, m/s^2; ``acc_enu_mps2`` the truth
-    track's acceleration plus the bounce, surge and sway.
-    """
-
-    heading: np.ndarray
-    walking: np.ndarray
-    cycle: np.ndarray
-    stride: np.ndarray
-    bounce_pp: np.ndarray
-    acc_enu_mps2: np.ndarray
-
-
-def _body_gait(walk: Walk, t_s: np.ndarray, preset: ImuPreset, carriage: Carriage, gain_error: float) -> _Gait:
-    """Smooth truth motion plus the per-step gait of the body (module docstring)."""
-    dt = t_s[1] - t_s[0]
-    xy, heading = _resample_walk(walk, t_s)
-    acc = np.zeros((len(t_s), 3))
-    acc[:, :2] = _second_difference(xy, dt)
-
-    step, phase = walk.step_phase(t_s)
-    walking = step >= 0
-    length = np.where(walking, walk.step_length_m[np.maximum(step, 0)], 0.0)
-    # Weinberg, peak-to-peak, of which the carriage passes on a part.
-    bounce_pp = carriage.bounce_scale * ((1.0 + gain_error) * length / preset.weinberg_k_m) ** 4
-    # The body is lowest and decelerating upwards (vertical acceleration at its peak) at heel
-    # strike, phase 0 and 1 of a step, and highest at mid-stance. Setting off from a standstill
-    # there is no strike at phase 0: the first step of a leg fades in from zero.
-    cycle = 2.0 * np.pi * phase
-    fade_in = np.where(walking & walk.first_of_leg[np.maximum(step, 0)], np.sin(0.5 * np.pi * phase) ** 2, 1.0)
-    stride = np.pi * (np.maximum(step, 0) + phase)  # the sway alternates sides every step
-    vertical = 0.5 * bounce_pp * np.cos(cycle) * fade_in
-    forward = 0.15 * bounce_pp * np.sin(cycle)
-    sideways = np.where(walking, 0.4 * np.sin(stride), 0.0)
-    fwd_unit = np.column_stack([np.sin(heading), np.cos(heading)])
-    right_unit = np.column_stack([np.cos(heading), -np.sin(heading)])
-    acc[:, :2] += forward[:, None] * fwd_unit + sideways[:, None] * right_unit
-    acc[:, 2] += vertical
-    return _Gait(heading=heading, walking=walking, cycle=cycle, stride=stride, bounce_pp=bounce_pp,
-                 acc_enu_mps2=acc)
-
-
-def _hand_motion(gait: _Gait, carriage: Carriage, mount_yaw_rad: float) -> _Motion:
-    """Phone held in front: the body's motion and an attitude wobble with the gait."""
-    # Attitude wobble grows with the bounce (a relaxed arm swings more at a brisk pace).
-    wobble = np.sqrt(gait.bounce_pp / 5.0)
-    yaw = gait.heading + mount_yaw_rad + np.radians(2.0) * wobble * np.sin(gait.stride)
-    pitch = carriage.pitch_rad + np.radians(1.5) * wobble * np.sin(gait.cycle)
-    roll = np.radians(1.5) * wobble * np.sin(gait.stride)
-    return _Motion(attitude=_attitude(yaw, pitch, roll), acc_enu_mps2=gait.acc_enu_mps2)
-
-
-def _limb_motion(walk: Walk, t_s: np.ndarray, gait: _Gait, carriage: Carriage, mount_yaw_rad: float,
-                 placement: Rotation) -> _Motion:
-    """Phone on a limb swinging about the hip or shoulder at half the step frequency.
-
-    The limb's angle forward of the vertical is ``mean + swing cos(stride)``: it is at
-    its extremes about the heel strikes (the leg that carries the phone forward at its own
-    strikes) and hangs straight while standing. A limb is a pendulum with inertia: its
-    stride angle is the steps' smoothed over :data:`SWING_SMOOTHING_S`, so that its rate
-    does not jump with each step's duration. From a standstill the swing fades in over the
-    leg's first step and out over its last, with the square of a half-cosine ramp (zero
-    rate at both ends: attitude and rates stay continuous; squared, so that the limb
-    hardly moves against its first swing while the ramp is low). ``placement`` is the
-    phone's fixed orientation on the limb.
-    """
-    dt = t_s[1] - t_s[0]
-    step, phase = walk.step_phase(t_s)
-    index = np.maximum(step, 0)
-    first = gait.walking & walk.first_of_leg[index]
-    last = gait.walking & np.concatenate([walk.first_of_leg[1:], [True]])[index]
-    rise, fall = 0.5 * (1.0 - np.cos(np.pi * phase)), 0.5 * (1.0 + np.cos(np.pi * phase))
-    envelope = np.where(gait.walking, np.where(first, rise, 1.0) * np.where(last, fall, 1.0), 0.0)
-    # Steps done plus the current one's phase: continuous through standstills too.
-    steps_done = np.searchsorted(walk.step_t_s, t_s, side="right") + phase
-    stride = uniform_filter1d(np.pi * steps_done, max(1, round(SWING_SMOOTHING_S / dt)), mode="nearest")
-    angle = carriage.swing_mean_rad * envelope + carriage.swing_rad * envelope**2 * np.cos(stride)
-    # The phone's offset from the joint (forward and up in the walking direction's vertical plane).
-    forward = carriage.limb_m * np.sin(angle)
-    offset = np.column_stack([forward * np.sin(gait.heading), forward * np.cos(gait.heading),
-                              -carriage.limb_m * np.cos(angle)])
-    acc = gait.acc_enu_mps2 + _second_difference(offset, dt)
-    # The leg that carries the phone dominates: its strikes (the ends of odd steps, where cos(stride) = 1)
-    # bounce more than the other leg's.
-    acc[:, 2] += carriage.leg_asymmetry * 0.5 * gait.bounce_pp * np.cos(gait.stride) * envelope
-    # Heel-strike transients: a Mexican hat (zero net velocity change) at each strike, full size on that leg.
-    strikes = walk.step_t_s
-    j = np.clip(np.searchsorted(strikes, t_s), 1, len(strikes) - 1)
-    nearest = np.where(np.abs(t_s - strikes[j - 1]) < np.abs(t_s - strikes[j]), j - 1, j)
-    size = np.where(nearest % 2 == 1, carriage.strike_mps2, carriage.strike_mps2 / 3.0)
-    u = (t_s - strikes[nearest]) / STRIKE_WIDTH_S
-    acc[:, 2] += size * (1.0 - u**2) * np.exp(-0.5 * u**2)
-    limb = Rotation.from_euler("ZX", np.column_stack([-(gait.heading + mount_yaw_rad), angle]))
-    return _Motion(attitude=limb * placement, acc_enu_mps2=acc)
-
-
-def _placement(carriage: Carriage, rng: np.random.Generator) -> Rotation:
-    """The phone's orientation on its limb: fixed, or drawn for a pocket.
-
-    In a pocket the phone lies flat on the front of the thigh, its screen towards the
-    thigh or away from it, its long axis at any angle in the pocket's plane.
-    """
-    if not carriage.in_pocket:
-        return Rotation.from_euler("XY", [carriage.pitch_rad, carriage.roll_rad])
-    screen = rng.choice([-0.5 * np.pi, 0.5 * np.pi])
-    return Rotation.from_euler("XZ", [screen, rng.uniform(0.0, 2.0 * np.pi)])
-
-
-def _phone_motion(walk: Walk, t_s: np.ndarray, preset: ImuPreset, carriage: Carriage, gain_error: float,
-                  mount_yaw_rad: float, rng: np.random.Generator) -> _Motion:
-    """A phone carried as ``carriage`` says (module docstring)."""
-    gait = _body_gait(walk, t_s, preset, carriage, gain_error)
-    if carriage.limb_m == 0.0:
-        return _hand_motion(gait, carriage, mount_yaw_rad)
-    return _limb_motion(walk, t_s, gait, carriage, mount_yaw_rad, _placement(carriage, rng))
-
-
-def _foot_motion(walk: Walk, t_s: np.ndarray) -> _Motion:
+def _foot_motion(walk: Walk, t_s: np.ndarray) -> Motion:
     """Right foot: stance on footprints beside the path, minimum-jerk swings between them."""
     # Footprints: the stops and every other heel strike of each leg (the right foot's).
     first_in_leg = walk.first_of_leg
@@ -414,7 +201,7 @@ def _foot_motion(walk: Walk, t_s: np.ndarray) -> _Motion:
     swing_dur = strike_t - swing_start
 
     def footprint(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        xy, heading = _resample_walk(walk, t)
+        xy, heading = resample_walk(walk, t)
         right = np.column_stack([np.cos(heading), -np.sin(heading)])
         return xy + FOOT_OFFSET_M * right, heading
 
@@ -440,7 +227,7 @@ def _foot_motion(walk: Walk, t_s: np.ndarray) -> _Motion:
     turn = np.angle(np.exp(1j * (strike_heading[j] - from_heading[j])))
     yaw = from_heading[j] + turn * mj
     pitch = np.where(in_swing, -FOOT_PITCH_RAD * np.sin(2.0 * np.pi * tau), 0.0)
-    return _Motion(attitude=_attitude(yaw, pitch, np.zeros_like(yaw)), acc_enu_mps2=acc)
+    return Motion(attitude=attitude_ypr(yaw, pitch, np.zeros_like(yaw)), acc_enu_mps2=acc)
 
 
 def _body_rates(attitude: Rotation, dt_s: float) -> np.ndarray:
@@ -515,8 +302,10 @@ def simulate_imu_with_errors(scenario: Scenario, walk: Walk) -> tuple[ImuLog, Im
     Raises
     ------
     ValueError
-        Unknown preset or carriage, a carriage other than ``hand`` on the foot,
-        a non-positive rate, or a jitter or gap setting out of range.
+        Unknown preset or carriage, a carriage other than ``hand`` (or a carriage
+        change) on the foot, a non-positive rate, a jitter or gap setting out of
+        range, carriage changes out of order or overlapping, or a ``swing_deg`` with
+        no swinging arm to set.
     """
     cfg = scenario.imu
     if cfg.preset not in PRESETS:
@@ -526,8 +315,9 @@ def simulate_imu_with_errors(scenario: Scenario, walk: Walk) -> tuple[ImuLog, Im
     if cfg.rate_hz <= 0:
         raise ValueError(f"imu.rate_hz must be > 0, got {cfg.rate_hz}")
     preset = PRESETS[cfg.preset]
-    if preset.mount != "hand" and cfg.carriage != "hand":
+    if preset.mount != "hand" and (cfg.carriage != "hand" or cfg.carriage_changes):
         raise ValueError(f"imu.carriage: {cfg.carriage!r} applies to the phone preset only, not {cfg.preset!r}")
+    _check_carriage_changes(cfg)
     if not 0.0 <= cfg.time_jitter <= 0.2:
         raise ValueError(f"imu.time_jitter must lie in [0, 0.2], got {cfg.time_jitter}")
     if cfg.gaps_per_minute < 0 or cfg.gap_s <= 0:
@@ -541,15 +331,14 @@ def simulate_imu_with_errors(scenario: Scenario, walk: Walk) -> tuple[ImuLog, Im
 
     mount_yaw = float(rng.normal(0.0, preset.mount_yaw_sigma_rad)) if preset.mount_yaw_sigma_rad > 0 else 0.0
     if preset.mount == "hand":
-        motion = _phone_motion(walk, t_s, preset, carriage, cfg.step_gain_error, mount_yaw,
-                               np.random.default_rng([scenario.seed, IMU_STREAM, CARRIAGE_SUBSTREAM]))
+        motion = _phone_motion(scenario, walk, t_s, preset, mount_yaw)
     else:
         motion = _foot_motion(walk, t_s)
 
     specific_force_enu = motion.acc_enu_mps2 + np.array([0.0, 0.0, GRAVITY_MPS2])
     true_acc = motion.attitude.inv().apply(specific_force_enu)
     true_gyro = _body_rates(motion.attitude, dt)
-    xy, _ = _resample_walk(walk, t_s)
+    xy, _ = resample_walk(walk, t_s)
     # The magnetic scene has its own stream so that adding a building changes no other error.
     scene_rng = np.random.default_rng([scenario.seed, IMU_STREAM, MAG_SCENE_SUBSTREAM])
     field_enu = EARTH_FIELD_UT + magnetic_disturbance_ut(xy, scenario.channel.buildings,
@@ -580,6 +369,45 @@ def simulate_imu_with_errors(scenario: Scenario, walk: Walk) -> tuple[ImuLog, Im
     if keep.all():
         return imu, errors
     return imu.select(keep), dataclasses.replace(errors, gyro_bias_radps=errors.gyro_bias_radps[keep])
+
+
+def _check_carriage_changes(cfg: ImuConfig) -> None:
+    """Raise ValueError for an unknown carriage, a change before the previous one ends, or a stray ``swing_deg``."""
+    end_s = 0.0
+    for i, change in enumerate(cfg.carriage_changes):
+        where = f"imu.carriage_changes[{i}]"
+        if change.carriage not in CARRIAGES:
+            raise ValueError(f"{where}: unknown carriage {change.carriage!r}; known: {sorted(CARRIAGES)}")
+        if change.duration_s <= 0 or change.t_s < end_s:
+            raise ValueError(f"{where}: needs duration_s > 0 and t_s >= {end_s} (the previous change's end), "
+                             f"got t_s = {change.t_s}, duration_s = {change.duration_s}")
+        end_s = change.t_s + change.duration_s
+    names = [cfg.carriage] + [change.carriage for change in cfg.carriage_changes]
+    if cfg.swing_deg is not None and not any(CARRIAGES[name].swings_arm for name in names):
+        raise ValueError(f"imu.swing_deg: none of the walk's carriages {names} swings an arm")
+
+
+def _phone_motion(scenario: Scenario, walk: Walk, t_s: np.ndarray, preset: ImuPreset, mount_yaw_rad: float) -> Motion:
+    """The phone in its carriage, handled into the next ones at the times ``imu.carriage_changes`` says.
+
+    Each carriage draws its randomness (placement, head turns, jostling) from its own
+    sub-stream of the carriage stream (the first one from the carriage stream itself), so
+    that adding a change leaves the carriages before it as they were.
+    """
+    cfg = scenario.imu
+
+    def motion(k: int, name: str) -> Motion:
+        carriage = CARRIAGES[name]
+        if cfg.swing_deg is not None and carriage.swings_arm:
+            carriage = dataclasses.replace(carriage, swing_rad=np.radians(cfg.swing_deg))
+        stream = [scenario.seed, IMU_STREAM, CARRIAGE_SUBSTREAM] + ([k] if k else [])
+        return carriage_motion(walk, t_s, preset.weinberg_k_m, carriage, cfg.step_gain_error, mount_yaw_rad,
+                               np.random.default_rng(stream))
+
+    result = motion(0, cfg.carriage)
+    for k, change in enumerate(cfg.carriage_changes, start=1):
+        result = change_carriage(result, motion(k, change.carriage), t_s, change.t_s, change.duration_s)
+    return result
 
 
 def _sample_times(cfg: ImuConfig, t_s: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

@@ -290,6 +290,7 @@ _OMIT_DEFAULT = {("receiver", "tuning_offset_hz"): 0.0, ("receiver", "lo_leakage
                  ("receiver", "adc_dc_lsb"): [0.0, 0.0], ("receiver", "agc_step_db"): 0.0,
                  ("receiver", "agc_steps_per_minute"): 0.0, ("receiver", "drops_per_minute"): 0.0,
                  ("receiver", "drop_samples"): [1, 100000], ("imu", "carriage"): "hand",
+                 ("imu", "carriage_changes"): [],
                  ("imu", "magnetometer"): True, ("imu", "time_jitter"): 0.0, ("imu", "gaps_per_minute"): 0.0,
                  ("imu", "gap_s"): 0.5}
 
@@ -380,6 +381,25 @@ class ChannelConfig:
 
 
 @dataclass(frozen=True)
+class CarriageChange:
+    """The walker handles the phone into another carriage (take it out, put it to the ear, pocket it).
+
+    Attributes
+    ----------
+    t_s : float
+        When the handling starts, s from the scenario's start.
+    carriage : str
+        The carriage after it (:data:`sim.carriage.CARRIAGES`).
+    duration_s : float
+        How long the handling lasts (the phone turns and moves between the carriages), s.
+    """
+
+    t_s: float
+    carriage: str
+    duration_s: float = 1.5
+
+
+@dataclass(frozen=True)
 class ImuConfig:
     """Handheld or foot-mounted IMU.
 
@@ -402,10 +422,17 @@ class ImuConfig:
     mag_disturbance_ut : float
         Peak magnetic disturbance near buildings, uT.
     carriage : str
-        How the phone is carried (:data:`sim.imu.CARRIAGES`): ``"hand"`` (held in
+        How the phone is carried (:data:`sim.carriage.CARRIAGES`): ``"hand"`` (held in
         front), ``"texting"`` (held in front to read, the bounce damped by the arm),
-        ``"pocket"`` (front trouser pocket) or ``"swinging"`` (in a hand swinging at the
-        side). The phone preset only.
+        ``"pocket"`` or ``"pocket-gait"`` (front trouser pocket, the thigh a pendulum or
+        its measured profile), ``"swinging"`` or ``"swinging-wide"`` (in a hand swinging
+        at the side, +-20 or +-45 deg), ``"ear"`` (at the ear, in a call) or ``"bag"``
+        (in a shoulder bag). The phone preset only; the carriage at the start.
+    swing_deg : float or None
+        Amplitude of a swinging arm, deg, for the swinging carriages of the walk; None:
+        the carriage's own.
+    carriage_changes : list of CarriageChange
+        Handling into other carriages during the walk, in time order, not overlapping.
     magnetometer : bool
         False: the device has none, and ``mag_ut`` holds zeros (the convention of an
         imported log without one, :func:`dtmbnav_core.sensors.read_has_magnetometer`).
@@ -426,6 +453,8 @@ class ImuConfig:
     heading_drift_dps: float = 0.0
     mag_disturbance_ut: float = 5.0
     carriage: str = "hand"
+    swing_deg: float | None = None
+    carriage_changes: list[CarriageChange] = field(default_factory=list)
     magnetometer: bool = True
     time_jitter: float = 0.0
     gaps_per_minute: float = 0.0
@@ -640,7 +669,7 @@ def _build(cls: type, data: dict[str, Any], where: str, check: bool = False) -> 
     kwargs: dict[str, Any] = {}
     nested = {
         "clock": ClockConfig, "pauses": Pause, "pace_changes": PaceChange,
-        "scatterers": Scatterer, "walls": Wall, "buildings": Building,
+        "scatterers": Scatterer, "walls": Wall, "buildings": Building, "carriage_changes": CarriageChange,
     }
     for key, value in data.items():
         if check:
