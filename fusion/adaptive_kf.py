@@ -6,7 +6,8 @@ the epoch is good if ``P <= 1.2 C``, medium if ``P <= 1.6 C`` and bad
 otherwise, and the measurement noise is multiplied by 1, 5 or 10. Here the
 same grading is applied to the DTMB link's SNR for the range observation
 (the reference level 40 cancels in ``P / C``, so it is kept only for
-fidelity), and to the C/N0 of GNSS fixes where the caller has any.
+fidelity), and to the C/N0 of GNSS fixes where the caller has any; a fix
+without C/N0 is weighted by its stated accuracy instead, where it states one.
 
 The filter is an extended Kalman filter on the shared model
 (:mod:`fusion.model`) with its analytic Jacobians. The range's R is the
@@ -21,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dtmbnav_core.phone import ACCURACY_RADIUS_SIGMAS
 from dtmbnav_core.records import Track
 from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig
@@ -59,9 +61,12 @@ class GnssFixes:
     Attributes
     ----------
     t_s, x_m, y_m, cn0_dbhz : ndarray
-        Fix time (s), position (m) and mean C/N0 (dB-Hz).
+        Fix time (s), position (m) and mean C/N0 (dB-Hz; NaN where the log gives none).
     sigma_m : float
         Per-axis standard deviation of a good-grade fix, m.
+    accuracy_m : ndarray or None
+        Each fix's stated horizontal accuracy, m (the radius of 68 % confidence, :mod:`dtmbnav_core.phone`;
+        NaN where none is stated); None: not known.
     """
 
     t_s: np.ndarray
@@ -69,6 +74,22 @@ class GnssFixes:
     y_m: np.ndarray
     cn0_dbhz: np.ndarray
     sigma_m: float = 3.0
+    accuracy_m: np.ndarray | None = None
+
+    def variances_m2(self) -> np.ndarray:
+        """Each fix's per-axis variance, m^2: ``sigma_m`` squared times its C/N0 grade factor.
+
+        A fix without C/N0 has no grade; where it states its accuracy, its variance is that accuracy's,
+        ``(accuracy / 1.51)^2`` (:data:`~dtmbnav_core.phone.ACCURACY_RADIUS_SIGMAS`): the phone's own error
+        estimate is a better guess than taking it for a good-grade fix. One that states neither keeps
+        ``sigma_m`` squared."""
+        variances = self.sigma_m**2 * quality_grade_factors(self.cn0_dbhz)
+        if self.accuracy_m is None:
+            return variances
+        accuracy = np.asarray(self.accuracy_m, dtype=np.float64)
+        stated = ~np.isfinite(self.cn0_dbhz) & np.isfinite(accuracy) & (accuracy > 0)
+        variances[stated] = (accuracy[stated] / ACCURACY_RADIUS_SIGMAS) ** 2
+        return variances
 
 
 class AdaptiveEkf(RangeKalmanFilter):
@@ -82,7 +103,8 @@ class AdaptiveEkf(RangeKalmanFilter):
         Their SNR is graded up front (the grading is causal).
     gnss : GnssFixes or None
         Fixes within ``gnss_max_age_s`` of an epoch are used as position
-        observations with their own C/N0 grade.
+        observations with their own C/N0 grade, or their stated accuracy
+        where they have no C/N0 (:meth:`GnssFixes.variances_m2`).
     gnss_max_age_s : float
         How close a fix must be to an epoch, s.
     clock : ClockModel
@@ -100,7 +122,7 @@ class AdaptiveEkf(RangeKalmanFilter):
             nearest = np.clip(np.searchsorted(gnss.t_s, epochs.t_s), 0, len(gnss.t_s) - 1)
             close = np.abs(gnss.t_s[nearest] - epochs.t_s) <= gnss_max_age_s
             self.gnss_index = np.where(close, nearest, -1)
-            self.gnss_factors = quality_grade_factors(gnss.cn0_dbhz)
+            self.gnss_variances_m2 = gnss.variances_m2()
         self.gnss = gnss
 
     def time_update(self, control: StepControl) -> None:
@@ -137,7 +159,7 @@ class AdaptiveEkf(RangeKalmanFilter):
             fix = np.array([self.gnss.x_m[k], self.gnss.y_m[k]])
             h = np.zeros((2, len(self.x)))
             h[0, X] = h[1, Y] = 1.0
-            r = np.eye(2) * self.gnss.sigma_m**2 * self.gnss_factors[k]
+            r = np.eye(2) * self.gnss_variances_m2[k]
             self._correct(fix - self.x[[X, Y]], h, r)
 
     def _correct(self, residual: np.ndarray, h: np.ndarray, r: np.ndarray) -> None:

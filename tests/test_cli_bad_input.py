@@ -19,7 +19,7 @@ import json
 import shutil
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import h5py
@@ -879,13 +879,61 @@ def sensors_sensor_logger_acceleration_without_gravity(ctx):
     return _sensors(ctx, str(folder)), [str(folder / "Accelerometer.csv"), "without gravity", "TotalAcceleration.csv"]
 
 
-@case(EXIT_BAD_INPUT)
-def sensors_sensor_logger_without_metadata_nor_total_acceleration(ctx):
-    """Without Metadata.csv nor TotalAcceleration.csv (Android's alone) the platform, and so the acceleration's
-    sign, is unknown: refused, never read with Android's sign."""
-    folder = write_sensor_logger(ctx.tmp / "export", *static_log(), gravity_split=True, ios=True)
+def _ios_export(ctx, mag: bool = True, latitude_deg: float | None = None) -> Path:
+    """An iPhone's export of the still phone (gravity split, iOS's sign) without Metadata.csv; without the
+    magnetometer unless ``mag``, its fixes at ``latitude_deg`` where given."""
+    acc, gyro, field, fixes = static_log()
+    if latitude_deg is not None:
+        fixes = replace(fixes, lat_deg=np.full(len(fixes.t_s), latitude_deg))
+    folder = write_sensor_logger(ctx.tmp / "export", acc, gyro, field if mag else None, fixes, gravity_split=True,
+                                 ios=True)
     (folder / "Metadata.csv").unlink()
-    return _sensors(ctx, str(folder)), [str(folder), "no platform (Metadata.csv)", "opposite sign"]
+    return folder
+
+
+@case(EXIT_OK)
+def sensors_sensor_logger_ios_without_metadata_is_told_by_the_dip(ctx):
+    """Without Metadata.csv nor TotalAcceleration.csv the Earth's field's dip against gravity (north of the
+    equator) says iOS's sign, and the user is told."""
+    folder = str(_ios_export(ctx))
+    return _sensors(ctx, folder)[1:], [folder, "dip against gravity", "ios's sign"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_sensor_logger_without_metadata_near_the_equator(ctx):
+    """Near the equator the field may dip either way: the data cannot say the sign, so the user must."""
+    folder = str(_ios_export(ctx, latitude_deg=5.0))
+    return _sensors(ctx, folder), [folder, "no platform (Metadata.csv)", "equator", "--platform android"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_sensor_logger_without_metadata_nor_magnetometer(ctx):
+    folder = str(_ios_export(ctx, mag=False))
+    return _sensors(ctx, folder), [folder, "no magnetometer", "--platform"]
+
+
+@case(EXIT_OK)
+def sensors_sensor_logger_platform_stands_in_for_metadata(ctx):
+    folder = str(_ios_export(ctx, mag=False))
+    return _sensors(ctx, folder, extra=("--platform", "ios"))[1:], ["iOS acceleration frame"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_sensor_logger_platform_disagrees_with_metadata(ctx):
+    folder = str(_export(ctx))
+    return _sensors(ctx, folder, extra=("--platform", "ios")), [folder, "--platform ios", "Metadata.csv",
+                                                                "--platform android"]
+
+
+@case(EXIT_BAD_INPUT)
+def sensors_gnsslogger_log_with_platform_ios(ctx):
+    log = ctx.write("gnss_log.txt", "\n".join(_static_lines()) + "\n")
+    return _sensors(ctx, log, extra=("--platform", "ios")), [log, "GnssLogger", "--platform ios"]
+
+
+@case(EXIT_USAGE)
+def sensors_unknown_platform(ctx):
+    return _sensors(ctx, str(ctx.tmp / "gnss_log.txt"), extra=("--platform", "windows")), ["--platform", "windows"]
 
 
 @case(EXIT_OK)

@@ -9,6 +9,7 @@ from pathlib import Path
 from dtmbnav.cli import options
 from dtmbnav.cli.exits import EXIT_OK
 from dtmbnav.cli.paths import IoPaths, given_paths
+from dtmbnav.field.platform import PLATFORMS
 
 
 def add_parser(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
@@ -23,6 +24,11 @@ def add_parser(subparsers: argparse._SubParsersAction, common: argparse.Argument
     p.add_argument("--origin", type=options.geodetic, metavar="LAT,LON[,H]",
                    help="origin of the ENU frame, WGS84 deg and m above the ellipsoid (default: the first fix; "
                         "without H, the first fix's height)")
+    p.add_argument("--platform", choices=PLATFORMS,
+                   help="the phone a Sensor Logger export comes from, for the acceleration's sign (iOS logs the "
+                        "opposite of Android's unless \"Standardise Units & Frames\" is on: then give android); "
+                        "default: Metadata.csv's, else TotalAcceleration.csv means android, else told from the "
+                        "Earth's field's dip against gravity where that is unambiguous. Must agree with Metadata.csv")
     p.set_defaults(handler=run, io_paths=io_paths)
 
 
@@ -30,7 +36,8 @@ def run(args: argparse.Namespace) -> int:
     """Run ``dtmbnav sensors``; its exit code."""
     from dtmbnav.field.sensors_import import describe, gap_warnings, import_phone_log
 
-    result = import_phone_log(args.logs, args.output, rate_hz=args.rate, origin=args.origin)
+    result = import_phone_log(args.logs, args.output, rate_hz=args.rate, origin=args.origin,
+                              platform=args.platform)
     for line in describe(result):
         print(f"sensors: {line}", file=sys.stderr)
     for message in [*gap_warnings(result), *result.notes]:

@@ -31,13 +31,15 @@ import io
 import re
 import zipfile
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from itertools import repeat
 from pathlib import Path
 from typing import NoReturn
 
 import numpy as np
 
+from dtmbnav.field import platform
+from dtmbnav.field.fix_notes import missing_cn0
 from dtmbnav_core import phone_formats as fmt
 from dtmbnav_core.constants import GRAVITY_MPS2
 from dtmbnav_core.text_tables import (
@@ -347,10 +349,7 @@ def _gnsslogger_fixes(tables: dict[str, Table], utc_offset_ns: int, path: str | 
     line = np.asarray(table.lines)
     source = f"{path} (Fix rows, provider {provider.upper()})"
     keep = _ordered(t_ns, line, str(path), f"Fix rows of provider {provider.upper()}", notes)
-    missing = int(np.isnan(cn0[keep]).sum())
-    if missing:
-        notes.append(f"{path}: {missing} of {keep.size} fixes have no C/N0 (no Status report of the satellites used "
-                     f"within {fmt.CN0_JOIN_WINDOW_MS} ms): those fixes are weighed by their stated accuracy alone")
+    notes += missing_cn0(str(path), cn0[keep], f" (no Status report within {fmt.CN0_JOIN_WINDOW_MS} ms)")
     return FixSeries(source=source, t_ns=t_ns[keep], lat_deg=lat[keep], lon_deg=lon[keep], height_m=height[keep],
                      accuracy_m=accuracy[keep], cn0_dbhz=cn0[keep], line=line[keep])
 
@@ -476,26 +475,23 @@ def _sensor_logger_axes(sensor: str, where: str, text: str, notes: list[str]) ->
     return _series(sensor, where, sensor, t_ns, values, np.asarray(table.lines), notes)
 
 
-def _ios_frames(files: _Export) -> bool:
-    """True when ``Metadata.csv`` says iOS without "Standardise Units & Frames": acceleration and gravity
-    then carry the opposite sign to Android's. Where it states no platform, an export with ``TotalAcceleration.csv``
-    (only Android's app writes it) is Android's; any other is refused rather than read with Android's sign."""
-    table = csv_table(*files.text(fmt.METADATA)) if fmt.METADATA in files else None
-    platform = table.index((fmt.METADATA_PLATFORM,)) if table is not None and table.texts else None
-    if platform is None:
-        if fmt.TOTAL_ACCELERATION in files:
-            return False
-        raise ValueError(f"{files.where}: no platform ({fmt.METADATA}): an iPhone logs acceleration with the "
-                         f"opposite sign to Android's, and without {fmt.TOTAL_ACCELERATION} the data cannot say "
-                         f"which; export {fmt.METADATA} too")
-    standard = table.index(fmt.METADATA_STANDARDISATION)
-    row = [text.strip().lower() for text in table.fields[0]]
-    return row[platform] == "ios" and (standard is None or row[standard] not in ("true", "1"))
+def _sign(files: _Export, given: str | None, acc: SensorSeries, mag: SensorSeries | None,
+          fixes: FixSeries | None, notes: list[str]) -> str:
+    """The platform whose acceleration sign the export carries, in the order :mod:`dtmbnav.field.platform` says."""
+    stated = platform.stated_platform(csv_table(*files.text(fmt.METADATA))) if fmt.METADATA in files else None
+    sign = platform.check_given(given, stated, files.where)
+    if sign is None and fmt.TOTAL_ACCELERATION in files:
+        return platform.ANDROID
+    if sign is None:
+        sign = platform.platform_from_data(acc.values, acc.t_ns, mag and mag.values, mag and mag.t_ns,
+                                           fixes and fixes.lat_deg, files.where)
+        notes.append(platform.detected_note(files.where, sign))
+    return sign
 
 
 def _sensor_logger_accelerometer(files: _Export, notes: list[str]) -> SensorSeries:
-    """The specific force: ``TotalAcceleration.csv`` (Android, gravity included) when there is one, else
-    ``Accelerometer.csv`` plus ``Gravity.csv`` (the app's Accelerometer is the acceleration without gravity)."""
+    """The specific force as logged (sign: :func:`_sign`): ``TotalAcceleration.csv`` (Android) when there is one,
+    else ``Accelerometer.csv`` plus ``Gravity.csv`` (the app's Accelerometer is the acceleration without gravity)."""
     if fmt.TOTAL_ACCELERATION in files:
         return _sensor_logger_axes("accelerometer", *files.text(fmt.TOTAL_ACCELERATION), notes)
     if fmt.ACCELEROMETER not in files:
@@ -513,9 +509,6 @@ def _sensor_logger_accelerometer(files: _Export, notes: list[str]) -> SensorSeri
         if mean_norm < 0.5 * GRAVITY_MPS2:
             raise ValueError(f"{acc.source}: acceleration without gravity (mean magnitude {mean_norm:.2f} m/s^2); the "
                              f"PDR needs the specific force: export {fmt.TOTAL_ACCELERATION} or {fmt.GRAVITY} too")
-    if _ios_frames(files):
-        values = -values
-        notes.append(f"{files.where}: iOS acceleration frame (Metadata.csv): its sign reversed to Android's")
     return SensorSeries("accelerometer", source, acc.t_ns, values, acc.line)
 
 
@@ -541,20 +534,24 @@ def _sensor_logger_fixes(files: _Export, notes: list[str]) -> FixSeries | None:
     accuracy = np.where(accuracy < 0, np.nan, accuracy)
     line = np.asarray(table.lines)
     keep = _ordered(t_ns, line, name, "fixes", notes)
+    cn0 = np.full(keep.size, np.nan)  # the app logs none
+    notes += missing_cn0(name, cn0, " (Sensor Logger logs none)")
     return FixSeries(source=name, t_ns=t_ns[keep], lat_deg=lat[keep], lon_deg=lon[keep], height_m=height[keep],
-                     accuracy_m=accuracy[keep], cn0_dbhz=np.full(keep.size, np.nan), line=line[keep])
+                     accuracy_m=accuracy[keep], cn0_dbhz=cn0, line=line[keep])
 
 
-def read_sensor_logger(paths: Sequence[str | Path]) -> PhoneLog:
+def read_sensor_logger(paths: Sequence[str | Path], given_platform: str | None = None) -> PhoneLog:
     """Read a Sensor Logger CSV export (a folder, its zip archive, or the CSV files).
 
     Times are the files' ``time`` column, ns since the Unix epoch (UTC), so the UTC offset is 0.
+    ``given_platform`` (``--platform``): the platform whose acceleration sign the export carries, where
+    ``Metadata.csv`` does not say it (:func:`_sign`); iOS's is reversed to Android's.
 
     Raises
     ------
     ValueError
         No accelerometer, gyroscope or location file, malformed rows, NaN values, latitude or
-        longitude out of range, time going back (file and line named).
+        longitude out of range, time going back (file and line named); a platform not known.
     """
     files = sensor_logger_export(paths)
     notes: list[str] = []
@@ -565,16 +562,20 @@ def read_sensor_logger(paths: Sequence[str | Path]) -> PhoneLog:
     mag = (_sensor_logger_axes("magnetometer", *files.text(fmt.MAGNETOMETER), notes) if fmt.MAGNETOMETER in files
            else None)
     fixes = _sensor_logger_fixes(files, notes)
+    if _sign(files, given_platform, acc, mag, fixes, notes) == platform.IOS:
+        acc = replace(acc, values=-acc.values)
+        notes.append(f"{files.where}: iOS acceleration frame: its sign reversed to Android's")
     return PhoneLog(format=SENSOR_LOGGER, sources=files.sources(), accelerometer=acc, gyroscope=gyro,
                     magnetometer=mag, fixes=fixes, utc_offset_ns=0, notes=tuple(notes))
 
 
 # --- either -----------------------------------------------------------------------------------------------
 
-def read_phone_log(paths: Sequence[str | Path]) -> PhoneLog:
+def read_phone_log(paths: Sequence[str | Path], given_platform: str | None = None) -> PhoneLog:
     """Read a phone log of either format, told apart by its content.
 
-    One GnssLogger text log; or a Sensor Logger export as a folder, a zip archive, or its CSV files.
+    One GnssLogger text log; or a Sensor Logger export as a folder, a zip archive, or its CSV files, whose
+    acceleration sign ``given_platform`` may state (:func:`read_sensor_logger`).
 
     Raises
     ------
@@ -585,10 +586,10 @@ def read_phone_log(paths: Sequence[str | Path]) -> PhoneLog:
         raise ValueError("no log given")
     first = Path(paths[0])
     if len(paths) == 1 and (first.is_dir() or (first.is_file() and zipfile.is_zipfile(first))):
-        return read_sensor_logger(paths)
+        return read_sensor_logger(paths, given_platform)
     text = read_text(first)
     if looks_like_sensor_logger_csv(text):
-        return read_sensor_logger(paths)
+        return read_sensor_logger(paths, given_platform)
     if looks_like_gnsslogger(text):
         if len(paths) > 1:
             raise ValueError(f"{first}: a GnssLogger log holds every sensor: give it alone")

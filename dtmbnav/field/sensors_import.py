@@ -36,7 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav.field.phone_logs import FixSeries, PhoneLog, SensorSeries, read_phone_log
+from dtmbnav.field.phone_logs import GNSSLOGGER, FixSeries, PhoneLog, SensorSeries, read_phone_log
+from dtmbnav.field.platform import ANDROID
 from dtmbnav_core import schema
 from dtmbnav_core.geodetic import GeodeticPoint, to_enu
 from dtmbnav_core.h5io import atomic_h5
@@ -346,15 +347,23 @@ def write_sensors(path: str | os.PathLike, result: ImportedSensors) -> None:
 
 
 def import_phone_log(paths: Sequence[str | os.PathLike], out_path: str | os.PathLike,
-                     rate_hz: float = DEFAULT_RATE_HZ, origin: GeodeticPoint | None = None) -> ImportedSensors:
+                     rate_hz: float = DEFAULT_RATE_HZ, origin: GeodeticPoint | None = None,
+                     platform: str | None = None) -> ImportedSensors:
     """``dtmbnav sensors``: read a phone log, build ``/imu`` and ``/gnss``, write them to ``out_path``.
+
+    ``platform`` (``--platform``, :data:`dtmbnav.field.platform.PLATFORMS`): whose acceleration sign a Sensor
+    Logger export carries, where its ``Metadata.csv`` does not say (:mod:`dtmbnav.field.platform`).
 
     Raises
     ------
     ValueError
-        Bad input (file and line named); nothing is written.
+        Bad input (file and line named); ``platform`` disagreeing with the log; nothing is written.
     """
-    result = build_sensors(read_phone_log([str(p) for p in paths]), rate_hz, origin)
+    log = read_phone_log([str(p) for p in paths], platform)
+    if log.format == GNSSLOGGER and platform not in (None, ANDROID):
+        raise ValueError(f"{log.sources[0]}: a GnssLogger log (Android's app), but --platform {platform}; drop "
+                         "--platform")
+    result = build_sensors(log, rate_hz, origin)
     write_sensors(out_path, result)
     return result
 
