@@ -166,3 +166,29 @@ def test_no_magnetometer_is_written_as_an_imported_log_says_it(tmp_path):
     assert not np.any(read_imu(tmp_path / "walk.h5").mag_ut)
     with h5py.File(tmp_path / "walk.h5", "r") as h5:
         assert h5[schema.IMU].attrs[schema.HAS_MAGNETOMETER_ATTR] == np.False_
+
+
+#: The carriages of issue 59 (sim/carriage.py), and a walk that handles the phone: out of the pocket
+#: into the hand before the first step, to the ear mid-walk (where real logs overcount).
+NEW_GAITS = {
+    "pocket-gait": {"carriage": "pocket-gait"},
+    "swinging-wide": {"carriage": "swinging-wide"},
+    "ear": {"carriage": "ear"},
+    "bag": {"carriage": "bag"},
+    "handled": {"carriage": "pocket", "carriage_changes": [{"t_s": 3.0, "carriage": "hand"},
+                                                           {"t_s": 20.0, "carriage": "ear"}]},
+}
+#: Cases the current PDR does not yet hold (the handled walk: counted +1..+2 steps, at the bound, by the
+#: committed detector; the pipeline being rewritten stops on it).
+NOT_YET = {"handled"}
+
+
+@pytest.mark.parametrize("gait", [
+    pytest.param(name, marks=pytest.mark.xfail(strict=False, reason="issue 59: the step detector is being rewritten"))
+    if name in NOT_YET else name for name in NEW_GAITS])
+def test_steps_counted_within_3_percent_new_gaits(gait):
+    imu_config = dict(NEW_GAITS[gait])
+    scenario = _scenario(imu_config.pop("carriage"), **imu_config, **PHONE_AS_PHONES_ARE)
+    walk = simulate_walk(scenario)
+    pdr = run_pdr(simulate_imu(scenario, walk), PdrConfig(step_model="frequency"))
+    assert abs(len(pdr.steps) - len(walk.step_t_s)) <= 0.03 * len(walk.step_t_s)

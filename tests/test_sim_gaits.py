@@ -9,6 +9,7 @@ the phone into another carriage takes the time it is given and ends in that carr
 from __future__ import annotations
 
 import tomllib
+from itertools import pairwise
 
 import numpy as np
 import pytest
@@ -60,7 +61,7 @@ def test_swinging_arm_turns_at_its_pendulums_rate(carriage, imu):
     rate = _principal_rate(log.gyro_radps[steady])
     # theta = A cos(2 pi f t): the rate's amplitude is 2 pi f A; half its range over each stride.
     strides = np.searchsorted(log.t_s[steady], walk.step_t_s[::2])
-    halves = [0.5 * np.ptp(rate[a:b]) for a, b in zip(strides[:-1], strides[1:]) if 0 < a < b < len(rate)]
+    halves = [0.5 * np.ptp(rate[a:b]) for a, b in pairwise(strides) if 0 < a < b < len(rate)]
     assert np.median(halves) == pytest.approx(2.0 * np.pi * stride_hz * amplitude_rad, rel=0.06)
 
 
