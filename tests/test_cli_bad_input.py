@@ -664,6 +664,114 @@ def pdr_unknown_step_model(ctx):
     return ["-q", "pdr", str(ctx.truth), "-o", ctx.o(), "--step-model", "giant"], ["--step-model"]
 
 
+def _calibrate(ctx, sensors: str | Path, *extra: str, out: str = "walker.toml") -> list[str]:
+    return ["-q", "pdr", str(sensors), "--calibrate", "-o", ctx.o(out), *extra]
+
+
+@case(EXIT_USAGE)
+def pdr_calibrate_without_distance(ctx):
+    return _calibrate(ctx, ctx.truth), ["--calibrate needs --distance"]
+
+
+@case(EXIT_USAGE)
+def pdr_distance_without_calibrate(ctx):
+    return ["-q", "pdr", str(ctx.truth), "-o", ctx.o(), "--distance", "50"], ["--distance goes with --calibrate"]
+
+
+@case(EXIT_USAGE)
+def pdr_calibrate_distance_zero(ctx):
+    return _calibrate(ctx, ctx.truth, "--distance", "0"), ["--distance", "positive"]
+
+
+@case(EXIT_USAGE)
+def pdr_calibrate_distance_negative(ctx):
+    return _calibrate(ctx, ctx.truth, "--distance=-5"), ["--distance", "positive"]
+
+
+@case(EXIT_USAGE)
+def pdr_calibrate_to_an_hdf5_name(ctx):
+    return _calibrate(ctx, ctx.truth, "--distance", "50", out="walker.h5"), ["walker.h5", "*.toml"]
+
+
+@case(EXIT_USAGE)
+def pdr_calibrate_with_a_given_gain(ctx):
+    return _calibrate(ctx, ctx.truth, "--distance", "50", "--weinberg-k", "0.4"), ["drop --weinberg-k"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_calibrate_walk_without_steps(ctx):
+    """A phone lying still: no steps to fit the gain to; nothing written."""
+    def still(f):
+        f["imu/acc_mps2"][...] = [0.0, 0.0, 9.81]
+        f["imu/gyro_radps"][...] = 0.0
+    path = ctx.h5(ctx.truth, "sensors.h5", still)
+    return _calibrate(ctx, path, "--distance", "50"), [path, "no steps detected"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_calibrate_nonexistent_sensors(ctx):
+    path = str(ctx.tmp / "nope.h5")
+    return _calibrate(ctx, path, "--distance", "50"), [path, "no such file"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_walker_profile_missing(ctx):
+    walker = str(ctx.tmp / "walker.toml")
+    return ["-q", "pdr", str(ctx.truth), "-o", ctx.o(), "--walker", walker], [walker, "no such walker profile",
+                                                                             "--calibrate"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_walker_profile_not_toml(ctx):
+    walker = ctx.write("walker.toml", "weinberg_k_m = = 0.4\n")
+    return ["-q", "pdr", str(ctx.truth), "-o", ctx.o(), "--walker", walker], [walker, "not a TOML", "line 1"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_walker_profile_without_gain(ctx):
+    walker = ctx.write("walker.toml", "[calibration]\ndistance_m = 50.0\n")
+    return ["-q", "pdr", str(ctx.truth), "-o", ctx.o(), "--walker", walker], [walker, "no weinberg_k_m"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_walker_profile_negative_gain(ctx):
+    walker = ctx.write("walker.toml", "weinberg_k_m = -0.4\n")
+    return ["-q", "pdr", str(ctx.truth), "-o", ctx.o(), "--walker", walker], [walker, "weinberg_k_m", "positive"]
+
+
+@case(EXIT_BAD_INPUT)
+def pdr_walker_profile_text_gain_by_carriage(ctx):
+    walker = ctx.write("walker.toml", "weinberg_k_m = 0.4\n[weinberg_k_m_by_carriage]\nhandheld = \"tall\"\n")
+    return ["-q", "pdr", str(ctx.truth), "-o", ctx.o(), "--walker", walker], [walker, "handheld", "'tall'"]
+
+
+@case(EXIT_USAGE)
+def pdr_walker_and_weinberg_k(ctx):
+    walker = ctx.write("walker.toml", "weinberg_k_m = 0.4\n")
+    return (["-q", "pdr", str(ctx.truth), "-o", ctx.o(), "--walker", walker, "--weinberg-k", "0.45"],
+            ["--weinberg-k and --walker", "give one"])
+
+
+@case(EXIT_USAGE)
+def fuse_walker_and_weinberg_k(ctx):
+    walker = ctx.write("walker.toml", "weinberg_k_m = 0.4\n")
+    return (_fuse(ctx, ctx.rx, ctx.sim / "truth.h5") + ["--walker", walker, "--weinberg-k", "0.45"],
+            ["--weinberg-k and --walker", "give one"])
+
+
+@case(EXIT_BAD_INPUT)
+def fuse_walker_profile_missing(ctx):
+    walker = str(ctx.tmp / "walker.toml")
+    return _fuse(ctx, ctx.rx, ctx.sim / "truth.h5") + ["--walker", walker], [walker, "no such walker profile"]
+
+
+@case(EXIT_USAGE)
+def pdr_calibrate_over_the_walker_profile(ctx):
+    walker = ctx.write("walker.toml", "weinberg_k_m = 0.4\n")
+    return (["-q", "pdr", str(ctx.truth), "--calibrate", "--distance", "50", "-o", walker, "--walker", walker],
+            ["drop --walker"])
+
+
 # -------------------------------------------------------------------------------------------------- sensors
 
 def _static_lines() -> list[str]:

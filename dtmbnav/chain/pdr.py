@@ -1,4 +1,5 @@
-"""``dtmbnav pdr``'s work: a sensors file's ``/imu`` in, ``/pdr`` and ``/pdr/track`` out (atomically)."""
+"""``dtmbnav pdr``'s work: a sensors file's ``/imu`` in, ``/pdr`` and ``/pdr/track`` out (atomically); or, with
+``--calibrate``, the walker's Weinberg gain fitted to a walk of known length, out as a walker profile."""
 
 from __future__ import annotations
 
@@ -9,10 +10,11 @@ import h5py
 import numpy as np
 
 from dtmbnav.chain.inputs import read_checked_imu
+from dtmbnav.field.walker import WalkerProfile, calibration_date, write_walker_profile
 from dtmbnav_core import schema
 from dtmbnav_core.h5io import atomic_h5, write_columns
 from dtmbnav_core.sensors import read_has_magnetometer, read_weinberg_k_m
-from fusion.pdr import PdrConfig, PdrResult, run_pdr
+from fusion.pdr import PdrConfig, PdrResult, calibrate_weinberg_k_from_walk, run_pdr
 from receiver.writer import write_csv
 
 
@@ -55,3 +57,31 @@ def run_pdr_file(sensors_path: str | os.PathLike, out_path: str | os.PathLike, c
         if csv_path is not None:  # inside: a failing CSV leaves no HDF5 file either
             write_csv(csv_path, result.steps.columns())
     return result
+
+
+def calibrate_walker(sensors_path: str | os.PathLike, distance_m: float, out_path: str | os.PathLike,
+                     config: PdrConfig) -> tuple[WalkerProfile, PdrResult]:
+    """``dtmbnav pdr --calibrate``: the Weinberg gain that makes the steps of the walk in ``/imu`` add up to
+    ``distance_m`` (m; every step detected is taken to belong to it), written as a walker profile to
+    ``out_path``; and the PDR of the walk with that gain, whose steps then add up to the distance.
+
+    ``config``'s step detector is the one the gain is fitted with (:func:`calibrate_weinberg_k_from_walk`),
+    so the gain matches the steps a later ``pdr --walker`` detects with it.
+
+    Raises
+    ------
+    ValueError
+        A missing or malformed ``/imu``, or no steps detected (the file named); nothing is written.
+    """
+    imu = read_checked_imu(sensors_path)
+    config = resolve_pdr_config(dataclasses.replace(config, step_model="weinberg", weinberg_k_m=1.0), sensors_path)
+    try:
+        k_m = calibrate_weinberg_k_from_walk(imu, distance_m, config)
+    except ValueError as exc:
+        raise ValueError(f"{sensors_path}: /{schema.IMU}: {exc}; walk the distance with the phone as it will be "
+                         "carried") from None
+    result = run_pdr(imu, dataclasses.replace(config, weinberg_k_m=k_m))
+    profile = WalkerProfile(weinberg_k_m=k_m, distance_m=float(distance_m), steps=len(result.steps),
+                            source=str(sensors_path), date=calibration_date())
+    write_walker_profile(out_path, profile)
+    return profile, result

@@ -264,14 +264,36 @@ def add_pdr_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--step-model", choices=["weinberg", "frequency"], default="weinberg",
                    help="step-length model (default weinberg)")
     g.add_argument("--weinberg-k", type=positive, metavar="K",
-                   help="calibrated Weinberg gain; default: read from the sensors file's calibration "
+                   help="calibrated Weinberg gain; default: --walker's, else the sensors file's calibration "
                         "attribute, else the frequency model is used")
+    g.add_argument("--walker", type=Path, metavar="FILE",
+                   help="a walker profile (TOML) holding the walker's calibrated Weinberg gain, as 'pdr --calibrate' "
+                        "writes it; not with --weinberg-k")
+
+
+def weinberg_k(args: argparse.Namespace) -> float | None:
+    """The Weinberg gain the user gave: ``--weinberg-k``, or ``--walker``'s profile's; None for neither.
+
+    Raises
+    ------
+    UsageError
+        Both are given.
+    ValueError
+        The profile is missing or malformed (:func:`dtmbnav.field.walker.read_walker_profile`).
+    """
+    if args.walker is None:
+        return args.weinberg_k
+    if args.weinberg_k is not None:
+        raise UsageError("--weinberg-k and --walker both give the Weinberg gain: give one")
+    from dtmbnav.field.walker import read_walker_profile
+
+    return read_walker_profile(args.walker).weinberg_k_m
 
 
 def pdr_config(args: argparse.Namespace):
     from fusion.pdr import PdrConfig
 
-    return PdrConfig(step_model=args.step_model, weinberg_k_m=args.weinberg_k)
+    return PdrConfig(step_model=args.step_model, weinberg_k_m=weinberg_k(args))
 
 
 def say_pdr_choices(args: argparse.Namespace) -> None:
@@ -282,9 +304,9 @@ def say_pdr_choices(args: argparse.Namespace) -> None:
     if not read_has_magnetometer(args.sensors):
         warn(args, f"{args.sensors}: no magnetometer in the log: the PDR's attitude comes from the gyro and "
                    "accelerometer alone (its heading drifts with the gyro's bias)")
-    if args.step_model == "weinberg" and args.weinberg_k is None and read_weinberg_k_m(args.sensors) is None:
-        warn(args, f"{args.sensors}: no calibrated Weinberg gain (give --weinberg-k K): step lengths from the "
-                   "step-frequency model")
+    if args.step_model == "weinberg" and weinberg_k(args) is None and read_weinberg_k_m(args.sensors) is None:
+        warn(args, f"{args.sensors}: no calibrated Weinberg gain (give --walker FILE or --weinberg-k K): step "
+                   "lengths from the step-frequency model")
 
 
 def add_cluster_options(p: argparse.ArgumentParser) -> None:
