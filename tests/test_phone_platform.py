@@ -128,5 +128,6 @@ def test_the_reader_says_once_how_many_fixes_have_no_cn0(walk_streams, tmp_path)
     folder = write_sensor_logger(tmp_path / "export", acc, gyro, mag, fixes)
     notes = [note for note in read_sensor_logger([folder]).notes if "C/N0" in note]
     n = len(fixes.t_s)
-    assert notes == [f"{folder / 'Location.csv'}: {n} of {n} fixes have no C/N0 (Sensor Logger logs none): weighted "
-                     f"by their stated accuracy (per-axis sigma = accuracy / {ACCURACY_RADIUS_SIGMAS:.2f})"]
+    expected = (f"{folder / 'Location.csv'}: {n} of {n} fixes have no C/N0 (Sensor Logger logs none): weighted by "
+                f"their stated accuracy (per-axis sigma = accuracy / {ACCURACY_RADIUS_SIGMAS:.2f})")
+    assert notes == [expected]
