@@ -178,17 +178,14 @@ NEW_GAITS = {
     "handled": {"carriage": "pocket", "carriage_changes": [{"t_s": 3.0, "carriage": "hand"},
                                                            {"t_s": 20.0, "carriage": "ear"}]},
 }
-#: Cases the current PDR does not yet hold (the handled walk: counted +1..+2 steps, at the bound, by the
-#: committed detector; the pipeline being rewritten stops on it).
-NOT_YET = {"handled"}
 
 
-@pytest.mark.parametrize("gait", [
-    pytest.param(name, marks=pytest.mark.xfail(strict=False, reason="issue 59: the step detector is being rewritten"))
-    if name in NOT_YET else name for name in NEW_GAITS])
+@pytest.mark.parametrize("gait", NEW_GAITS)
 def test_steps_counted_within_3_percent_new_gaits(gait):
     imu_config = dict(NEW_GAITS[gait])
     scenario = _scenario(imu_config.pop("carriage"), **imu_config, **PHONE_AS_PHONES_ARE)
     walk = simulate_walk(scenario)
     pdr = run_pdr(simulate_imu(scenario, walk), PdrConfig(step_model="frequency"))
     assert abs(len(pdr.steps) - len(walk.step_t_s)) <= 0.03 * len(walk.step_t_s)
+    # Handling the phone before the first step (out of the pocket at 3 s) is no step.
+    assert pdr.steps.t_s[0] > walk.step_t_s[0] - 0.5 * np.median(np.diff(walk.step_t_s))

@@ -1,21 +1,30 @@
-"""Step detection from the acceleration norm with an adaptive threshold (docs/method.md §3).
+"""Step detection: peaks of the acceleration norm, one per step period (docs/method.md §3).
 
 The norm of the specific force is orientation-free; its slowly varying part
 (gravity, plus whatever bias and scale error the accelerometer has) is removed
-with a long moving average, the rest is smoothed with a short moving average,
-and a step is a local peak above an amplitude threshold at least a minimum
-time after a higher one.
+with a long moving average, the rest is smoothed with a short moving average.
+Candidate steps are its local peaks above an adaptive threshold: the threshold
+follows the walker's own acceleration level, as in Zhao's pedometer (N. Zhao,
+"Full-featured pedometer design realized with 3-axis digital accelerometer",
+Analog Dialogue 44-06, 2010), because that level varies several-fold with the
+carriage and the pace (Brajdic & Harle, "Walk detection and step counting on
+unconstrained smartphones", UbiComp 2013); a low absolute floor keeps sensor
+noise from counting while the walker stands still.
 
-The threshold adapts to the walker's own acceleration level, as in Zhao's
-pedometer (N. Zhao, "Full-featured pedometer design realized with 3-axis
-digital accelerometer", Analog Dialogue 44-06, 2010: the dynamic threshold is
-the mid-level of the recent signal), because that level varies several-fold
-with the carriage and the pace (Brajdic & Harle, "Walk detection and step
-counting on unconstrained smartphones", UbiComp 2013): a phone held to text
-during a slow walk sees a small fraction of what a pocket sees at a brisk
-pace. Here the level is a running high percentile of the dynamic acceleration
-over a few seconds, the threshold a fixed fraction of it, and a low absolute
-floor keeps sensor noise from counting while the walker stands still.
+A threshold alone counts a slow step that gives two peaks twice, and the humps
+a pocket or a swinging arm adds between steps. So the peaks are then held to
+the walker's step period, measured from the signal itself
+(:mod:`fusion.pdr.step_period`):
+
+1. the highest candidates are taken first, and each takes out the candidates
+   closer to it than a fraction of the local period (one step, one count);
+2. a gap of two or three periods inside a periodic stretch is a step or two
+   whose peak stayed under the threshold (the quieter leg in a back pocket):
+   the missing steps are put in evenly;
+3. a step counts only as part of a bout of regular steps (intervals close to
+   the period): handling the phone (taking it out, putting it in a pocket or a
+   bag) gives a few irregular jolts, walking gives a run of them. Brajdic and
+   Harle found such walk detection to be what keeps handling from counting.
 
 Each step also gets its window (from the previous peak or, for the first step
 after standing still, as long as the walker's next step) and the extremes of
@@ -31,6 +40,7 @@ from scipy.ndimage import percentile_filter, uniform_filter1d
 from scipy.signal import find_peaks
 
 from dtmbnav_core.resampling import UNIFORM_SPREAD, is_uniform
+from fusion.pdr.step_period import StepPeriod, step_period
 
 
 @dataclass(frozen=True)
@@ -56,6 +66,26 @@ class StepDetectorConfig:
         Least time between two steps, s (a step takes 0.3-2 s).
     max_step_s : float
         A longer gap than this means the walker stood still in between, s.
+    period_window_s : float
+        Window over which the step period is measured, s (a few strides at a slow pace).
+    period_hop_s : float
+        Spacing of the period's windows, s.
+    max_period_s : float
+        Longest lag searched for the period, s (a stride at a normal pace; halved into a step).
+    stride_ratio : float
+        Part of the autocorrelation's highest peak that the autocorrelation half-way to
+        it must exceed for that peak to be a stride rather than a step.
+    spacing_fraction : float
+        Least spacing of two steps as a fraction of the local step period.
+    max_missed_steps : int
+        Most steps put into one gap between two detected steps (0: none).
+    min_fill_strength : float
+        Least periodicity (autocorrelation at the period) at both ends of a gap for
+        missed steps to be put in.
+    min_bout_steps : int
+        Fewest regular steps in a row that make a walk; shorter runs are handling.
+    bout_tolerance : float
+        Longest interval, in local step periods, that still links two steps of a bout.
     """
 
     smoothing_s: float = 0.15
@@ -66,6 +96,15 @@ class StepDetectorConfig:
     floor_mps2: float = 0.2
     min_step_s: float = 0.3
     max_step_s: float = 2.0
+    period_window_s: float = 4.0
+    period_hop_s: float = 0.25
+    max_period_s: float = 1.4
+    stride_ratio: float = 0.1
+    spacing_fraction: float = 0.6
+    max_missed_steps: int = 2
+    min_fill_strength: float = 0.3
+    min_bout_steps: int = 8
+    bout_tolerance: float = 1.6
 
 
 @dataclass(frozen=True)
@@ -141,13 +180,15 @@ def step_threshold(dyn_mps2: np.ndarray, rate_hz: float, config: StepDetectorCon
 
 
 def detect_steps(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDetectorConfig) -> DetectedSteps:
-    """Detect steps: peaks of the smoothed dynamic acceleration above an adaptive threshold (docs/method.md §3).
+    """Detect steps: peaks of the dynamic acceleration, one per step period, in bouts of walking (docs/method.md §3).
 
-    A step is a local peak of :func:`dynamic_acceleration` above
-    :func:`step_threshold` and at least ``min_step_s`` after a higher one. Its
-    window runs from the previous step's peak; a step more than ``max_step_s``
-    after the previous one (the first after a standstill) has no previous peak,
-    and gets the duration of the walker's next step, clipped to
+    Candidates are the local peaks of :func:`dynamic_acceleration` above
+    :func:`step_threshold`; they are held to the local step period
+    (:func:`fusion.pdr.step_period.step_period`) by :func:`_one_per_period`,
+    :func:`_put_in_missed` and :func:`_in_bouts` (the module docstring says why).
+    A step's window runs from the previous step's peak; a step more than
+    ``max_step_s`` after the previous one (the first after a standstill) has no
+    previous peak, and gets the duration of the walker's next step, clipped to
     ``[min_step_s, max_step_s]`` (or the median step duration of the record when
     the next step is not part of the same walk), so that its speed and length
     are those of a real step.
@@ -167,8 +208,16 @@ def detect_steps(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDetectorConf
     t_s = np.asarray(t_s, dtype=np.float64)
     dyn = dynamic_acceleration(t_s, acc_mps2, config)
     rate_hz = (len(t_s) - 1) / (t_s[-1] - t_s[0])
-    peaks, _ = find_peaks(dyn, height=step_threshold(dyn, rate_hz, config),
-                          distance=max(1, round(config.min_step_s * rate_hz)))
+    candidates, _ = find_peaks(dyn, height=step_threshold(dyn, rate_hz, config))
+    period = step_period(t_s, dyn, config.period_window_s, config.period_hop_s, config.min_step_s,
+                         config.max_period_s, config.stride_ratio)
+    period_s, _ = period.at(t_s[candidates])
+    if candidates.size == 0 or not np.all(np.isfinite(period_s)):  # nothing periodic anywhere: no walk
+        empty = np.zeros(0)
+        return DetectedSteps(t_s=empty, start_t_s=empty, acc_max_mps2=empty, acc_min_mps2=empty)
+    peaks = _one_per_period(candidates, dyn[candidates], period_s * rate_hz, config.spacing_fraction)
+    peaks = _put_in_missed(peaks, t_s, rate_hz, period, config)
+    peaks = _in_bouts(peaks, period.at(t_s[peaks])[0] * rate_hz, config)
     if peaks.size == 0:
         empty = np.zeros(0)
         return DetectedSteps(t_s=empty, start_t_s=empty, acc_max_mps2=empty, acc_min_mps2=empty)
@@ -178,6 +227,59 @@ def detect_steps(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDetectorConf
     start = np.maximum(start, 0)
     acc_max, acc_min = _window_extremes(dyn, start, peaks + 1)
     return DetectedSteps(t_s=t_s[peaks], start_t_s=t_s[start], acc_max_mps2=acc_max, acc_min_mps2=acc_min)
+
+
+def _one_per_period(candidates: np.ndarray, height: np.ndarray, period_samples: np.ndarray,
+                    fraction: float) -> np.ndarray:
+    """The candidates left when, highest first, each removes those within ``fraction`` of its period.
+
+    ``candidates`` are sample indices in ascending order; the result is too.
+    """
+    # A loop over the candidates by height: each removes a contiguous run of
+    # neighbours (found by bisection), so the cost is n log n, not n^2.
+    removed = np.zeros(len(candidates), dtype=bool)
+    kept = np.zeros(len(candidates), dtype=bool)
+    reach = fraction * period_samples
+    low = np.searchsorted(candidates, candidates - reach, side="right")
+    high = np.searchsorted(candidates, candidates + reach, side="left")
+    for k in np.argsort(-height, kind="stable"):
+        if not removed[k]:
+            kept[k] = True
+            removed[low[k]:high[k]] = True
+    return candidates[kept]
+
+
+def _put_in_missed(peaks: np.ndarray, t_s: np.ndarray, rate_hz: float, period: StepPeriod,
+                   config: StepDetectorConfig) -> np.ndarray:
+    """``peaks`` with evenly spaced steps put into gaps of 2 to ``max_missed_steps + 1`` periods.
+
+    Only inside walking: both ends of the gap periodic (``min_fill_strength``) and the
+    gap within a quarter of a period of a whole number of periods.
+    """
+    if config.max_missed_steps < 1 or len(peaks) < 2:
+        return peaks
+    period_s, strength = period.at(t_s[peaks])
+    gap = np.diff(peaks)
+    periods = gap / (0.5 * (period_s[1:] + period_s[:-1]) * rate_hz)
+    whole = np.rint(periods).astype(int)
+    missed = ((whole >= 2) & (whole <= config.max_missed_steps + 1) & (np.abs(periods - whole) < 0.25)
+              & (np.minimum(strength[1:], strength[:-1]) >= config.min_fill_strength))
+    added = [peaks[i] + (gap[i] * np.arange(1, whole[i])) // whole[i] for i in np.flatnonzero(missed)]
+    return np.sort(np.concatenate([peaks, *added])) if added else peaks
+
+
+def _in_bouts(peaks: np.ndarray, period_samples: np.ndarray, config: StepDetectorConfig) -> np.ndarray:
+    """The steps that belong to a bout of at least ``min_bout_steps`` regular steps.
+
+    Two steps are linked when their interval lies between half a period and
+    ``bout_tolerance`` periods.
+    """
+    if len(peaks) == 0:
+        return peaks
+    gap = np.diff(peaks)
+    linked = (gap > 0.5 * period_samples[1:]) & (gap < config.bout_tolerance * period_samples[1:])
+    bout = np.concatenate([[0], np.cumsum(~linked)])
+    return peaks[np.bincount(bout)[bout] >= config.min_bout_steps]
 
 
 def _first_step_samples(gap: np.ndarray, after_standstill: np.ndarray, rate_hz: float,
