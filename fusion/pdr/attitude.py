@@ -25,7 +25,8 @@ north (so y is west). The heading (clockwise from north) is that of the
 sensor's forward (y) axis projected on the horizontal; it is made relative by
 subtracting its mean over the last second of rest before the walk, because the
 device's yaw offset from the walking direction and the magnetic declination
-are unknown.
+are unknown. The same attitude gives the walking direction
+(:mod:`fusion.pdr.walking_direction`) where the phone does not point along the walk.
 """
 
 from __future__ import annotations
@@ -69,25 +70,6 @@ class AttitudeConfig:
     rest_threshold_radps: float = np.radians(1.0)
 
 
-@dataclass(frozen=True)
-class HeadingEstimate:
-    """Relative heading at every IMU sample.
-
-    Attributes
-    ----------
-    t_s : ndarray
-        Sample times, s.
-    heading_rad : ndarray
-        Heading relative to the initial one, clockwise, unwrapped (continuous), rad.
-    gyro_bias_radps : ndarray, shape (3,)
-        Gyro bias removed (estimated while standing), rad/s.
-    """
-
-    t_s: np.ndarray
-    heading_rad: np.ndarray
-    gyro_bias_radps: np.ndarray
-
-
 def standstill_mask(gyro_radps: np.ndarray, rate_hz: float, window_s: float, threshold_radps: float) -> np.ndarray:
     """Samples where the device is at rest: every gyro axis's moving standard deviation is small.
 
@@ -113,35 +95,60 @@ def initial_standstill(t_s: np.ndarray, gyro_radps: np.ndarray, first_step_t_s: 
     return rest & (t_s < end) & (t_s >= end - config.bias_window_s)
 
 
-def relative_heading(t_s: np.ndarray, acc_mps2: np.ndarray, gyro_radps: np.ndarray, mag_ut: np.ndarray,
-                     first_step_t_s: float, config: AttitudeConfig) -> HeadingEstimate:
-    """Heading of the device relative to its heading just before the first step.
+def gyro_bias_at_rest(t_s: np.ndarray, gyro_radps: np.ndarray, first_step_t_s: float,
+                      config: AttitudeConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The gyro's static bias (rad/s, shape (3,)) and the rest mask it was measured over.
+
+    The bias is the mean rate over :func:`initial_standstill`, or zero with
+    fewer than :data:`MIN_REST_SAMPLES` rest samples.
+    """
+    still = initial_standstill(t_s, gyro_radps, first_step_t_s, config)
+    bias = gyro_radps[still].mean(axis=0) if np.count_nonzero(still) >= MIN_REST_SAMPLES else np.zeros(3)
+    return bias, still
+
+
+def madgwick_attitude(gyro_radps: np.ndarray, acc_mps2: np.ndarray, mag_ut: np.ndarray | None, rate_hz: float,
+                      gain: float, initial: tuple[np.ndarray, np.ndarray | None] | None = None) -> Rotation:
+    """Sensor-to-earth rotation at every sample from the Madgwick filter (earth x north, y west, z up).
 
     Parameters
     ----------
-    t_s : ndarray
-        Uniform sample times, s.
-    acc_mps2, gyro_radps, mag_ut : ndarray, shape (N, 3)
-        IMU samples in the sensor frame (x right, y forward, z up).
-    first_step_t_s : float
-        Time of the first detected step, s: the rest before it calibrates the
-        gyro bias and fixes the heading reference.
-    config : AttitudeConfig
+    gyro_radps, acc_mps2 : ndarray, shape (N, 3)
+        Bias-corrected angular rate (rad/s) and specific force (m/s^2), sensor frame.
+    mag_ut : ndarray, shape (N, 3), or None
+        Magnetic field, uT (None: gyro and accelerometer only).
+    rate_hz : float
+        Sample rate, Hz.
+    gain : float
+        Madgwick ``beta``.
+    initial : (ndarray, ndarray or None), optional
+        Specific force and field (sensor frame) to start from in place of the
+        first sample's: ``ahrs`` starts from its first sample, so these are fed as
+        one extra, motionless sample ahead of the record and its attitude dropped.
+        A mean over a stride gives a better start than a walking instant.
     """
-    t_s = np.asarray(t_s, dtype=np.float64)
-    rate_hz = (len(t_s) - 1) / (t_s[-1] - t_s[0])
-    gyro_radps = np.asarray(gyro_radps, dtype=np.float64)
-    still = initial_standstill(t_s, gyro_radps, first_step_t_s, config)
-    bias = gyro_radps[still].mean(axis=0) if np.count_nonzero(still) >= MIN_REST_SAMPLES else np.zeros(3)
-    mag = np.asarray(mag_ut, dtype=np.float64) if config.use_magnetometer else None
-    ahrs_filter = Madgwick(gyr=gyro_radps - bias,
-                           acc=np.asarray(acc_mps2, dtype=np.float64), mag=mag,
-                           frequency=rate_hz, gain=config.gain)
-    q_wxyz = ahrs_filter.Q
-    forward = Rotation.from_quat(q_wxyz[:, [1, 2, 3, 0]]).apply(FORWARD_AXIS)
+    if initial is not None:
+        acc_mps2 = np.vstack([initial[0], acc_mps2])
+        gyro_radps = np.vstack([np.zeros(3), gyro_radps])
+        mag_ut = None if mag_ut is None else np.vstack([initial[1], mag_ut])
+    q_wxyz = Madgwick(gyr=gyro_radps, acc=acc_mps2, mag=mag_ut, frequency=rate_hz, gain=gain).Q
+    rotation = Rotation.from_quat(q_wxyz[:, [1, 2, 3, 0]])
+    return rotation if initial is None else rotation[1:]
+
+
+def forward_heading(t_s: np.ndarray, attitude: Rotation, still: np.ndarray) -> np.ndarray:
+    """Heading of the sensor's forward axis projected on the horizontal, relative to its rest value, rad.
+
+    Clockwise from north, unwrapped; ``attitude`` from :func:`madgwick_attitude`,
+    ``still`` the rest mask of :func:`gyro_bias_at_rest`.
+    """
+    forward = attitude.apply(FORWARD_AXIS)
     # Earth frame x = north, y = west: clockwise-from-north heading is atan2(east, north).
     heading = np.unwrap(np.arctan2(-forward[:, 1], forward[:, 0]))
-    # Reference: the heading over the last second of rest (or the first sample if there was none).
+    return heading - rest_reference(t_s, heading, still)
+
+
+def rest_reference(t_s: np.ndarray, angle_rad: np.ndarray, still: np.ndarray) -> float:
+    """Mean of an angle over the last second of rest (or its first sample if there was none), rad."""
     last_second = still & (t_s >= t_s[still][-1] - 1.0) if np.any(still) else np.arange(len(t_s)) == 0
-    reference = heading[last_second].mean()
-    return HeadingEstimate(t_s=t_s, heading_rad=heading - reference, gyro_bias_radps=bias)
+    return float(angle_rad[last_second].mean())
