@@ -12,6 +12,11 @@ the jitter and gaps found are reported in the result; a log without a
 magnetometer (``mag_ut`` all zeros, the convention of
 :func:`dtmbnav_core.sensors.read_has_magnetometer`) gets the attitude from the
 gyro and accelerometer alone. Each such choice is said in ``PdrResult.notes``.
+
+The heading a step moves along comes from the phone's forward axis or from
+the walking direction (:mod:`fusion.pdr.walking_direction`): a phone held in
+front points along the walk, one in a pocket or a swinging hand does not, and
+a change of carriage would otherwise be taken for a turn.
 """
 
 from __future__ import annotations
@@ -23,12 +28,14 @@ import numpy as np
 
 from dtmbnav_core.records import ImuLog, PdrSteps, Track
 from dtmbnav_core.resampling import SampleTiming, check_increasing, interpolate, is_uniform, sample_timing, uniform_grid
-from fusion.pdr.attitude import AttitudeConfig, relative_heading
+from fusion.pdr.attitude import AttitudeConfig, forward_heading, gyro_bias_at_rest, madgwick_attitude
 from fusion.pdr.dead_reckoning import dead_reckon, mean_heading_over_windows, resample_steps
 from fusion.pdr.step_length import calibrate_weinberg_k, frequency_length, weinberg_length
-from fusion.pdr.steps import StepDetectorConfig, detect_steps
+from fusion.pdr.steps import DetectedSteps, StepDetectorConfig, detect_steps
+from fusion.pdr.walking_direction import WalkingConfig, WalkingDirection, walking_direction
 
 STEP_MODELS = ("weinberg", "frequency")
+HEADING_SOURCES = ("phone", "walking", "auto")
 
 
 @dataclass(frozen=True)
@@ -43,15 +50,24 @@ class PdrConfig:
         Calibrated Weinberg gain, m.
     output_rate_hz : float
         Rate of the resampled track, Hz.
+    heading_source : str
+        ``"phone"``: the heading of the phone's forward axis; ``"walking"``: the
+        phone's yaw plus the smoothed phone-to-walk offset
+        (:mod:`fusion.pdr.walking_direction`); ``"auto"``: the walking direction
+        where the phone's attitude swings over a stride (pocket, swinging hand)
+        or its carriage changes, else the phone's heading.
     steps : StepDetectorConfig
     attitude : AttitudeConfig
+    walking : WalkingConfig
     """
 
     step_model: str = "weinberg"
     weinberg_k_m: float | None = None
     output_rate_hz: float = 10.0
+    heading_source: str = "auto"
     steps: StepDetectorConfig = field(default_factory=StepDetectorConfig)
     attitude: AttitudeConfig = field(default_factory=AttitudeConfig)
+    walking: WalkingConfig = field(default_factory=WalkingConfig)
 
 
 @dataclass(frozen=True)
@@ -68,13 +84,20 @@ class PdrResult:
         Rate, jitter and gaps of the IMU's sample times (None where not measured).
     notes : tuple of str
         What the PDR did in place of its settings, for the user: resampled
-        uneven times, bridged gaps, no magnetometer.
+        uneven times, bridged gaps, no magnetometer, a change of carriage.
+    walking : WalkingDirection or None
+        Per step: the phone-to-walk offset, the changes of carriage found and
+        the attitude's swing (None where no step was detected).
+    walking_used : bool
+        Whether the steps' heading is the walking direction's (else the phone's).
     """
 
     steps: PdrSteps
     track: Track
     timing: SampleTiming | None = None
     notes: tuple[str, ...] = ()
+    walking: WalkingDirection | None = None
+    walking_used: bool = False
 
 
 def _check_imu(imu: ImuLog) -> None:
@@ -146,6 +169,8 @@ def run_pdr(imu: ImuLog, config: PdrConfig) -> PdrResult:
     if config.step_model == "weinberg" and config.weinberg_k_m is None:
         raise ValueError("PdrConfig.weinberg_k_m is required by the Weinberg model; calibrate it with "
                          "calibrate_weinberg_k_from_walk on a walk of known length, or use step_model='frequency'")
+    if config.heading_source not in HEADING_SOURCES:
+        raise ValueError(f"PdrConfig.heading_source: unknown {config.heading_source!r}; known: {HEADING_SOURCES}")
     if config.output_rate_hz <= 0:
         raise ValueError(f"PdrConfig.output_rate_hz must be > 0, got {config.output_rate_hz}")
     imu, timing, notes = uniform_imu(imu)
@@ -155,17 +180,45 @@ def run_pdr(imu: ImuLog, config: PdrConfig) -> PdrResult:
         notes += (("imu: no magnetometer (mag_ut all zeros): the attitude comes from the gyro and accelerometer "
                    "alone, and the heading drifts with the gyro's bias"),)
     detected = detect_steps(imu.t_s, imu.acc_mps2, config.steps)
-    first_step = detected.t_s[0] if len(detected.t_s) else imu.t_s[-1]
-    heading = relative_heading(imu.t_s, imu.acc_mps2, imu.gyro_radps, imu.mag_ut, first_step, attitude)
+    step_heading, walking, walking_used = _step_heading(imu, detected, attitude, config)
+    if walking is not None and walking.carriage_change.any():
+        notes += tuple(f"pdr: the phone changed carriage (its attitude moved by more than "
+                       f"{config.walking.change_deg:g} deg) before the step at {t:.2f} s: the phone-to-walk "
+                       "offset was estimated afresh after it" + ("" if walking_used else
+                       ", but the heading is the phone's (heading_source='phone'), so it may turn there")
+                       for t in detected.t_s[walking.carriage_change])
     if config.step_model == "weinberg":
         lengths = weinberg_length(detected.acc_max_mps2, detected.acc_min_mps2, config.weinberg_k_m)
     else:
         lengths = frequency_length(1.0 / detected.duration_s)
-    step_heading = mean_heading_over_windows(heading.t_s, heading.heading_rad, detected.start_t_s, detected.t_s)
     steps = dead_reckon(detected.t_s, detected.start_t_s, lengths, step_heading)
     n_out = int(np.floor((imu.t_s[-1] - imu.t_s[0]) * config.output_rate_hz)) + 1
     track = resample_steps(steps, detected.start_t_s, imu.t_s[0] + np.arange(n_out) / config.output_rate_hz)
-    return PdrResult(steps=steps, track=track, timing=timing, notes=notes)
+    return PdrResult(steps=steps, track=track, timing=timing, notes=notes, walking=walking,
+                     walking_used=walking_used)
+
+
+def _step_heading(imu: ImuLog, detected: DetectedSteps, attitude: AttitudeConfig,
+                  config: PdrConfig) -> tuple[np.ndarray, WalkingDirection | None, bool]:
+    """Each step's relative heading (rad), the walking-direction estimate, and whether the heading is its.
+
+    ``imu`` is on a uniform grid; one AHRS run serves the phone's heading and the walking direction.
+    """
+    first_step = detected.t_s[0] if len(detected.t_s) else imu.t_s[-1]
+    rate_hz = (len(imu.t_s) - 1) / (imu.t_s[-1] - imu.t_s[0])
+    bias, still = gyro_bias_at_rest(imu.t_s, imu.gyro_radps, first_step, attitude)
+    mag = imu.mag_ut if attitude.use_magnetometer else None
+    gyro = imu.gyro_radps - bias
+    rotation = madgwick_attitude(gyro, imu.acc_mps2, mag, rate_hz, attitude.gain)
+    heading = forward_heading(imu.t_s, rotation, still)
+    phone = mean_heading_over_windows(imu.t_s, heading, detected.start_t_s, detected.t_s)
+    if len(detected.t_s) == 0:
+        return phone, None, False
+    walking = walking_direction(imu.t_s, imu.acc_mps2, gyro, rotation, still, detected.t_s,
+                                detected.start_t_s, attitude.gain, config.walking)
+    use = config.heading_source == "walking" or (config.heading_source == "auto" and (
+        walking.carriage_change.any() or np.median(walking.swing_rad) > np.radians(config.walking.swing_deg)))
+    return (walking.heading_rad if use else phone), walking, bool(use)
 
 
 def calibrate_weinberg_k_from_walk(imu: ImuLog, distance_m: float, config: PdrConfig | None = None) -> float:
