@@ -47,7 +47,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import median_filter
 from scipy.spatial.transform import Rotation
 
 from fusion.pdr.attitude import madgwick_attitude, rest_reference
@@ -219,7 +218,11 @@ def _smoothed_offset(raw_rad: np.ndarray, usable: np.ndarray, width: int) -> np.
         return out
     index = np.flatnonzero(usable)
     unwrapped = np.unwrap(raw_rad[index], period=np.pi)
-    smoothed = median_filter(unwrapped, size=min(width, len(index)), mode="nearest")
+    # The window shrinks at the ends (NaN padding) rather than repeating the first and last strides,
+    # whose swing is still building up or dying away.
+    half = width // 2
+    padded = np.concatenate([np.full(half, np.nan), unwrapped, np.full(half, np.nan)])
+    smoothed = np.nanmedian(np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1), axis=1)
     return np.interp(np.arange(len(raw_rad)), index, smoothed)
 
 
