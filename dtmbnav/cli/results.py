@@ -34,6 +34,9 @@ def add_parser(subparsers: argparse._SubParsersAction, common: argparse.Argument
                    help=f"Monte Carlo walks per scenario at the observation and exact levels (default {OBS_SEEDS})")
     p.add_argument("--first-seed", type=options.index, default=REPORTING_SEEDS.start, metavar="N",
                    help=f"first Monte Carlo index (default {REPORTING_SEEDS.start}, the reporting range)")
+    p.add_argument("--step-data", type=Path, metavar="DIR",
+                   help="a checkout of the Oxford step counter data set, for the steps section "
+                        "(git clone https://github.com/Oxford-step-counter/DataSet)")
     p.add_argument("--readme", type=Path, metavar="FILE",
                    help="also rewrite the headline table between this README's results markers")
     mode = p.add_mutually_exclusive_group()
@@ -70,8 +73,11 @@ def run(args: argparse.Namespace) -> int:
         for status in statuses(ResultsData.load(_data_file(args)), args.sections):
             print(status.line())
         return EXIT_OK
+    if "steps" in args.sections and args.step_data is None and not args.check:
+        raise UsageError("the steps section needs --step-data DIR, a checkout of the Oxford step counter data set "
+                         "(git clone https://github.com/Oxford-step-counter/DataSet), or leave it out of --sections")
     config = ResultsConfig(iq_seeds=args.iq_seeds, obs_seeds=args.obs_seeds, first_seed=args.first_seed,
-                           cluster=options.cluster_config(args), progress=not args.quiet)
+                           cluster=options.cluster_config(args), progress=not args.quiet, step_data=args.step_data)
     if args.check:
         from dtmbnav.evaluation.results_check import check_results
 

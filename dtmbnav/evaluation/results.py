@@ -88,6 +88,8 @@ class ResultsConfig:
         Where the walks run (:mod:`dtmbnav.evaluation.distributed`).
     progress : bool
         Progress bars on stderr.
+    step_data : Path or None
+        A checkout of the Oxford step counter data set (the ``steps`` section needs it).
     """
 
     iq_seeds: int = IQ_SEEDS
@@ -95,6 +97,7 @@ class ResultsConfig:
     first_seed: int = REPORTING_SEEDS.start
     cluster: ClusterConfig = IN_PROCESS
     progress: bool = False
+    step_data: Path | None = None
 
 
 
@@ -287,6 +290,36 @@ def pdr_section(config: ResultsConfig) -> Section:
                           "figures); the step length after the K calibration walk."), table))
 
 
+def steps_section(config: ResultsConfig) -> Section:
+    """Step counts on real phones' traces, beside the data set's own counters (:mod:`dtmbnav.evaluation.step_count`).
+
+    Raises
+    ------
+    FileNotFoundError
+        ``config.step_data`` not given, or not a checkout of the data set.
+    """
+    from dtmbnav.evaluation.step_count import (FETCH_HINT, data_set_walks, step_count_table, tuning_walk,
+                                               validation_walk)
+
+    if config.step_data is None:
+        raise FileNotFoundError(f"results --sections steps needs --step-data DIR, a checkout of the Oxford step "
+                                f"counter data set ({FETCH_HINT})")
+    root = config.step_data
+    head = run_git(root, "rev-parse", "--short", "HEAD")
+    data_commit = head.stdout.strip() if head is not None and head.returncode == 0 else "unknown"
+    validation = [validation_walk(path) for path in data_set_walks(root, "validation")]
+    tuning = [tuning_walk(path) for path in data_set_walks(root, "optimisation")]
+    return Section("steps", "Step counts on real phones (Oxford step counter data set)",
+                   f"{COMMAND} --sections steps --step-data DataSet",
+                   (Prose(f"Oxford-step-counter/DataSet at commit `{data_commit}` (CC BY 4.0). Its validation "
+                          "traces (a Samsung S6, two walkers, six carriages; sealed: never used to tune) against "
+                          "the foot switches, beside the data set's own app algorithm and the phone's hardware "
+                          "step counter:"), Table.parse(step_count_table(validation)),
+                    Prose("The tuning traces (`optimisation/`: the detector's settings were chosen on these), "
+                          "foot-switch bounces within 0.5 s left out of the truth (docs/evaluation.md):"),
+                    Table.parse(step_count_table(tuning))))
+
+
 def _metres_pair(p95_m: float, max_m: float) -> Cell:
     """``"0.133 m / 0.165 m"``: a 95 % and a largest error, m."""
     return join(number(p95_m, 3, "m"), " / ", number(max_m, 3, "m"))
@@ -434,6 +467,7 @@ def section_runners(config: ResultsConfig) -> dict[str, Callable[[], Section]]:
         "fusion-exact": lambda: fusion_section("fusion-exact", "Fusion with the exact range (the filters' bound)",
                                                EXACT_SCENARIOS, "exact", config.obs_seeds, config, per_walk=False),
         "pdr": lambda: pdr_section(config),
+        "steps": lambda: steps_section(config),
         "receiver": lambda: receiver_section(config),
         "paths": lambda: paths_section(config),
         "frontends": lambda: frontends_section(config),

@@ -91,6 +91,8 @@ UNCHECKED = {
              "`python -m dtmbnav.evaluation.field_check` exits 1 on a failed row)",
     "weak-signal": "it is a check of its own (a row with a walk worse than its PDR@fix fails; "
                    "`python -m dtmbnav.evaluation.weak_signal` exits 1 on it)",
+    "steps": "it needs the Oxford step counter data set, which is not part of this repository (rerun "
+             "`dtmbnav results --sections steps --step-data DIR` on a checkout of it)",
     "bench": "every figure is a timing of the machine that printed it, which varies from run to run",
 }
 #: Verdicts that fail the check.
