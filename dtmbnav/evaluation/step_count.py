@@ -49,7 +49,8 @@ class CountedWalk:
     ours : int
         Steps :func:`fusion.pdr.steps.detect_steps` counts.
     app, hardware : int or None
-        Steps the data set's app algorithm and the phone's hardware counter counted (validation traces only).
+        Steps the data set's app algorithm and the phone's hardware counter counted (validation traces
+        only; None where that count never moved: not logged).
     """
 
     name: str
@@ -110,7 +111,9 @@ def validation_walk(path: Path, config: StepDetectorConfig | None = None) -> Cou
     if rows.shape[1] != 7:
         raise ValueError(f"{path}: expected 7 columns (time, x, y, z, app, truth, hardware), found {rows.shape[1]}")
     app, truth, hardware = (int(rows[-1, k] - rows[0, k]) for k in (4, 5, 6))
-    return CountedWalk(path.stem, truth, count_steps(rows[:, 0], rows[:, 1:4], config), app, hardware)
+    # A running count that never moves over a walk of hundreds of steps was not logged (None), not a count of 0.
+    return CountedWalk(path.stem, truth, count_steps(rows[:, 0], rows[:, 1:4], config), app or None,
+                       hardware or None)
 
 
 def data_set_walks(root: Path, part: str) -> list[Path]:
@@ -137,9 +140,12 @@ def error_percent(count: int | None, truth: int) -> str:
 
 
 def step_count_table(walks: list[CountedWalk]) -> str:
-    """Markdown table: one row per walk, then the median and largest absolute error of each counter."""
+    """Markdown table: one row per walk, then the median and largest absolute error of each counter.
+
+    A summary covers the walks that have the count, and says how many they are.
+    """
     lines = ["| walk | true steps | ours | ours error | app algorithm | hardware counter |",
-             "|---|---:|---:|---:|---:|---:|"]
+             "|---|---|---|---|---|---|"]
     for walk in walks:
         lines.append(f"| {walk.name} | {walk.true_steps} | {walk.ours} | {error_percent(walk.ours, walk.true_steps)} "
                      f"| {error_percent(walk.app, walk.true_steps)} | "
@@ -147,10 +153,7 @@ def step_count_table(walks: list[CountedWalk]) -> str:
     for label, reduce in (("median abs error", np.median), ("largest abs error", np.max)):
         cells = []
         for counts in ([w.ours for w in walks], [w.app for w in walks], [w.hardware for w in walks]):
-            if any(c is None for c in counts):
-                cells.append("—")
-                continue
-            errors = [abs(c - w.true_steps) / w.true_steps for c, w in zip(counts, walks)]
-            cells.append(f"{100.0 * reduce(errors):.1f} %")
-        lines.append(f"| **{label}** | | | {cells[0]} | {cells[1]} | {cells[2]} |")
+            errors = [abs(c - w.true_steps) / w.true_steps for c, w in zip(counts, walks) if c is not None]
+            cells.append(f"{100.0 * reduce(errors):.1f} % ({len(errors)})" if errors else "—")
+        lines.append(f"| **{label}** | - | - | {cells[0]} | {cells[1]} | {cells[2]} |")
     return "\n".join(lines)
