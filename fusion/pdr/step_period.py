@@ -76,22 +76,28 @@ def _window_autocorrelation(windows: np.ndarray, max_lag: int) -> np.ndarray:
 
 
 def _period_of(acf: np.ndarray, min_lag: int, stride_ratio: float) -> tuple[float, float]:
-    """Step period (in lags, sub-lag by a parabola through the peak) and its strength from one autocorrelation."""
+    """Step period (in lags) and its strength from one autocorrelation.
+
+    The highest peak is refined by a parabola through it. Where it is a stride, the
+    step period is half of it: a stride is a left and a right step, so its half is
+    the mean step however unlike the two legs are, and the stride's lag is the
+    sharper of the two (the half-way peak of a lopsided gait is low and broad).
+    """
     peaks, _ = find_peaks(acf)
     peaks = peaks[peaks >= min_lag]
     if peaks.size == 0:
         return np.nan, 0.0
     best = int(peaks[np.argmax(acf[peaks])])
-    half = acf[int(0.4 * best):int(0.6 * best) + 1]
-    if half.size and best // 2 >= min_lag and half.max() > stride_ratio * acf[best]:
-        best = int(0.4 * best) + int(np.argmax(half))  # a stride: the step is the peak half-way
-    strength = float(acf[best])
-    if 0 < best < len(acf) - 1:
+    lag = float(best)
+    if best < len(acf) - 1:
         left, right = acf[best - 1], acf[best + 1]
         curvature = left - 2.0 * acf[best] + right
         if curvature < 0:
-            return best + 0.5 * (left - right) / curvature, strength
-    return float(best), strength
+            lag += 0.5 * (left - right) / curvature
+    half = acf[int(0.4 * best):int(0.6 * best) + 1]
+    if half.size and best // 2 >= min_lag and half.max() > stride_ratio * acf[best]:
+        return 0.5 * lag, float(acf[best])  # a stride
+    return lag, float(acf[best])
 
 
 def step_period(t_s: np.ndarray, dyn_mps2: np.ndarray, window_s: float, hop_s: float, min_period_s: float,

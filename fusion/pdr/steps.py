@@ -103,6 +103,7 @@ class StepDetectorConfig:
     spacing_fraction: float = 0.6
     max_missed_steps: int = 2
     min_fill_strength: float = 0.3
+    min_walk_strength: float = 0.25
     min_bout_steps: int = 8
     bout_tolerance: float = 1.6
 
@@ -217,6 +218,7 @@ def detect_steps(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDetectorConf
         return DetectedSteps(t_s=empty, start_t_s=empty, acc_max_mps2=empty, acc_min_mps2=empty)
     peaks = _one_per_period(candidates, dyn[candidates], period_s * rate_hz, config.spacing_fraction)
     peaks = _put_in_missed(peaks, t_s, rate_hz, period, config)
+    peaks = peaks[period.at(t_s[peaks])[1] >= config.min_walk_strength]
     peaks = _in_bouts(peaks, period.at(t_s[peaks])[0] * rate_hz, config)
     if peaks.size == 0:
         empty = np.zeros(0)
@@ -253,17 +255,22 @@ def _put_in_missed(peaks: np.ndarray, t_s: np.ndarray, rate_hz: float, period: S
                    config: StepDetectorConfig) -> np.ndarray:
     """``peaks`` with evenly spaced steps put into gaps of 2 to ``max_missed_steps + 1`` periods.
 
-    Only inside walking: both ends of the gap periodic (``min_fill_strength``) and the
-    gap within a quarter of a period of a whole number of periods.
+    Only inside walking: the gap within a quarter of a period of a whole number of
+    periods, both its ends periodic (``min_fill_strength``), and a regular step
+    interval (half a period to ``bout_tolerance`` periods) on each side of it. The
+    last keeps the long first step from a standstill, whose push-off can peak well
+    before its heel strike, from being taken for a gap.
     """
-    if config.max_missed_steps < 1 or len(peaks) < 2:
+    if config.max_missed_steps < 1 or len(peaks) < 4:
         return peaks
     period_s, strength = period.at(t_s[peaks])
     gap = np.diff(peaks)
     periods = gap / (0.5 * (period_s[1:] + period_s[:-1]) * rate_hz)
     whole = np.rint(periods).astype(int)
+    regular = (periods > 0.5) & (periods < config.bout_tolerance)
+    between_regular = np.concatenate([[False], regular[:-2] & regular[2:], [False]])
     missed = ((whole >= 2) & (whole <= config.max_missed_steps + 1) & (np.abs(periods - whole) < 0.25)
-              & (np.minimum(strength[1:], strength[:-1]) >= config.min_fill_strength))
+              & (np.minimum(strength[1:], strength[:-1]) >= config.min_fill_strength) & between_regular)
     added = [peaks[i] + (gap[i] * np.arange(1, whole[i])) // whole[i] for i in np.flatnonzero(missed)]
     return np.sort(np.concatenate([peaks, *added])) if added else peaks
 
