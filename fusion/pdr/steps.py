@@ -18,10 +18,12 @@ the walker's step period, measured from the signal itself
 
 1. the highest candidates are taken first, and each takes out the candidates
    closer to it than a fraction of the local period (one step, one count);
-2. a gap of two or three periods inside a periodic stretch is a step or two
+2. a gap of two or three periods between regular steps is a step or two
    whose peak stayed under the threshold (the quieter leg in a back pocket):
    the missing steps are put in evenly;
-3. a step counts only as part of a bout of regular steps (intervals close to
+3. a step counts only where the signal is periodic (``min_walk_strength``):
+   a bag swaying after the walker stopped, or the phone being handled, is not;
+4. and only as part of a bout of regular steps (intervals close to
    the period): handling the phone (taking it out, putting it in a pocket or a
    bag) gives a few irregular jolts, walking gives a run of them. Brajdic and
    Harle found such walk detection to be what keeps handling from counting.
@@ -82,6 +84,8 @@ class StepDetectorConfig:
     min_fill_strength : float
         Least periodicity (autocorrelation at the period) at both ends of a gap for
         missed steps to be put in.
+    min_walk_strength : float
+        Least periodicity where a step counts.
     min_bout_steps : int
         Fewest regular steps in a row that make a walk; shorter runs are handling.
     bout_tolerance : float
@@ -186,7 +190,8 @@ def detect_steps(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDetectorConf
     Candidates are the local peaks of :func:`dynamic_acceleration` above
     :func:`step_threshold`; they are held to the local step period
     (:func:`fusion.pdr.step_period.step_period`) by :func:`_one_per_period`,
-    :func:`_put_in_missed` and :func:`_in_bouts` (the module docstring says why).
+    :func:`_put_in_missed`, a periodicity floor (``min_walk_strength``) and :func:`_in_bouts` (the module
+    docstring says why).
     A step's window runs from the previous step's peak; a step more than
     ``max_step_s`` after the previous one (the first after a standstill) has no
     previous peak, and gets the duration of the walker's next step, clipped to
