@@ -14,8 +14,15 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from dtmbnav.evaluation.results_data import Table
-from dtmbnav.evaluation.step_count import (SWITCH_BOUNCE_S, CountedWalk, data_set_walks, step_count_table,
-                                           switch_steps, tuning_walk, validation_walk)
+from dtmbnav.evaluation.step_count import (
+    SWITCH_BOUNCE_S,
+    CountedWalk,
+    data_set_walks,
+    step_count_table,
+    switch_steps,
+    tuning_walk,
+    validation_walk,
+)
 from sim.imu import simulate_imu
 from sim.scenario import Scenario
 from sim.walk import simulate_walk
