@@ -121,14 +121,18 @@ def test_receive_bad_file_is_a_clear_error(tmp_path, capsys):
     assert "odd.ci8" in capsys.readouterr().err
 
 
-def test_pdr_command(tiny_sim, tmp_path):
+def test_pdr_command(tiny_sim, tmp_path, capsys):
     out = tmp_path / "pdr.h5"
     assert main(["pdr", str(tiny_sim / "truth.h5"), "-o", str(out)]) == EXIT_OK
     with h5py.File(out, "r") as f, h5py.File(tiny_sim / "truth.h5", "r") as t:
         steps = len(f["pdr/t_s"])
         true_steps = len(t["truth/steps/t_s"])
         assert f["pdr"].attrs["step_model"] == "weinberg"  # the calibrated K stored with the IMU log
+        # The tiny walk's phone is held in the hand: what pdr says about the carriage.
+        assert (f["pdr"].attrs["carriage"], f["pdr"].attrs["heading_from"]) == ("steady", "phone yaw")
+        assert f["pdr"].attrs["carriage_changes"] == 0
     assert abs(steps - true_steps) <= max(1, 0.05 * true_steps)
+    assert "the phone was held steady" in capsys.readouterr().err
 
 
 def test_demo_fuses_the_walk(tiny_demo):

@@ -69,6 +69,12 @@ def test_steps_have_a_walkers_speed_from_the_first_one_on(walked):
     assert 0.3 < np.median(steps.speed_mps) < 2.0  # the uncalibrated frequency model: a walker's, not the truth
 
 
+def test_the_carriage_is_told_from_the_phones_swing(walked):
+    scenario, _, _, pdr = walked
+    expected = "swinging" if scenario.imu.carriage in ("pocket", "swinging") else "steady"
+    assert (pdr.carriage, pdr.walking_used, pdr.carriage_changes) == (expected, expected == "swinging", 0)
+
+
 def test_uneven_times_are_resampled_and_a_missing_magnetometer_is_said(walked):
     scenario, _, imu, pdr = walked
     if scenario.imu.time_jitter == 0.0:
@@ -187,5 +193,8 @@ def test_steps_counted_within_3_percent_new_gaits(gait):
     walk = simulate_walk(scenario)
     pdr = run_pdr(simulate_imu(scenario, walk), PdrConfig(step_model="frequency"))
     assert abs(len(pdr.steps) - len(walk.step_t_s)) <= 0.03 * len(walk.step_t_s)
+    if gait == "handled":
+        # To the ear mid-walk; out of the pocket at 3 s is before the first step, not between two.
+        assert pdr.carriage_changes == 1
     # Handling the phone before the first step (out of the pocket at 3 s) is no step.
     assert pdr.steps.t_s[0] > walk.step_t_s[0] - 0.5 * np.median(np.diff(walk.step_t_s))

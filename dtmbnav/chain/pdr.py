@@ -41,7 +41,9 @@ def resolve_pdr_config(config: PdrConfig, sensors_path: str | os.PathLike) -> Pd
 def write_pdr(h5: h5py.File, result: PdrResult, config: PdrConfig) -> None:
     """Write ``/pdr`` (per step) and ``/pdr/track`` (resampled)."""
     attrs = {"step_model": config.step_model, "weinberg_k_m": config.weinberg_k_m or np.nan,
-             "frame": "PDR frame: starts at (0, 0), heading relative to the initial one"}
+             "frame": "PDR frame: starts at (0, 0), heading relative to the initial one",
+             "carriage": result.carriage, "carriage_changes": result.carriage_changes,
+             "heading_from": "walking direction" if result.walking_used else "phone yaw"}
     write_columns(h5, schema.PDR, result.steps, attrs)
     write_columns(h5, schema.PDR_TRACK, result.track, {"rate_hz": config.output_rate_hz})
 

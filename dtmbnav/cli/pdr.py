@@ -43,6 +43,11 @@ def run(args: argparse.Namespace) -> int:
         options.warn(args, f"{args.sensors}: {note}")
     print(f"pdr: {len(result.steps)} steps, {result.steps.step_length_m.sum():.1f} m walked -> {args.output}",
           file=sys.stderr)
+    if len(result.steps):
+        from fusion.pdr.pipeline import CARRIAGE_CLASSES
+
+        changes = f"; {result.carriage_changes} change(s) of carriage" if result.carriage_changes else ""
+        print(f"pdr: the phone was {CARRIAGE_CLASSES[result.carriage]}{changes}", file=sys.stderr)
     return EXIT_OK if len(result.steps) else EXIT_NO_RESULT
 
 

@@ -35,6 +35,12 @@ from fusion.pdr.steps import DetectedSteps, StepDetectorConfig, detect_steps
 from fusion.pdr.walking_direction import WalkingConfig, WalkingDirection, walking_direction
 
 STEP_MODELS = ("weinberg", "frequency")
+#: Carriages the PDR tells apart (by the attitude's median swing over a stride, ``WalkingConfig.swing_deg``),
+#: and what they mean for the user.
+CARRIAGE_CLASSES = {
+    "steady": "held steady (in the hand, texting, at the ear, in a bag): heading from the phone's yaw",
+    "swinging": "on a swinging limb (a trouser pocket, a swinging hand): heading from the walking direction",
+}
 HEADING_SOURCES = ("phone", "walking", "auto")
 
 
@@ -90,6 +96,9 @@ class PdrResult:
         the attitude's swing (None where no step was detected).
     walking_used : bool
         Whether the steps' heading is the walking direction's (else the phone's).
+    carriage : str
+        How the phone rode over most of the walk, from its attitude's swing over a
+        stride: a key of :data:`CARRIAGE_CLASSES`, or ``"unknown"`` without steps.
     """
 
     steps: PdrSteps
@@ -98,6 +107,12 @@ class PdrResult:
     notes: tuple[str, ...] = ()
     walking: WalkingDirection | None = None
     walking_used: bool = False
+    carriage: str = "unknown"
+
+    @property
+    def carriage_changes(self) -> int:
+        """Changes of carriage found during the walk."""
+        return 0 if self.walking is None else int(np.count_nonzero(self.walking.carriage_change))
 
 
 def _check_imu(imu: ImuLog) -> None:
@@ -194,8 +209,10 @@ def run_pdr(imu: ImuLog, config: PdrConfig) -> PdrResult:
     steps = dead_reckon(detected.t_s, detected.start_t_s, lengths, step_heading)
     n_out = int(np.floor((imu.t_s[-1] - imu.t_s[0]) * config.output_rate_hz)) + 1
     track = resample_steps(steps, detected.start_t_s, imu.t_s[0] + np.arange(n_out) / config.output_rate_hz)
+    carriage = "unknown" if walking is None else (
+        "swinging" if np.median(walking.swing_rad) > np.radians(config.walking.swing_deg) else "steady")
     return PdrResult(steps=steps, track=track, timing=timing, notes=notes, walking=walking,
-                     walking_used=walking_used)
+                     walking_used=walking_used, carriage=carriage)
 
 
 def _step_heading(imu: ImuLog, detected: DetectedSteps, attitude: AttitudeConfig,
