@@ -61,3 +61,38 @@ def test_a_profile_of_the_gain_alone_is_enough(tmp_path):
     path.write_text("weinberg_k_m = 0.5\n")
     profile = read_walker_profile(path)
     assert profile.weinberg_k_m == 0.5 and math.isnan(profile.distance_m) and profile.k_by_carriage_m == {}
+
+
+def test_each_carriage_keeps_its_own_gain(tiny_walk_truth, tmp_path, capsys):
+    """Calibrating in the hand and in a trouser pocket builds one profile; each walk takes its carriage's gain."""
+    from sim.scenario import load_scenario, scenario_to_toml
+    from tests.conftest import TINY_WALK
+
+    pocket_toml = tmp_path / "pocket.toml"
+    pocket_toml.write_text(scenario_to_toml(load_scenario(TINY_WALK).replace(imu={"carriage": "pocket"})))
+    _run(capsys, "-q", "simulate", str(pocket_toml), "--no-iq", "-o", str(tmp_path / "pocket"))
+    walks = {"steady": tiny_walk_truth, "swinging": tmp_path / "pocket" / "truth.h5"}
+    distance_m = {name: float(read_walk_truth(path).step_length_m.sum()) for name, path in walks.items()}
+    walker = tmp_path / "walker.toml"
+    for name, path in walks.items():
+        _run(capsys, "pdr", str(path), "--calibrate", "--distance", f"{distance_m[name]:.3f}", "-o", str(walker))
+    profile = read_walker_profile(walker)
+    assert set(profile.k_by_carriage_m) == {"steady", "swinging"}
+    assert profile.weinberg_k_m == profile.k_by_carriage_m["swinging"]  # the latest calibration's
+    # The pocket's swing moves the acceleration Weinberg's relation reads: one gain would not fit both
+    # (the wrong one would miss by more than the 0.5 % below).
+    assert abs(profile.k_by_carriage_m["swinging"] / profile.k_by_carriage_m["steady"] - 1.0) > 0.02
+    for name, path in walks.items():
+        _run(capsys, "pdr", str(path), "-o", str(tmp_path / f"{name}.h5"), "--walker", str(walker))
+        assert _walked_m(tmp_path / f"{name}.h5") == pytest.approx(distance_m[name], rel=0.005)
+        with h5py.File(tmp_path / f"{name}.h5", "r") as f:
+            assert f[schema.PDR].attrs["carriage"] == name
+            assert f[schema.PDR].attrs["weinberg_k_m"] == profile.k_by_carriage_m[name]
+
+
+def test_calibrating_onto_a_file_that_is_no_profile_writes_nothing(tiny_walk_truth, tmp_path, capsys):
+    other = tmp_path / "notes.toml"
+    other.write_text('title = "not a walker"\n')
+    assert main(["pdr", str(tiny_walk_truth), "--calibrate", "--distance", "12", "-o", str(other)]) != EXIT_OK
+    assert "notes.toml" in capsys.readouterr().err
+    assert other.read_text() == 'title = "not a walker"\n'

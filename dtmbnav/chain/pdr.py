@@ -10,11 +10,12 @@ import h5py
 import numpy as np
 
 from dtmbnav.chain.inputs import read_checked_imu
-from dtmbnav.field.walker import WalkerProfile, calibration_date, write_walker_profile
+from dtmbnav.field.walker import WalkerProfile, calibration_date, read_walker_profile, write_walker_profile
 from dtmbnav_core import schema
 from dtmbnav_core.h5io import atomic_h5, write_columns
 from dtmbnav_core.sensors import read_has_magnetometer, read_weinberg_k_m
 from fusion.pdr import PdrConfig, PdrResult, calibrate_weinberg_k_from_walk, run_pdr
+from fusion.pdr.pipeline import weinberg_gain
 from receiver.writer import write_csv
 
 
@@ -40,7 +41,7 @@ def resolve_pdr_config(config: PdrConfig, sensors_path: str | os.PathLike) -> Pd
 
 def write_pdr(h5: h5py.File, result: PdrResult, config: PdrConfig) -> None:
     """Write ``/pdr`` (per step) and ``/pdr/track`` (resampled)."""
-    attrs = {"step_model": config.step_model, "weinberg_k_m": config.weinberg_k_m or np.nan,
+    attrs = {"step_model": config.step_model, "weinberg_k_m": weinberg_gain(config, result.carriage) or np.nan,
              "frame": "PDR frame: starts at (0, 0), heading relative to the initial one",
              "carriage": result.carriage, "carriage_changes": result.carriage_changes,
              "heading_from": "walking direction" if result.walking_used else "phone yaw"}
@@ -68,13 +69,18 @@ def calibrate_walker(sensors_path: str | os.PathLike, distance_m: float, out_pat
     ``out_path``; and the PDR of the walk with that gain, whose steps then add up to the distance.
 
     ``config``'s step detector is the one the gain is fitted with (:func:`calibrate_weinberg_k_from_walk`),
-    so the gain matches the steps a later ``pdr --walker`` detects with it.
+    so the gain matches the steps a later ``pdr --walker`` detects with it. The gain is also kept for the
+    carriage the walk was made in (:data:`fusion.pdr.pipeline.CARRIAGE_CLASSES`); where ``out_path`` is a
+    walker profile already, the gains it holds for other carriages are kept, so that calibrating once per
+    carriage builds one profile.
 
     Raises
     ------
     ValueError
-        A missing or malformed ``/imu``, or no steps detected (the file named); nothing is written.
+        A missing or malformed ``/imu``, no steps detected, or an ``out_path`` that exists and is not a
+        walker profile (the file named); nothing is written.
     """
+    earlier = read_walker_profile(out_path).k_by_carriage_m if os.path.exists(out_path) else {}
     imu = read_checked_imu(sensors_path)
     config = resolve_pdr_config(dataclasses.replace(config, step_model="weinberg", weinberg_k_m=1.0), sensors_path)
     try:
@@ -84,6 +90,7 @@ def calibrate_walker(sensors_path: str | os.PathLike, distance_m: float, out_pat
                          "carried") from None
     result = run_pdr(imu, dataclasses.replace(config, weinberg_k_m=k_m))
     profile = WalkerProfile(weinberg_k_m=k_m, distance_m=float(distance_m), steps=len(result.steps),
-                            source=str(sensors_path), date=calibration_date())
+                            source=str(sensors_path), date=calibration_date(),
+                            k_by_carriage_m={**earlier, result.carriage: k_m})
     write_walker_profile(out_path, profile)
     return profile, result

@@ -293,7 +293,13 @@ def weinberg_k(args: argparse.Namespace) -> float | None:
 def pdr_config(args: argparse.Namespace):
     from fusion.pdr import PdrConfig
 
-    return PdrConfig(step_model=args.step_model, weinberg_k_m=weinberg_k(args))
+    k_m = weinberg_k(args)
+    if args.walker is None:
+        return PdrConfig(step_model=args.step_model, weinberg_k_m=k_m)
+    from dtmbnav.field.walker import read_walker_profile
+
+    by_carriage = dict(read_walker_profile(args.walker).k_by_carriage_m)
+    return PdrConfig(step_model=args.step_model, weinberg_k_m=k_m, weinberg_k_by_carriage_m=by_carriage)
 
 
 def say_pdr_choices(args: argparse.Namespace) -> None:

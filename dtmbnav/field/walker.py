@@ -12,8 +12,8 @@ field                       unit      what
 ``steps``                             the steps detected on it
 ``source``                  text      the sensors file calibrated on
 ``date``                    text      when, ISO 8601 UTC
-``[weinberg_k_m_by_carriage]``        optional: K per carriage class (``handheld = 0.47``, ...), m, > 0;
-                                      a step detector that reports the phone's carriage may take these
+``[weinberg_k_m_by_carriage]``        optional: K per carriage class the PDR tells apart (``steady = 0.47``,
+                                      ``swinging = 0.52``), m, > 0; a walk in that carriage takes its own
 ==========================  ========  =====================================================================
 
 Every value is checked as it is read; an error names the file and the field.

@@ -22,6 +22,7 @@ a change of carriage would otherwise be taken for a turn.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -54,6 +55,11 @@ class PdrConfig:
         ``"weinberg"`` (needs ``weinberg_k_m``) or ``"frequency"`` (L = 0.4 f - 0.01).
     weinberg_k_m : float or None
         Calibrated Weinberg gain, m.
+    weinberg_k_by_carriage_m : mapping of str to float
+        Weinberg gains calibrated for a carriage (keys of :data:`CARRIAGE_CLASSES`), m; the
+        walk's carriage takes its own where there is one, else ``weinberg_k_m``. The
+        swing of a pocket or a hand moves the acceleration that Weinberg's relation
+        reads, so one gain does not fit every carriage.
     output_rate_hz : float
         Rate of the resampled track, Hz.
     heading_source : str
@@ -69,6 +75,7 @@ class PdrConfig:
 
     step_model: str = "weinberg"
     weinberg_k_m: float | None = None
+    weinberg_k_by_carriage_m: Mapping[str, float] = field(default_factory=dict)
     output_rate_hz: float = 10.0
     heading_source: str = "auto"
     steps: StepDetectorConfig = field(default_factory=StepDetectorConfig)
@@ -202,17 +209,22 @@ def run_pdr(imu: ImuLog, config: PdrConfig) -> PdrResult:
                        "offset was estimated afresh after it" + ("" if walking_used else
                        ", but the heading is the phone's (heading_source='phone'), so it may turn there")
                        for t in detected.t_s[walking.carriage_change])
+    carriage = "unknown" if walking is None else (
+        "swinging" if np.median(walking.swing_rad) > np.radians(config.walking.swing_deg) else "steady")
     if config.step_model == "weinberg":
-        lengths = weinberg_length(detected.acc_max_mps2, detected.acc_min_mps2, config.weinberg_k_m)
+        lengths = weinberg_length(detected.acc_max_mps2, detected.acc_min_mps2, weinberg_gain(config, carriage))
     else:
         lengths = frequency_length(1.0 / detected.duration_s)
     steps = dead_reckon(detected.t_s, detected.start_t_s, lengths, step_heading)
     n_out = int(np.floor((imu.t_s[-1] - imu.t_s[0]) * config.output_rate_hz)) + 1
     track = resample_steps(steps, detected.start_t_s, imu.t_s[0] + np.arange(n_out) / config.output_rate_hz)
-    carriage = "unknown" if walking is None else (
-        "swinging" if np.median(walking.swing_rad) > np.radians(config.walking.swing_deg) else "steady")
     return PdrResult(steps=steps, track=track, timing=timing, notes=notes, walking=walking,
                      walking_used=walking_used, carriage=carriage)
+
+
+def weinberg_gain(config: PdrConfig, carriage: str) -> float | None:
+    """The Weinberg gain for a walk in ``carriage``: its own calibrated one, else the general one, m."""
+    return config.weinberg_k_by_carriage_m.get(carriage, config.weinberg_k_m)
 
 
 def _step_heading(imu: ImuLog, detected: DetectedSteps, attitude: AttitudeConfig,
