@@ -12,11 +12,13 @@ import tomllib
 
 import h5py
 import pytest
+from conftest import TINY_WALK
 
 from dtmbnav.cli import EXIT_OK, main
 from dtmbnav.field.walker import WalkerProfile, read_walker_profile, write_walker_profile
 from dtmbnav_core import schema
 from dtmbnav_core.sensors import read_walk_truth
+from sim.scenario import load_scenario, scenario_to_toml
 
 
 def _run(capsys, *argv: str) -> str:
@@ -65,9 +67,6 @@ def test_a_profile_of_the_gain_alone_is_enough(tmp_path):
 
 def test_each_carriage_keeps_its_own_gain(tiny_walk_truth, tmp_path, capsys):
     """Calibrating in the hand and in a trouser pocket builds one profile; each walk takes its carriage's gain."""
-    from sim.scenario import load_scenario, scenario_to_toml
-    from tests.conftest import TINY_WALK
-
     pocket_toml = tmp_path / "pocket.toml"
     pocket_toml.write_text(scenario_to_toml(load_scenario(TINY_WALK).replace(imu={"carriage": "pocket"})))
     _run(capsys, "-q", "simulate", str(pocket_toml), "--no-iq", "-o", str(tmp_path / "pocket"))
