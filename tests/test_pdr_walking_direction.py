@@ -54,7 +54,7 @@ def _on_straights(walk: Walk, t_s: np.ndarray) -> np.ndarray:
     return straight & (np.interp(t_s, walk.track.t_s, walk.track.speed_mps) > 0.5)
 
 
-@pytest.mark.parametrize("carriage", ["pocket", "swinging"])
+@pytest.mark.parametrize("carriage", ["pocket", "swinging", "pocket-gait", "swinging-wide"])
 def test_the_heading_follows_the_walk_not_the_swinging_phone(carriage):
     scenario, walk = _walk()
     imu = _carried(scenario, walk, carriage)
