@@ -23,6 +23,7 @@ the walker's step period, measured from the signal itself
    the missing steps are put in evenly;
 3. a step counts only where the signal is periodic (``min_walk_strength``):
    a bag swaying after the walker stopped, or the phone being handled, is not;
+   the slower step that ends a walk into a standstill is the exception;
 4. and only as part of a bout of regular steps (intervals close to
    the period): handling the phone (taking it out, putting it in a pocket or a
    bag) gives a few irregular jolts, walking gives a run of them. Brajdic and
@@ -90,6 +91,9 @@ class StepDetectorConfig:
         Fewest regular steps in a row that make a walk; shorter runs are handling.
     bout_tolerance : float
         Longest interval, in local step periods, that still links two steps of a bout.
+    last_step_tolerance : float
+        Longest interval, in local step periods, from a bout's last step to the slower
+        step that ends it into a standstill.
     """
 
     smoothing_s: float = 0.15
@@ -110,6 +114,7 @@ class StepDetectorConfig:
     min_walk_strength: float = 0.25
     min_bout_steps: int = 8
     bout_tolerance: float = 1.6
+    last_step_tolerance: float = 2.5
 
 
 @dataclass(frozen=True)
@@ -190,8 +195,7 @@ def detect_steps(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDetectorConf
     Candidates are the local peaks of :func:`dynamic_acceleration` above
     :func:`step_threshold`; they are held to the local step period
     (:func:`fusion.pdr.step_period.step_period`) by :func:`_one_per_period`,
-    :func:`_put_in_missed`, a periodicity floor (``min_walk_strength``) and :func:`_in_bouts` (the module
-    docstring says why).
+    :func:`_put_in_missed` and :func:`_in_bouts`, with its periodicity floor (the module docstring says why).
     A step's window runs from the previous step's peak; a step more than
     ``max_step_s`` after the previous one (the first after a standstill) has no
     previous peak, and gets the duration of the walker's next step, clipped to
@@ -223,8 +227,8 @@ def detect_steps(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDetectorConf
         return DetectedSteps(t_s=empty, start_t_s=empty, acc_max_mps2=empty, acc_min_mps2=empty)
     peaks = _one_per_period(candidates, dyn[candidates], period_s * rate_hz, config.spacing_fraction)
     peaks = _put_in_missed(peaks, t_s, rate_hz, period, config)
-    peaks = peaks[period.at(t_s[peaks])[1] >= config.min_walk_strength]
-    peaks = _in_bouts(peaks, period.at(t_s[peaks])[0] * rate_hz, config)
+    period_s, strength = period.at(t_s[peaks])
+    peaks = _in_bouts(peaks, period_s * rate_hz, strength >= config.min_walk_strength, config)
     if peaks.size == 0:
         empty = np.zeros(0)
         return DetectedSteps(t_s=empty, start_t_s=empty, acc_max_mps2=empty, acc_min_mps2=empty)
@@ -280,18 +284,34 @@ def _put_in_missed(peaks: np.ndarray, t_s: np.ndarray, rate_hz: float, period: S
     return np.sort(np.concatenate([peaks, *added])) if added else peaks
 
 
-def _in_bouts(peaks: np.ndarray, period_samples: np.ndarray, config: StepDetectorConfig) -> np.ndarray:
-    """The steps that belong to a bout of at least ``min_bout_steps`` regular steps.
+def _in_bouts(peaks: np.ndarray, period_samples: np.ndarray, periodic: np.ndarray,
+              config: StepDetectorConfig) -> np.ndarray:
+    """The steps that belong to a bout of at least ``min_bout_steps`` regular, periodic steps.
 
-    Two steps are linked when their interval lies between half a period and
-    ``bout_tolerance`` periods.
+    Bouts are made of the ``periodic`` steps (where the walk's autocorrelation
+    reaches ``min_walk_strength``); two are linked when their interval lies
+    between half a period and ``bout_tolerance`` periods. The step that ends a
+    bout into a standstill is slower (the walker brings the feet together) and
+    half its window is the standstill, which weakens the autocorrelation there:
+    the next step up to ``last_step_tolerance`` periods after a bout's last
+    belongs to the bout, periodic or not.
     """
-    if len(peaks) == 0:
-        return peaks
-    gap = np.diff(peaks)
-    linked = (gap > 0.5 * period_samples[1:]) & (gap < config.bout_tolerance * period_samples[1:])
+    strong = np.flatnonzero(periodic)
+    if strong.size == 0:
+        return peaks[:0]
+    gap = np.diff(peaks[strong])
+    linked = (gap > 0.5 * period_samples[strong[1:]]) & (gap < config.bout_tolerance * period_samples[strong[1:]])
     bout = np.concatenate([[0], np.cumsum(~linked)])
-    return peaks[np.bincount(bout)[bout] >= config.min_bout_steps]
+    kept = np.zeros(len(peaks), dtype=bool)
+    kept[strong] = np.bincount(bout)[bout] >= config.min_bout_steps
+    # The step after each kept bout's last one.
+    last = strong[kept[strong] & np.append(bout[1:] != bout[:-1], True)]
+    last = last[last + 1 < len(peaks)]
+    closing_gap = peaks[last + 1] - peaks[last]
+    closes = ((closing_gap > 0.5 * period_samples[last + 1])
+              & (closing_gap < config.last_step_tolerance * period_samples[last + 1]))
+    kept[last[closes] + 1] = True
+    return peaks[kept]
 
 
 def _first_step_samples(gap: np.ndarray, after_standstill: np.ndarray, rate_hz: float,
