@@ -15,9 +15,12 @@ from hypothesis import strategies as st
 
 from dtmbnav.evaluation.results_data import Table
 from dtmbnav.evaluation.step_count import (
+    SHORT_WALK_STEPS,
     SWITCH_BOUNCE_S,
     CountedWalk,
     data_set_walks,
+    short_walk_summary,
+    start_and_stop,
     step_count_table,
     switch_steps,
     tuning_walk,
@@ -35,6 +38,14 @@ def test_real_walks_counted_within_3_percent(walk):
     counted = tuning_walk(walk)
     assert counted.true_steps > 250
     assert abs(counted.ours - counted.true_steps) <= 0.03 * counted.true_steps
+
+
+@pytest.mark.parametrize("walk", data_set_walks(DATA, "optimisation"), ids=lambda p: p.name)
+def test_a_real_start_and_stop_are_counted_within_2_steps(walk):
+    """25 steps from the phone being put away to walking, and from walking to taking it out again."""
+    for part in start_and_stop(walk):
+        assert part.true_steps == SHORT_WALK_STEPS
+        assert abs(part.ours - part.true_steps) <= 2, part
 
 
 @given(st.lists(st.floats(0.05, 2.0), min_size=1, max_size=40))
@@ -89,3 +100,10 @@ def test_the_table_gives_each_counters_error_and_their_summary():
     lines = step_count_table([CountedWalk("c", 100, 101), CountedWalk("d", 100, 97, hardware=104)]).splitlines()
     assert lines[2] == "| c | 100 | 101 | +1.0 % | — | — |"
     assert lines[-1] == "| **largest abs error** | - | - | 3.0 % (2) | — | 4.0 % (1) |"
+
+
+def test_the_short_walks_summary_counts_those_within_2_steps():
+    walks = [CountedWalk(str(k), 25, 25 + error) for k, error in enumerate([0, 1, -2, 3, 2, -5])]
+    text = short_walk_summary(walks)
+    assert Table.parse(text).markdown() == text
+    assert text.splitlines()[2].startswith("| 6 | 25 | 4 | ") and text.endswith("| -5 |")

@@ -298,8 +298,16 @@ def steps_section(config: ResultsConfig) -> Section:
     FileNotFoundError
         ``config.step_data`` not given, or not a checkout of the data set.
     """
-    from dtmbnav.evaluation.step_count import (FETCH_HINT, data_set_walks, step_count_table, tuning_walk,
-                                               validation_walk)
+    from dtmbnav.evaluation.step_count import (
+        FETCH_HINT,
+        SHORT_WALK_STEPS,
+        data_set_walks,
+        short_walk_summary,
+        start_and_stop,
+        step_count_table,
+        tuning_walk,
+        validation_walk,
+    )
 
     if config.step_data is None:
         raise FileNotFoundError(f"results --sections steps needs --step-data DIR, a checkout of the Oxford step "
@@ -309,6 +317,7 @@ def steps_section(config: ResultsConfig) -> Section:
     data_commit = head.stdout.strip() if head is not None and head.returncode == 0 else "unknown"
     validation = [validation_walk(path) for path in data_set_walks(root, "validation")]
     tuning = [tuning_walk(path) for path in data_set_walks(root, "optimisation")]
+    short = [walk for path in data_set_walks(root, "optimisation") for walk in start_and_stop(path)]
     return Section("steps", "Step counts on real phones (Oxford step counter data set)",
                    f"{COMMAND} --sections steps --step-data DataSet",
                    (Prose(f"Oxford-step-counter/DataSet at commit `{data_commit}` (CC BY 4.0). Its validation "
@@ -317,7 +326,11 @@ def steps_section(config: ResultsConfig) -> Section:
                           "step counter:"), Table.parse(step_count_table(validation)),
                     Prose("The tuning traces (`optimisation/`: the detector's settings were chosen on these), "
                           "foot-switch bounces within 0.5 s left out of the truth (docs/evaluation.md):"),
-                    Table.parse(step_count_table(tuning))))
+                    Table.parse(step_count_table(tuning)),
+                    Prose(f"Starts and stops: the first and the last {SHORT_WALK_STEPS} steps of each tuning walk, "
+                          "each a short walk with the phone put away or taken out, the walker setting off or "
+                          "stopping (`dtmbnav.evaluation.step_count.start_and_stop`):"),
+                    Table.parse(short_walk_summary(short))))
 
 
 def _metres_pair(p95_m: float, max_m: float) -> Cell:

@@ -32,6 +32,8 @@ from fusion.pdr.steps import StepDetectorConfig, detect_steps
 
 #: Two closings of one foot switch closer than this are one step, s.
 SWITCH_BOUNCE_S = 0.5
+#: True steps of each short walk cut from a tuning walk's start and stop (:func:`start_and_stop`).
+SHORT_WALK_STEPS = 25
 #: How to get the data set (its validation traces are not in this repository).
 FETCH_HINT = "git clone https://github.com/Oxford-step-counter/DataSet"
 
@@ -94,15 +96,51 @@ def switch_steps(t_ns: np.ndarray, closed: np.ndarray) -> np.ndarray:
     return np.array(steps)
 
 
-def tuning_walk(folder: Path, config: StepDetectorConfig | None = None) -> CountedWalk:
-    """Counts of one ``optimisation/data/<walk>`` folder, over the time both recordings cover."""
+def _tuning_recordings(folder: Path) -> tuple[np.ndarray, np.ndarray]:
+    """A tuning walk's accelerometer rows and its true step times (ns), both over the time both recordings cover."""
     acc = _numeric_rows(folder / "accelerometer.csv")
     switches = _numeric_rows(folder / "stepcounter.csv")
     start, end = max(acc[0, 0], switches[0, 0]), min(acc[-1, 0], switches[-1, 0])
-    truth = np.concatenate([switch_steps(switches[:, 0], switches[:, k]) for k in range(1, switches.shape[1])])
-    acc = acc[(acc[:, 0] >= start) & (acc[:, 0] <= end)]
-    true_steps = int(np.count_nonzero((truth >= start) & (truth <= end)))
-    return CountedWalk(folder.name, true_steps, count_steps(acc[:, 0], acc[:, -3:], config))
+    truth = np.sort(np.concatenate([switch_steps(switches[:, 0], switches[:, k])
+                                    for k in range(1, switches.shape[1])]))
+    return acc[(acc[:, 0] >= start) & (acc[:, 0] <= end)], truth[(truth >= start) & (truth <= end)]
+
+
+def tuning_walk(folder: Path, config: StepDetectorConfig | None = None) -> CountedWalk:
+    """Counts of one ``optimisation/data/<walk>`` folder, over the time both recordings cover."""
+    acc, truth = _tuning_recordings(folder)
+    return CountedWalk(folder.name, len(truth), count_steps(acc[:, 0], acc[:, -3:], config))
+
+
+def start_and_stop(folder: Path, steps: int = SHORT_WALK_STEPS,
+                   config: StepDetectorConfig | None = None) -> tuple[CountedWalk, CountedWalk]:
+    """Counts of a tuning walk's start and its stop: short walks of ``steps`` true steps.
+
+    The start runs from the recording's first sample to a quarter of a second
+    after the ``steps``-th true step, the stop from a quarter of a second before
+    the ``steps``-th last to the recording's end: each holds the phone being put
+    away or taken out, the walker setting off or stopping, and a cut in a walk.
+    """
+    acc, truth = _tuning_recordings(folder)
+    halves = ((acc[0, 0], truth[steps - 1] + 0.25e9, "start"), (truth[-steps] - 0.25e9, acc[-1, 0], "stop"))
+    counted = []
+    for start, end, part in halves:
+        inside = acc[(acc[:, 0] >= start) & (acc[:, 0] <= end)]
+        true_steps = int(np.count_nonzero((truth >= start) & (truth <= end)))
+        counted.append(CountedWalk(f"{folder.name} {part}", true_steps,
+                                   count_steps(inside[:, 0], inside[:, -3:], config)))
+    return counted[0], counted[1]
+
+
+def short_walk_summary(walks: list[CountedWalk], within_steps: int = 2) -> str:
+    """Markdown table: how many short walks are counted within ``within_steps`` steps, and the spread of the errors."""
+    errors = np.array([w.ours - w.true_steps for w in walks])
+    return "\n".join([
+        "| short walks | true steps each | within 2 steps | error, steps: median / 5th / 95th percentile | worst |",
+        "|---|---|---|---|---|",
+        (f"| {len(walks)} | {walks[0].true_steps} | {int(np.sum(np.abs(errors) <= within_steps))} | "
+         f"{np.median(errors):+.0f} / {np.percentile(errors, 5):+.0f} / {np.percentile(errors, 95):+.0f} | "
+         f"{errors[np.argmax(np.abs(errors))]:+d} |")])
 
 
 def validation_walk(path: Path, config: StepDetectorConfig | None = None) -> CountedWalk:
