@@ -18,7 +18,7 @@ from dtmbnav_core.constants import GRAVITY_MPS2
 from dtmbnav_core.records import ImuLog
 from dtmbnav_core.resampling import GAP_INTERVALS, sample_timing
 from dtmbnav_core.sensors import read_has_magnetometer, read_imu
-from fusion.pdr import PdrConfig, run_pdr
+from fusion.pdr import PdrConfig, calibrate_weinberg_k_from_walk, run_pdr
 from fusion.pdr.steps import StepDetectorConfig, detect_steps
 from sim.gnss import simulate_gnss
 from sim.imu import simulate_imu, simulate_imu_with_errors
@@ -198,3 +198,22 @@ def test_steps_counted_within_3_percent_new_gaits(gait):
         assert pdr.carriage_changes == 1
     # Handling the phone before the first step (out of the pocket at 3 s) is no step.
     assert pdr.steps.t_s[0] > walk.step_t_s[0] - 0.5 * np.median(np.diff(walk.step_t_s))
+
+
+@pytest.mark.parametrize("carriage", CARRIAGES + tuple(NEW_GAITS)[:-1])
+def test_distance_within_5_percent_after_calibrating_in_the_carriage(carriage):
+    """A walker calibrated once in a carriage (another walk, another seed) walks the distance in it.
+
+    A swinging arm adds its own accelerations to what Weinberg's relation reads, so the gain is
+    the carriage's (``pdr --calibrate`` keeps one per carriage class), not the walker's alone.
+    """
+    def walked(seed: int) -> tuple:
+        scenario = _scenario(carriage, seed=seed, **PHONE_AS_PHONES_ARE)
+        walk = simulate_walk(scenario)
+        return walk, simulate_imu(scenario, walk)
+
+    calibration_walk, calibration_imu = walked(1)
+    k_m = calibrate_weinberg_k_from_walk(calibration_imu, float(calibration_walk.step_length_m.sum()))
+    walk, imu = walked(7)
+    pdr = run_pdr(imu, PdrConfig(weinberg_k_m=k_m))
+    assert pdr.steps.step_length_m.sum() == pytest.approx(walk.step_length_m.sum(), rel=0.05)
