@@ -298,39 +298,15 @@ def steps_section(config: ResultsConfig) -> Section:
     FileNotFoundError
         ``config.step_data`` not given, or not a checkout of the data set.
     """
-    from dtmbnav.evaluation.step_count import (
-        FETCH_HINT,
-        SHORT_WALK_STEPS,
-        data_set_walks,
-        short_walk_summary,
-        start_and_stop,
-        step_count_table,
-        tuning_walk,
-        validation_walk,
-    )
+    from dtmbnav.evaluation.step_count import FETCH_HINT, step_count_blocks
 
     if config.step_data is None:
         raise FileNotFoundError(f"results --sections steps needs --step-data DIR, a checkout of the Oxford step "
                                 f"counter data set ({FETCH_HINT})")
-    root = config.step_data
-    head = run_git(root, "rev-parse", "--short", "HEAD")
+    head = run_git(config.step_data, "rev-parse", "--short", "HEAD")
     data_commit = head.stdout.strip() if head is not None and head.returncode == 0 else "unknown"
-    validation = [validation_walk(path) for path in data_set_walks(root, "validation")]
-    tuning = [tuning_walk(path) for path in data_set_walks(root, "optimisation")]
-    short = [walk for path in data_set_walks(root, "optimisation") for walk in start_and_stop(path)]
     return Section("steps", "Step counts on real phones (Oxford step counter data set)",
-                   f"{COMMAND} --sections steps --step-data DataSet",
-                   (Prose(f"Oxford-step-counter/DataSet at commit `{data_commit}` (CC BY 4.0). Its validation "
-                          "traces (a Samsung S6, two walkers, six carriages; sealed: never used to tune) against "
-                          "the foot switches, beside the data set's own app algorithm and the phone's hardware "
-                          "step counter:"), Table.parse(step_count_table(validation)),
-                    Prose("The tuning traces (`optimisation/`: the detector's settings were chosen on these), "
-                          "foot-switch bounces within 0.5 s left out of the truth (docs/evaluation.md):"),
-                    Table.parse(step_count_table(tuning)),
-                    Prose(f"Starts and stops: the first and the last {SHORT_WALK_STEPS} steps of each tuning walk, "
-                          "each a short walk with the phone put away or taken out, the walker setting off or "
-                          "stopping (`dtmbnav.evaluation.step_count.start_and_stop`):"),
-                    Table.parse(short_walk_summary(short))))
+                   f"{COMMAND} --sections steps --step-data DataSet", step_count_blocks(config.step_data, data_commit))
 
 
 def _metres_pair(p95_m: float, max_m: float) -> Cell:

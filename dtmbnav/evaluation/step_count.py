@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dtmbnav.evaluation.results_data import Prose, Table
 from dtmbnav_core.resampling import interpolate, sample_timing, uniform_grid
 from fusion.pdr.steps import StepDetectorConfig, detect_steps
 
@@ -195,3 +196,30 @@ def step_count_table(walks: list[CountedWalk]) -> str:
             cells.append(f"{100.0 * reduce(errors):.1f} % ({len(errors)})" if errors else "—")
         lines.append(f"| **{label}** | - | - | {cells[0]} | {cells[1]} | {cells[2]} |")
     return "\n".join(lines)
+
+
+def step_count_blocks(root: Path, data_commit: str) -> tuple[Prose | Table, ...]:
+    """The results' ``steps`` section: the validation table, the tuning table and the short walks' summary.
+
+    Parameters
+    ----------
+    root : Path
+        A checkout of the data set.
+    data_commit : str
+        Its commit, as the section names it.
+    """
+    validation = [validation_walk(path) for path in data_set_walks(root, "validation")]
+    tuning_folders = data_set_walks(root, "optimisation")
+    tuning = [tuning_walk(path) for path in tuning_folders]
+    short = [walk for path in tuning_folders for walk in start_and_stop(path)]
+    return (Prose(f"Oxford-step-counter/DataSet at commit `{data_commit}` (CC BY 4.0). Its validation traces (a "
+                  "Samsung S6, two walkers, six carriages; sealed: never used to tune) against the foot switches, "
+                  "beside the data set's own app algorithm and the phone's hardware step counter:"),
+            Table.parse(step_count_table(validation)),
+            Prose("The tuning traces (`optimisation/`: the detector's settings were chosen on these), foot-switch "
+                  "bounces within 0.5 s left out of the truth (docs/evaluation.md):"),
+            Table.parse(step_count_table(tuning)),
+            Prose(f"Starts and stops: the first and the last {SHORT_WALK_STEPS} steps of each tuning walk, each a "
+                  "short walk with the phone put away or taken out, the walker setting off or stopping "
+                  "(`dtmbnav.evaluation.step_count.start_and_stop`):"),
+            Table.parse(short_walk_summary(short)))
