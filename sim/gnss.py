@@ -6,16 +6,19 @@ fraction ``b`` lowers the mean C/N0 by ``blocked_cn0_drop_db * min(1, 2 b)``
 (a wall along one side of a street hides the low satellites of half the sky,
 which is already the full drop). C/N0 also carries a slow random wander.
 
-Position error per axis is a first-order Gauss-Markov process (multipath and
+Position error per axis is a first-order Gauss-Markov process with the
+correlation time :data:`dtmbnav_core.start_fix.FIX_ERROR_TAU_S` (multipath and
 atmosphere errors are correlated over tens of seconds) whose standard deviation
 scales with the signal amplitude lost: ``start_fix_sigma_m * 10^((open - cn0)/20)``.
+That standard deviation is each fix's stated one (a phone log states it as its
+accuracy, ``sim/phone_log_writer.py``).
 
-The start fix P0 is drawn separately (:func:`simulate_start_fix`): the true
-position where the walk starts plus N(0, start_fix_sigma_m) per axis, stamped
-at the moment the walker sets off. It is a :class:`dtmbnav_core.records.StartFix`.
+The start fix P0 (:func:`simulate_start_fix`) is made of the log's own fixes by
+the importer's rule (:func:`dtmbnav_core.start_fix.standstill_start_fix`): every
+fix of the standstill before the walk, weighted by its stated sigma, with the
+sigma their correlation leaves. It is a :class:`dtmbnav_core.records.StartFix`.
 
-Random streams: the log uses ``[seed, GNSS_STREAM]``, the start fix
-``[seed, START_FIX_STREAM]``, so neither shifts the other or the walk.
+Random stream: the log uses ``[seed, GNSS_STREAM]``, so it does not shift the walk.
 """
 
 from __future__ import annotations
@@ -24,17 +27,15 @@ import numpy as np
 from scipy.signal import lfilter
 
 from dtmbnav_core.records import GnssLog, StartFix
+from dtmbnav_core.start_fix import FIX_ERROR_TAU_S, standstill_start_fix
 from sim.scenario import Building, GnssConfig, Scenario
 from sim.walk import Walk
 
 GNSS_STREAM = 3
-START_FIX_STREAM = 4
 #: Number of horizontal directions in which the sky view is tested.
 SKY_AZIMUTHS = 16
 #: A building further away than this hides no useful satellite, m.
 SKY_BLOCK_RANGE_M = 40.0
-#: Correlation time of the fix error, s.
-FIX_ERROR_TAU_S = 30.0
 #: Standard deviation and correlation time of the C/N0 wander, dB and s.
 CN0_WANDER_DB = 1.0
 CN0_WANDER_TAU_S = 10.0
@@ -112,12 +113,21 @@ def simulate_gnss(scenario: Scenario, walk: Walk) -> GnssLog:
     return GnssLog(t_s=t_s, x_m=xy[:, 0] + error[:, 0], y_m=xy[:, 1] + error[:, 1], cn0_dbhz=cn0)
 
 
-def simulate_start_fix(scenario: Scenario, walk: Walk) -> StartFix:
-    """The start fix P0: true start + N(0, start_fix_sigma_m) per axis, at the moment of setting off."""
-    sigma = scenario.gnss.start_fix_sigma_m
-    if sigma < 0:
-        raise ValueError(f"gnss.start_fix_sigma_m must be >= 0, got {sigma}")
-    rng = np.random.default_rng([scenario.seed, START_FIX_STREAM])
-    ex, ey = rng.normal(0.0, sigma, 2)
-    return StartFix(t_s=walk.walk_start_t_s, x_m=float(walk.track.x_m[0] + ex),
-                    y_m=float(walk.track.y_m[0] + ey), sigma_m=float(sigma))
+def simulate_start_fix(scenario: Scenario, walk: Walk, gnss: GnssLog) -> StartFix:
+    """The start fix P0 from the walk's own fixes over the standstill before it sets off (module docstring).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Gives each fix's stated sigma (:func:`fix_sigma_m`).
+    walk : Walk
+        When the walker sets off.
+    gnss : GnssLog
+        The walk's fixes, :func:`simulate_gnss` of the same scenario and walk (its first fix is at t_s = 0,
+        so the standstill always holds one).
+    """
+    combined = standstill_start_fix(gnss.t_s, gnss.x_m, gnss.y_m, fix_sigma_m(scenario.gnss, gnss.cn0_dbhz),
+                                    walk.walk_start_t_s)
+    if combined is None:
+        raise ValueError(f"no GNSS fix at or before the walk's start ({walk.walk_start_t_s} s)")
+    return combined.fix

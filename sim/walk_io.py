@@ -40,13 +40,14 @@ def write_walk_groups(h5file: h5py.File, scenario: Scenario, walk: Walk, imu: Im
         Stored as TOML text; its seed, tower and presets become attributes.
     walk, imu, gnss
         Outputs of :func:`sim.walk.simulate_walk`, :func:`sim.imu.simulate_imu`,
-        :func:`sim.gnss.simulate_gnss` for this scenario.
+        :func:`sim.gnss.simulate_gnss` for this scenario; the start fix is made of ``gnss``'s
+        fixes over the standstill (:func:`sim.gnss.simulate_start_fix`).
     weinberg_k_m : float, optional
         The Weinberg gain the user's own calibration walk gave (not the
         simulator's true K), stored as the ``/imu`` attribute the PDR reads;
         None leaves it out (the PDR then uses the frequency model).
     """
-    fix = simulate_start_fix(scenario, walk)
+    fix = simulate_start_fix(scenario, walk, gnss)
     write_truth_trajectory(h5file, walk.track, walk.step_t_s, walk.step_length_m, fix, attrs={
         schema.TOWER_X_ATTR: scenario.tower.x_m, schema.TOWER_Y_ATTR: scenario.tower.y_m,
         schema.TOWER_HEIGHT_ATTR: scenario.tower.height_m - scenario.channel.antenna_height_m,
