@@ -51,6 +51,7 @@ import numpy as np
 from dtmbnav.chain.paper import paper_figures
 from dtmbnav.evaluation.distributed import IN_PROCESS, ClusterConfig, Task, run_tasks
 from dtmbnav.evaluation.seeds import LEVELS, REPORTING_SEEDS, TUNING_SEEDS, monte_carlo_seed, seed_range_name
+from dtmbnav.evaluation.survey import scenario_towers, survey_transmit_delays
 from dtmbnav.simulation.capture_set import calibration_walk_k_m, receiver_clock_model
 from dtmbnav_core.records import ImuLog, Observations, PathRanges, PdrSteps, RangeSeries, Track
 from fusion import FILTER_NAMES, FOOT_INS
@@ -67,7 +68,7 @@ from fusion.metrics import (
 from fusion.pdr import PdrConfig, run_pdr
 from fusion.run import FusionConfig, fuse
 from fusion.transmit_delays import TransmitDelays, given_transmit_delays
-from sim.gnss import simulate_start_fix
+from sim.gnss import simulate_gnss, simulate_start_fix
 from sim.imu import simulate_imu
 from sim.obs_paths import simulate_obs_paths
 from sim.obs_range import exact_range, simulate_obs_range
@@ -153,11 +154,14 @@ def seed_scenario(scenario: Scenario, k: int, first_seed: int = REPORTING_SEEDS.
     return vary_scenario(seeded, seed) if vary_geometry else seeded
 
 
-def scenario_transmit_delays(scenario: Scenario) -> TransmitDelays | None:
+def scenario_transmit_delays(scenario: Scenario, range_source: RangeSource = obs_range_source
+                             ) -> TransmitDelays | None:
     """What the fusion is given of an SFN's transmit delay offsets (``[network] known``): None for unknown (and for
-    one tower), the network plan's with its error as sigma, or the walk's true offsets."""
+    one tower), the network plan's with its error as sigma, a survey's on another walk of the network through
+    ``range_source`` (:mod:`dtmbnav.evaluation.survey`), or the walk's true offsets."""
     return given_transmit_delays(scenario.network.known, [site.transmit_delay_s for site in scenario.sites],
-                                 scenario.network.plan_error_s, scenario.transmit_delays_s)
+                                 scenario.network.plan_error_s, scenario.transmit_delays_s,
+                                 lambda: survey_transmit_delays(scenario, range_source))
 
 
 def with_transmit_delays(scenario: Scenario, known: str) -> Scenario:
@@ -191,7 +195,7 @@ def simulated_chain(scenario: Scenario, range_source: RangeSource, foot_imu: boo
     walk = simulate_walk(scenario)
     imu = simulate_imu(scenario, walk)
     pdr = run_pdr(imu, calibrated_pdr_config(scenario))
-    start_fix = simulate_start_fix(scenario, walk)
+    start_fix = simulate_start_fix(scenario, walk, simulate_gnss(scenario, walk))
     foot = simulate_imu(scenario.replace(imu={"preset": "foot-mems"}), walk) if foot_imu else None
     observed = range_source(scenario, walk.track)
     return ChainOutput(truth=walk.track, pdr=pdr.steps, start_fix_xy_m=(start_fix.x_m, start_fix.y_m),
@@ -231,15 +235,13 @@ def run_seed(scenario: Scenario, filters: tuple[str, ...], config: FusionConfig,
     step times.
     """
     out = chain(scenario, range_source, FOOT_INS in filters)
-    tower = scenario.tower
-    antenna_m = scenario.channel.antenna_height_m
-    # The further towers of an SFN, for the tower differences of the path tracker (IQ level).
-    other_towers = tuple((site.x_m, site.y_m, site.height_m - antenna_m) for site in scenario.sites[1:])
+    # The further towers of an SFN, for the tower differences of the path tracker.
+    tower_xy, tower_height, other_towers = scenario_towers(scenario)
     fused = tuple(f for f in filters if f != FOOT_INS)
     config = dataclasses.replace(config, clock_model=receiver_clock_model(scenario))
-    result = fuse(out.pdr, out.ranges, out.start_fix_xy_m, (tower.x_m, tower.y_m), fused,
-                  tower_height_m=tower.height_m - antenna_m, other_towers=other_towers, paths=out.paths,
-                  transmit_delays=scenario_transmit_delays(scenario), config=config)
+    result = fuse(out.pdr, out.ranges, out.start_fix_xy_m, tower_xy, fused, tower_height_m=tower_height,
+                  other_towers=other_towers, paths=out.paths,
+                  transmit_delays=scenario_transmit_delays(scenario, range_source), config=config)
     baselines, true_heading = pdr_baselines(out.pdr, out.truth, out.walk_start_t_s, out.start_fix_xy_m,
                                             result.heading.heading_rad)
     tracks = {**baselines, **result.tracks}
@@ -426,7 +428,7 @@ def evaluate_many(scenarios: list[str | Scenario], seeds: int = 20, filters: tup
     on_walk : callable, optional
         Called with each walk's :func:`walk_record` as the walk finishes (in
         the order walks finish, in this process).
-    transmit_delays : {"unknown", "plan", "exact"}, optional
+    transmit_delays : {"unknown", "plan", "surveyed", "exact"}, optional
         What the fusion is given of an SFN's transmit delay offsets, for
         every scenario (:func:`with_transmit_delays`); None: each scenario's
         own ``[network] known``.
