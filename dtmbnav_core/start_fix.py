@@ -9,17 +9,18 @@ a stationary single-frequency receiver shows as strongly correlated over time: a
 autocorrelation ``exp(-|dt| / FIX_ERROR_TAU_S)``; the simulator draws its fixes so (``sim/gnss.py``) and
 the importer assumes it of a phone's (``dtmbnav/field/sensors_import.py``).
 
-The rule (:func:`standstill_start_fix`): every fix at or before the walk's start (or, with a window, those
-of the last ``window_s`` seconds up to the last such fix) is combined into their inverse-variance weighted
-mean, ``w_i = sigma_i^-2 / sum_j sigma_j^-2``, the weights a stated accuracy gives when errors are taken
-as independent. Its sigma is not the independent-error ``(sum_j sigma_j^-2)^-1/2`` but the exact standard
+The rule (:func:`standstill_start_fix`): every fix of the standstill, from when the walker is known to stand
+still to the walk's start (or, with a window, those of its last ``window_s`` seconds up to its last fix), is
+combined into their inverse-variance weighted mean, ``w_i = sigma_i^-2 / sum_j sigma_j^-2``, the weights a
+stated accuracy gives when errors are taken as independent. Its sigma is not the independent-error ``(sum_j sigma_j^-2)^-1/2`` but the exact standard
 deviation of that mean under the Gauss-Markov model,
 
     sigma^2 = sum_ij w_i w_j sigma_i sigma_j exp(-|t_i - t_j| / tau),
 
 so a run of fixes a few seconds apart counts for hardly more than one fix. The fixes' effective number,
 ``n_eff = N sigma_ind^2 / sigma^2`` with ``sigma_ind^2 = (sum_j sigma_j^-2)^-1``, is the number of
-independent fixes of the same accuracies that would give that sigma; for equal sigmas over a window
+independent fixes of their mean inverse variance that would give that sigma: N for independent errors, 1 for
+equal fixes at one moment (Cauchy-Schwarz keeps it within 1..N); for equal sigmas over a window
 ``T`` sampled densely it tends to Bayley and Hammersley's effective number of independent observations of
 an exponentially autocorrelated series (J. R. Stat. Soc. Suppl. 8(2), 184-197, 1946),
 ``(T / tau)^2 / (2 (T / tau - 1 + exp(-T / tau)))``: 1 for ``T << tau``, ``T / (2 tau)`` for ``T >> tau``.
@@ -112,16 +113,17 @@ def combine_fixes(t_s: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, sigma_m: np
     variance = correlated_mean_variance(t, w * sigma, tau_s)
     # The weights are positive, so the variance lies between the independent and the fully correlated one;
     # the clamp only keeps rounding from taking n_eff past its bounds.
-    n_effective = min(float(t.size), max(1.0, t.size / (inverse.sum() * variance)))
+    n_effective = min(float(t.size), max(1.0, float(t.size / (inverse.sum() * variance))))
     fix = StartFix(t_s=float(t[-1]), x_m=float(w @ np.asarray(x_m, dtype=np.float64)),
                    y_m=float(w @ np.asarray(y_m, dtype=np.float64)), sigma_m=math.sqrt(variance))
     return CombinedFix(fix=fix, n_fixes=int(t.size), n_effective=n_effective)
 
 
-def standstill_fixes(t_s: np.ndarray, walk_start_s: float, window_s: float | None = None) -> np.ndarray:
-    """Indices of the fixes the start fix combines: those at or before ``walk_start_s``; with ``window_s``,
-    only those within ``window_s`` seconds before the last of them (0: the last alone). Empty when no fix
-    is at or before the walk's start.
+def standstill_fixes(t_s: np.ndarray, standstill_start_s: float, walk_start_s: float,
+                     window_s: float | None = None) -> np.ndarray:
+    """Indices of the fixes the start fix combines: those from ``standstill_start_s`` to ``walk_start_s``
+    (both included); with ``window_s``, only those within ``window_s`` seconds before the last of them (0: the
+    last alone). Empty when the standstill holds no fix.
 
     Raises
     ------
@@ -131,18 +133,18 @@ def standstill_fixes(t_s: np.ndarray, walk_start_s: float, window_s: float | Non
     if window_s is not None and not window_s >= 0:
         raise ValueError(f"the start fix's window must be >= 0 s, got {window_s}")
     t = np.asarray(t_s, dtype=np.float64)
-    before = np.flatnonzero(t <= walk_start_s)
-    if before.size and window_s is not None:
-        before = before[t[before] >= t[before[-1]] - window_s]
-    return before
+    chosen = np.flatnonzero((t >= standstill_start_s) & (t <= walk_start_s))
+    if chosen.size and window_s is not None:
+        chosen = chosen[t[chosen] >= t[chosen[-1]] - window_s]
+    return chosen
 
 
 def standstill_start_fix(t_s: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, sigma_m: np.ndarray,
-                         walk_start_s: float, window_s: float | None = None,
+                         standstill_start_s: float, walk_start_s: float, window_s: float | None = None,
                          tau_s: float = FIX_ERROR_TAU_S) -> CombinedFix | None:
     """The start fix from the standstill's fixes (:func:`standstill_fixes`, :func:`combine_fixes`); None when
-    no fix is at or before the walk's start. Times in non-decreasing order."""
-    chosen = standstill_fixes(t_s, walk_start_s, window_s)
+    the standstill holds no fix. Times in non-decreasing order."""
+    chosen = standstill_fixes(t_s, standstill_start_s, walk_start_s, window_s)
     if chosen.size == 0:
         return None
     return combine_fixes(np.asarray(t_s)[chosen], np.asarray(x_m)[chosen], np.asarray(y_m)[chosen],

@@ -123,11 +123,11 @@ def simulate_start_fix(scenario: Scenario, walk: Walk, gnss: GnssLog) -> StartFi
     walk : Walk
         When the walker sets off.
     gnss : GnssLog
-        The walk's fixes, :func:`simulate_gnss` of the same scenario and walk (its first fix is at t_s = 0,
-        so the standstill always holds one).
+        The walk's fixes, :func:`simulate_gnss` of the same scenario and walk. The walker stands still from
+        t_s = 0, where the log's first fix is, so the standstill always holds one.
     """
     combined = standstill_start_fix(gnss.t_s, gnss.x_m, gnss.y_m, fix_sigma_m(scenario.gnss, gnss.cn0_dbhz),
-                                    walk.walk_start_t_s)
+                                    0.0, walk.walk_start_t_s)
     if combined is None:
         raise ValueError(f"no GNSS fix at or before the walk's start ({walk.walk_start_t_s} s)")
     return combined.fix

@@ -47,6 +47,7 @@ from dtmbnav_core.geodetic import GeodeticPoint, tower_in_sensors_frame
 from dtmbnav_core.phone import ACCURACY_CONFIDENCE
 from dtmbnav_core.phone_formats import CN0_JOIN_WINDOW_MS, GNSSLOGGER_HEADERS, METADATA
 from dtmbnav_core.sensors import read_gnss, read_imu
+from dtmbnav_core.start_fix import FIX_ERROR_TAU_S
 
 ROOT = Path(__file__).resolve().parents[1]
 ORIGIN = (30.52, 114.36, 25.0)
@@ -149,13 +150,19 @@ def _check_gnss(path: Path, motion, to_ns, t0_sim: float, origin=ORIGIN) -> None
     assert np.array_equal(lat, fixes.lat_deg) and np.array_equal(lon, fixes.lon_deg)
     assert np.array_equal(accuracy, fixes.accuracy_m)
     assert np.allclose(gnss.t_s, fixes.t_s - t0_sim, atol=1e-9)
-    # The start fix: the last fix at or before the detected walk start, its sigma the 68 % radius over 1.51.
+    # The start fix: every fix from the grid's start to the detected walk start, weighted by accuracy^-2 (a fix's
+    # sigma the 68 % radius over 1.51), its sigma that of the mean of errors correlated as exp(-dt / tau).
     walk_start = attrs[schema.WALK_START_ATTR]
     true_start = motion["walk"].walk_start_t_s - t0_sim
     assert true_start - 1.0 <= walk_start <= true_start + 0.5
-    i = int(np.flatnonzero(gnss.t_s <= walk_start)[-1])
-    assert (fix.t_s, fix.x_m, fix.y_m) == (gnss.t_s[i], gnss.x_m[i], gnss.y_m[i])
-    assert fix.sigma_m == pytest.approx(accuracy[i] / ACCURACY_RADIUS_SIGMAS)
+    i = np.flatnonzero((gnss.t_s >= 0.0) & (gnss.t_s <= walk_start))
+    sigma = accuracy[i] / ACCURACY_RADIUS_SIGMAS
+    w = sigma**-2 / np.sum(sigma**-2)
+    assert fix.t_s == gnss.t_s[i[-1]]
+    assert (fix.x_m, fix.y_m) == pytest.approx((w @ gnss.x_m[i], w @ gnss.y_m[i]), abs=1e-9)
+    covariance = np.outer(sigma, sigma) * np.exp(-np.abs(np.subtract.outer(gnss.t_s[i], gnss.t_s[i])) / FIX_ERROR_TAU_S)
+    assert fix.sigma_m == pytest.approx(np.sqrt(w @ covariance @ w), rel=1e-9)
+    assert attrs["start_fix_fixes"] == len(i)
 
 
 def test_the_accuracy_radius_holds_68_percent_of_a_circular_normal_error():
@@ -210,9 +217,12 @@ def test_the_default_origin_is_the_first_fix(motion, tmp_path, capsys):
 def test_an_origin_without_height_takes_the_first_fixs(motion, tmp_path, capsys):
     log = _write_gnsslogger(tmp_path, motion)
     out = tmp_path / "sensors.h5"
-    _import(capsys, "-q", str(log), "-o", str(out), "--origin", f"{ORIGIN[0]},{ORIGIN[1]}")
+    # A start window of 0 s makes the start fix of the standstill's last fix alone, and says so.
+    err = _import(capsys, str(log), "-o", str(out), "--origin", f"{ORIGIN[0]},{ORIGIN[1]}", "--start-window", "0")
     with h5py.File(out, "r") as f:
         assert f[schema.GNSS].attrs["origin_height_m"] == motion["fixes"].height_m[0]
+        assert f[schema.GNSS].attrs["start_fix_fixes"] == 1 and "last 0 s" in f[schema.GNSS].attrs["start_fix_rule"]
+    assert "start fix of 1 fix(es)" in err
 
 
 @pytest.mark.parametrize("mag", [True, False], ids=["with-magnetometer", "without-magnetometer"])

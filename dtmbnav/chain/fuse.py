@@ -32,7 +32,7 @@ from dtmbnav_core.h5io import atomic_h5, open_h5, read_attrs, read_columns, writ
 from dtmbnav_core.records import Track
 from dtmbnav_core.sensors import read_capture_start_s, read_gnss, read_tower
 from fusion.model import Geometry
-from fusion.pdr import PdrConfig, run_pdr
+from fusion.pdr import PdrConfig, PdrResult, run_pdr
 from fusion.run import FusionConfig, FusionResult, fuse
 from fusion.time_alignment import AlignmentConfig, TimeAlignment, align_range_to_pdr, coarse_offset_s
 from fusion.transmit_delays import TransmitDelays
@@ -93,21 +93,9 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
     one walk (:func:`check_same_walk`). A sensors file with a geodetic origin
     (``dtmbnav sensors``) also gets the tracks and towers on WGS84 (:func:`write_geodetic`).
     """
-    frames, rx_attrs = read_receiver_frames(receiver_path)
-    imu = read_checked_imu(sensors_path)
+    walk = read_aligned_walk(receiver_path, sensors_path, pdr_config, time_offset_s, alignment_config)
+    frames, rx_attrs, pdr, alignment = walk.frames, walk.rx_attrs, walk.pdr, walk.alignment
     origin = read_origin(sensors_path)
-    alignment = recorded_time_offset(sensors_path, time_offset_s)
-    coarse = alignment or coarse_time_offset(rx_attrs, sensors_path, alignment_config)
-    try:
-        check_same_walk(receiver_path, rx_attrs, frames["t_s"], sensors_path, imu.t_s, coarse.offset_s)
-    except ValueError as exc:
-        if coarse.source != "coarse":
-            raise
-        raise ValueError(f"{exc}: the capture starts at {iso_utc(int(rx_attrs[schema.START_UTC_NS_ATTR]))} and the "
-                         f"phone log at {iso_utc(int(read_attrs(sensors_path, schema.IMU)[schema.START_UTC_NS_ATTR]))}"
-                         f" ({coarse.offset_s:+.1f} s apart): a log of another walk or day? If a clock was wrong, "
-                         "give --time-offset") from None
-    pdr_config = resolve_pdr_config(pdr_config, sensors_path)
     if start_xy_m is None:
         fix = read_gnss(sensors_path)[1]
         start_xy_m = (fix.x_m, fix.y_m)
@@ -122,12 +110,6 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
         other_towers = read_other_towers(sensors_path)
         transmit_delays = read_transmit_delays(sensors_path)
     geometry = Geometry(start_xy_m[0], start_xy_m[1], tower_xy_m[0], tower_xy_m[1], height_m, other_towers)
-    pdr = run_pdr(imu, pdr_config)
-    if len(pdr.steps) == 0:
-        raise NoResult(f"{sensors_path}: /{schema.IMU}: the PDR found no steps; nothing to fuse")
-    if alignment is None:
-        alignment = fine_time_offset(frames, pdr.track, coarse, alignment_config)
-        check_same_walk(receiver_path, rx_attrs, frames["t_s"], sensors_path, imu.t_s, alignment.offset_s)
     observed = observations_from_receiver(
         frames, read_receiver_paths(receiver_path), rx_attrs, geometry.n_towers, alignment.offset_s,
         None if transmit_delays is None else transmit_delays.delays_s, geometry.start_ranges_m())
@@ -135,7 +117,7 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
                   other_towers=other_towers, paths=observed.paths, transmit_delays=transmit_delays, config=config)
     with atomic_h5(out_path) as h5:
         write_columns(h5, schema.RECEIVER_FRAMES, frames, rx_attrs)
-        write_pdr(h5, pdr, pdr_config)
+        write_pdr(h5, pdr, walk.pdr_config)
         write_fusion(h5, result)
         h5.require_group(schema.FUSION).attrs.update(alignment_attrs(alignment))
         if result.code_offsets is not None and len(result.code_offsets.source):
@@ -143,6 +125,67 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
         if origin is not None:
             write_geodetic(h5, sensors_path, origin, ((*tower_xy_m, height_m), *other_towers))
     return result, alignment
+
+
+@dataclasses.dataclass(frozen=True)
+class AlignedWalk:
+    """A walk's receiver and sensors files read, checked to be of one walk, and put on one clock.
+
+    Attributes
+    ----------
+    frames : dict of str -> ndarray
+        The receiver's ``/receiver/frames`` columns.
+    rx_attrs : dict
+        Their attributes.
+    pdr : PdrResult
+        The PDR of the sensors file's IMU (:func:`fusion.pdr.run_pdr`).
+    pdr_config : PdrConfig
+        The PDR settings it ran with (:func:`dtmbnav.chain.pdr.resolve_pdr_config`).
+    alignment : TimeAlignment
+        Where the capture starts on the IMU log's clock.
+    """
+
+    frames: dict[str, np.ndarray]
+    rx_attrs: dict[str, Any]
+    pdr: PdrResult
+    pdr_config: PdrConfig
+    alignment: TimeAlignment
+
+
+def read_aligned_walk(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike, pdr_config: PdrConfig,
+                      time_offset_s: float | None = None,
+                      alignment_config: AlignmentConfig = AlignmentConfig()) -> AlignedWalk:
+    """Read a walk's receiver frames and IMU, run the PDR and place the capture on the IMU's clock: given
+    (``time_offset_s``), recorded by a simulation, or from the files' start times refined from the motion.
+
+    Raises
+    ------
+    ValueError
+        A bad file, or files not of one walk (:func:`dtmbnav.chain.inputs.check_same_walk`).
+    NoResult
+        The PDR found no steps.
+    """
+    frames, rx_attrs = read_receiver_frames(receiver_path)
+    imu = read_checked_imu(sensors_path)
+    alignment = recorded_time_offset(sensors_path, time_offset_s)
+    coarse = alignment or coarse_time_offset(rx_attrs, sensors_path, alignment_config)
+    try:
+        check_same_walk(receiver_path, rx_attrs, frames["t_s"], sensors_path, imu.t_s, coarse.offset_s)
+    except ValueError as exc:
+        if coarse.source != "coarse":
+            raise
+        raise ValueError(f"{exc}: the capture starts at {iso_utc(int(rx_attrs[schema.START_UTC_NS_ATTR]))} and the "
+                         f"phone log at {iso_utc(int(read_attrs(sensors_path, schema.IMU)[schema.START_UTC_NS_ATTR]))}"
+                         f" ({coarse.offset_s:+.1f} s apart): a log of another walk or day? If a clock was wrong, "
+                         "give --time-offset") from None
+    pdr_config = resolve_pdr_config(pdr_config, sensors_path)
+    pdr = run_pdr(imu, pdr_config)
+    if len(pdr.steps) == 0:
+        raise NoResult(f"{sensors_path}: /{schema.IMU}: the PDR found no steps; nothing to fuse")
+    if alignment is None:
+        alignment = fine_time_offset(frames, pdr.track, coarse, alignment_config)
+        check_same_walk(receiver_path, rx_attrs, frames["t_s"], sensors_path, imu.t_s, alignment.offset_s)
+    return AlignedWalk(frames, rx_attrs, pdr, pdr_config, alignment)
 
 
 def recorded_time_offset(sensors_path: str | os.PathLike, given_s: float | None) -> TimeAlignment | None:

@@ -15,11 +15,15 @@ The log is read by :mod:`dtmbnav.field.phone_logs`; this module
   samples into a walk;
 - converts the fixes to ENU metres about an origin (the first fix, or one given) with ``pymap3d``,
   keeping each fix's stated accuracy, and the origin as ``/gnss`` attributes;
-- chooses the start fix P0: the last fix (with a stated accuracy) at or before the walk starts,
-  the walk's start being the first moment the accelerometer magnitude's standard deviation over
-  :data:`MOTION_WINDOW_S` exceeds :data:`MOTION_THRESHOLD_MPS2`. Android states a fix's accuracy
+- makes the start fix P0 of every fix (with a stated accuracy) of the standstill before the walk
+  (:func:`dtmbnav_core.start_fix.standstill_start_fix`): from the grid's first sample, where the
+  motion sensors begin to show the phone still, to the walk's start, the first moment the
+  accelerometer magnitude's standard deviation over :data:`MOTION_WINDOW_S` exceeds
+  :data:`MOTION_THRESHOLD_MPS2` (``start_window_s`` keeps only the standstill's last seconds). The
+  fixes are weighted by their stated accuracy, and P0's sigma is that of their mean under errors
+  correlated over :data:`~dtmbnav_core.start_fix.FIX_ERROR_TAU_S`. Android states a fix's accuracy
   as the radius of 68 % confidence; for a circular normal error that radius is
-  sqrt(-2 ln 0.32) = 1.51 sigma, so P0's per-axis sigma is the accuracy over 1.51;
+  sqrt(-2 ln 0.32) = 1.51 sigma, so a fix's per-axis sigma is its accuracy over 1.51;
 - writes a log without fixes with an empty ``/gnss`` (no rows, no start fix; the origin only where
   ``origin`` gives one): ``dtmbnav fuse`` then asks for ``--start X,Y``.
 
@@ -43,9 +47,10 @@ from dtmbnav_core.geodetic import GeodeticPoint, to_enu
 from dtmbnav_core.h5io import atomic_h5
 from dtmbnav_core.moving import moving_std
 from dtmbnav_core.phone import ACCURACY_CONFIDENCE, ACCURACY_RADIUS_SIGMAS
-from dtmbnav_core.records import GnssLog, ImuLog, StartFix
+from dtmbnav_core.records import GnssLog, ImuLog
 from dtmbnav_core.resampling import GAP_INTERVALS, interpolate, sample_timing, uniform_grid
 from dtmbnav_core.sensors import write_gnss, write_imu
+from dtmbnav_core.start_fix import FIX_ERROR_TAU_S, CombinedFix, combine_fixes, standstill_start_fix
 
 #: Default rate of the resampled ``/imu``, Hz.
 DEFAULT_RATE_HZ = 100.0
@@ -110,8 +115,10 @@ class ImportedSensors:
         Fixes in ENU (east ``x_m``, north ``y_m``), times on the ``/imu`` clock; no rows for a log without fixes.
     geodetic : dict of str -> ndarray
         The further ``/gnss`` columns (:data:`dtmbnav_core.schema.GNSS_GEODETIC_COLUMNS`).
-    start_fix : StartFix or None
-        None for a log without fixes.
+    start_fix : CombinedFix or None
+        P0 and how many fixes made it; None for a log without fixes.
+    start_window_s : float or None
+        The standstill's last seconds P0 was made of; None: the whole standstill.
     walk_start_s : float
         Detected start of the walk, s (inf when no motion was found).
     origin : GeodeticPoint or None
@@ -130,7 +137,8 @@ class ImportedSensors:
     imu: ImuLog
     gnss: GnssLog
     geodetic: dict[str, np.ndarray]
-    start_fix: StartFix | None
+    start_fix: CombinedFix | None
+    start_window_s: float | None
     walk_start_s: float
     origin: GeodeticPoint | None
     start_utc_ns: int
@@ -197,8 +205,10 @@ def walk_start_s(t_s: np.ndarray, acc_mps2: np.ndarray, rate_hz: float) -> float
 
 
 def choose_start_fix(gnss: GnssLog, accuracy_m: np.ndarray, walk_start: float, where: str,
-                     notes: list[str]) -> StartFix:
-    """The last fix with a stated accuracy at or before the walk's start (the first such fix if none is).
+                     notes: list[str], window_s: float | None = None) -> CombinedFix:
+    """P0 from the fixes with a stated accuracy from t_s = 0 (the grid's start) to the walk's start (module
+    docstring); with none there, as before the standstill was averaged: the last such fix at or before the walk's
+    start, else the first (noted).
 
     Raises
     ------
@@ -208,15 +218,17 @@ def choose_start_fix(gnss: GnssLog, accuracy_m: np.ndarray, walk_start: float, w
     usable = np.flatnonzero(np.isfinite(accuracy_m) & (accuracy_m > 0))
     if usable.size == 0:
         raise ValueError(f"{where}: no fix states its horizontal accuracy; the start fix needs one")
-    before = usable[gnss.t_s[usable] <= walk_start]
-    if before.size:
-        i = int(before[-1])
-    else:
-        i = int(usable[0])
-        notes.append(f"{where}: no fix before the walk starts ({walk_start:.2f} s): the start fix is the first, "
-                     f"at {gnss.t_s[i]:.2f} s")
-    return StartFix(t_s=float(gnss.t_s[i]), x_m=float(gnss.x_m[i]), y_m=float(gnss.y_m[i]),
-                    sigma_m=float(accuracy_m[i] / ACCURACY_RADIUS_SIGMAS))
+    sigma = accuracy_m[usable] / ACCURACY_RADIUS_SIGMAS
+    t_s, x_m, y_m = gnss.t_s[usable], gnss.x_m[usable], gnss.y_m[usable]
+    combined = standstill_start_fix(t_s, x_m, y_m, sigma, 0.0, walk_start, window_s)
+    if combined is not None:
+        return combined
+    before = np.flatnonzero(t_s <= walk_start)
+    i = int(before[-1]) if before.size else 0
+    where_from = ("the last before it" if before.size else "the first") + f", at {t_s[i]:.2f} s"
+    notes.append(f"{where}: no fix while the phone stood still before the walk (0 to {walk_start:.2f} s): the start "
+                 f"fix is one fix, {where_from}")
+    return combine_fixes(t_s[i:i + 1], x_m[i:i + 1], y_m[i:i + 1], sigma[i:i + 1])
 
 
 def _origin_of(fixes: FixSeries | None, origin: GeodeticPoint | None, where: str,
@@ -255,9 +267,10 @@ def fixes_in_enu(fixes: FixSeries, origin: GeodeticPoint, t0_ns: int,
     return gnss, geodetic
 
 
-def build_sensors(log: PhoneLog, rate_hz: float = DEFAULT_RATE_HZ,
-                  origin: GeodeticPoint | None = None) -> ImportedSensors:
-    """Resample, convert and choose the start fix of a read phone log (nothing is written)."""
+def build_sensors(log: PhoneLog, rate_hz: float = DEFAULT_RATE_HZ, origin: GeodeticPoint | None = None,
+                  start_window_s: float | None = None) -> ImportedSensors:
+    """Resample, convert and make the start fix of a read phone log (nothing is written); ``start_window_s``:
+    :func:`choose_start_fix`'s window (None: the whole standstill)."""
     notes = list(log.notes)
     motion = [s for s in (log.accelerometer, log.gyroscope, log.magnetometer) if s is not None]
     for series in motion:
@@ -285,9 +298,10 @@ def build_sensors(log: PhoneLog, rate_hz: float = DEFAULT_RATE_HZ,
         gnss, geodetic = fixes_in_enu(log.fixes, ground, t0_ns, notes)
         if not math.isfinite(walk_start):
             notes.append(f"{log.accelerometer.source}: no walking found (accelerometer never moving); the start fix "
-                         "is the last fix")
-        fix = choose_start_fix(gnss, geodetic["accuracy_m"], walk_start, log.fixes.source, notes)
-    return ImportedSensors(imu=imu, gnss=gnss, geodetic=geodetic, start_fix=fix, walk_start_s=walk_start,
+                         "is made of every fix")
+        fix = choose_start_fix(gnss, geodetic["accuracy_m"], walk_start, log.fixes.source, notes, start_window_s)
+    return ImportedSensors(imu=imu, gnss=gnss, geodetic=geodetic, start_fix=fix, start_window_s=start_window_s,
+                           walk_start_s=walk_start,
                            origin=ground, start_utc_ns=t0_ns + log.utc_offset_ns, rate_hz=rate_hz, timings=timings,
                            has_magnetometer=has_mag, log=log, notes=tuple(notes))
 
@@ -334,25 +348,38 @@ def gnss_attrs(result: ImportedSensors) -> dict[str, object]:
         "accuracy_definition": f"stated horizontal accuracy radius ({ACCURACY_CONFIDENCE:.0%} confidence on Android); "
                                f"start_fix_sigma_m = accuracy / {ACCURACY_RADIUS_SIGMAS:.3f}",
         schema.WALK_START_ATTR: result.walk_start_s,
-        "start_fix_rule": f"the last fix with a stated accuracy at or before the walk's start (accelerometer magnitude "
-                          f"standard deviation over {MOTION_WINDOW_S:g} s above {MOTION_THRESHOLD_MPS2:g} m/s^2)",
+        "start_fix_rule": start_fix_rule(result.start_window_s),
+        **({"start_fix_fixes": np.int64(result.start_fix.n_fixes),
+            "start_fix_n_effective": result.start_fix.n_effective} if result.start_fix else {}),
     }
+
+
+def start_fix_rule(window_s: float | None) -> str:
+    """The ``start_fix_rule`` attribute: which fixes made P0, and how its sigma was found."""
+    which = "every fix" if window_s is None else f"the fixes of the last {window_s:g} s"
+    return (f"{which} with a stated accuracy from the first /imu sample to the walk's start (accelerometer magnitude "
+            f"standard deviation over {MOTION_WINDOW_S:g} s above {MOTION_THRESHOLD_MPS2:g} m/s^2), weighted by "
+            f"accuracy^-2; sigma that of their mean under errors correlated as exp(-dt / {FIX_ERROR_TAU_S:g} s) "
+            "(dtmbnav_core.start_fix)")
 
 
 def write_sensors(path: str | os.PathLike, result: ImportedSensors) -> None:
     """Write ``/imu`` and ``/gnss`` (with P0; without fixes, no rows and no P0) to a new file, atomically."""
     with atomic_h5(path) as h5:
         write_imu(h5, result.imu, imu_attrs(result))
-        write_gnss(h5, result.gnss, result.start_fix, gnss_attrs(result), extra_columns=result.geodetic)
+        write_gnss(h5, result.gnss, result.start_fix.fix if result.start_fix else None, gnss_attrs(result),
+                   extra_columns=result.geodetic)
 
 
 def import_phone_log(paths: Sequence[str | os.PathLike], out_path: str | os.PathLike,
                      rate_hz: float = DEFAULT_RATE_HZ, origin: GeodeticPoint | None = None,
-                     platform: str | None = None) -> ImportedSensors:
+                     platform: str | None = None, start_window_s: float | None = None) -> ImportedSensors:
     """``dtmbnav sensors``: read a phone log, build ``/imu`` and ``/gnss``, write them to ``out_path``.
 
     ``platform`` (``--platform``, :data:`dtmbnav.field.platform.PLATFORMS`): whose acceleration sign a Sensor
     Logger export carries, where its ``Metadata.csv`` does not say (:mod:`dtmbnav.field.platform`).
+    ``start_window_s`` (``--start-window``): only the standstill's last seconds make the start fix
+    (:func:`choose_start_fix`; None: all of it).
 
     Raises
     ------
@@ -363,7 +390,7 @@ def import_phone_log(paths: Sequence[str | os.PathLike], out_path: str | os.Path
     if log.format == GNSSLOGGER and platform not in (None, ANDROID):
         raise ValueError(f"{log.sources[0]}: a GnssLogger log (Android's app), but --platform {platform}; drop "
                          "--platform")
-    result = build_sensors(log, rate_hz, origin)
+    result = build_sensors(log, rate_hz, origin, start_window_s)
     write_sensors(out_path, result)
     return result
 
@@ -375,15 +402,17 @@ def describe(result: ImportedSensors) -> list[str]:
     imu_t = result.imu.t_s
     lines.append(f"/imu: {len(imu_t)} samples at {result.rate_hz:g} Hz, {imu_t[-1]:.2f} s from "
                  f"{iso_utc(result.start_utc_ns)}")
-    o, fix = result.origin, result.start_fix
+    o, combined = result.origin, result.start_fix
     walk = (f"the walk starts at {result.walk_start_s:.2f} s" if math.isfinite(result.walk_start_s)
             else "no walk found")
-    if fix is None:
+    if combined is None:
         about = f"about the given origin {o.lat_deg:.8f}, {o.lon_deg:.8f}" if o else "and no geodetic origin"
         lines.append(f"/gnss: no fixes {about}; no start fix ({walk})")
         return lines
+    fix = combined.fix
     lines.append(f"/gnss: {len(result.gnss.t_s)} fixes about the origin {o.lat_deg:.8f}, {o.lon_deg:.8f}, "
-                 f"{o.height_m:.2f} m; start fix at {fix.t_s:.2f} s: ({fix.x_m:.2f}, {fix.y_m:.2f}) m, sigma "
+                 f"{o.height_m:.2f} m; start fix of {combined.n_fixes} fix(es) up to {fix.t_s:.2f} s (as "
+                 f"{combined.n_effective:.1f} independent ones): ({fix.x_m:.2f}, {fix.y_m:.2f}) m, sigma "
                  f"{fix.sigma_m:.2f} m ({walk})")
     return lines
 
