@@ -29,6 +29,10 @@ def add_parser(subparsers: argparse._SubParsersAction, common: argparse.Argument
                         "opposite of Android's unless \"Standardise Units & Frames\" is on: then give android); "
                         "default: Metadata.csv's, else TotalAcceleration.csv means android, else told from the "
                         "Earth's field's dip against gravity where that is unambiguous. Must agree with Metadata.csv")
+    p.add_argument("--start-window", type=options.non_negative, metavar="S",
+                   help="make the start fix of the fixes of the standstill's last S seconds only (up to its last fix "
+                        "before the walk; 0: that fix alone); default: every fix of the standstill, from the motion "
+                        "sensors' first sample to the walk's start")
     p.set_defaults(handler=run, io_paths=io_paths)
 
 
@@ -37,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from dtmbnav.field.sensors_import import describe, gap_warnings, import_phone_log
 
     result = import_phone_log(args.logs, args.output, rate_hz=args.rate, origin=args.origin,
-                              platform=args.platform)
+                              platform=args.platform, start_window_s=args.start_window)
     for line in describe(result):
         print(f"sensors: {line}", file=sys.stderr)
     for message in [*gap_warnings(result), *result.notes]:
