@@ -18,5 +18,6 @@ CLOCK_PRESETS = {"gnss-disciplined": (30.0, 1e-12), "free-running": (500.0, 1e-9
 SI_REFERENCE_GAIN = 1.0 / 32.0
 
 #: What the fusion can be given of a single-frequency network's transmit delay offsets: nothing (it estimates them
-#: at the start fix), the network plan's (with the plan's error as sigma), or the walk's true ones (simulation).
-TRANSMIT_DELAY_KNOWLEDGE = ("unknown", "plan", "exact")
+#: at the start fix), the network plan's (with the plan's error as sigma), a survey's on another walk of the network
+#: (``dtmbnav towers calibrate``, with the survey's sigma), or the walk's true ones (simulation).
+TRANSMIT_DELAY_KNOWLEDGE = ("unknown", "plan", "surveyed", "exact")

@@ -527,20 +527,30 @@ class NetworkConfig:
     ----------
     plan_error_s : float
         Standard deviation of each tower's true transmit delay offset about
-        the plan's (``[[towers]] transmit_delay_s``), s, >= 0: every walk
-        draws its own from its seed (:meth:`Scenario.transmit_delays_s`).
-    known : {"unknown", "plan", "exact"}
+        the plan's (``[[towers]] transmit_delay_s``), s, >= 0: drawn from
+        the network's seed (:meth:`Scenario.transmit_delays_s`).
+    known : {"unknown", "plan", "surveyed", "exact"}
         What the fusion is given: nothing (it estimates the offsets at the
-        start fix), the plan with ``plan_error_s`` as its sigma, or the
-        walk's true offsets (``dtmbnav fuse`` and ``evaluate`` follow it).
+        start fix), the plan with ``plan_error_s`` as its sigma, a survey on
+        another walk of the same network (``evaluate``'s survey walk, of
+        this network's seed), or the walk's true offsets (``dtmbnav fuse``
+        and ``evaluate`` follow it).
+    seed : int or None
+        The network's identity, >= 0: walks with one network seed are walks
+        of one network and share its true offsets; None: the walk's own seed
+        (each walk another network, as before network seeds).
     """
 
     plan_error_s: float = 0.0
     known: str = "unknown"
+    seed: int | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.plan_error_s) and self.plan_error_s >= 0.0):
             raise ValueError(f"network.plan_error_s must be finite and >= 0, got {self.plan_error_s!r}")
+        if self.seed is not None and (isinstance(self.seed, bool) or not isinstance(self.seed, int)
+                                      or self.seed < 0):
+            raise ValueError(f"network.seed must be an integer >= 0, got {self.seed!r}")
         if self.known not in TRANSMIT_DELAY_KNOWLEDGE:
             raise ValueError(f"network.known must be one of {TRANSMIT_DELAY_KNOWLEDGE}, got {self.known!r}")
 
@@ -583,13 +593,19 @@ class Scenario:
             return list(self.towers)
         return [TowerSite(**{key: getattr(self.tower, key) for key in SITE_KEYS})]
 
+    @property
+    def network_seed(self) -> int:
+        """The network's identity (``[network] seed``; the walk's ``seed`` without one): what its offsets are drawn
+        from."""
+        return self.seed if self.network.seed is None else self.network.seed
+
     def transmit_delays_s(self) -> np.ndarray:
         """Each site's true transmit delay offset on this walk, s: the plan's plus N(0, ``network.plan_error_s``),
-        drawn from the seed (the plan's exactly where that is 0)."""
+        drawn from the network's seed (:attr:`network_seed`; the plan's exactly where the error is 0)."""
         plan = np.array([site.transmit_delay_s for site in self.sites], dtype=np.float64)
         if self.network.plan_error_s == 0.0:
             return plan
-        rng = np.random.default_rng([self.seed, STREAM_TRANSMIT_DELAY])
+        rng = np.random.default_rng([self.network_seed, STREAM_TRANSMIT_DELAY])
         return plan + self.network.plan_error_s * rng.standard_normal(len(plan))
 
     def replace(self, **sections: dict[str, Any]) -> "Scenario":

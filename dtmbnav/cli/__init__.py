@@ -38,7 +38,21 @@ import sys
 import traceback
 
 from dtmbnav.chain.errors import NoResult
-from dtmbnav.cli import bench, demo, doppler_map, evaluate, fuse, pdr, receive, report, results, run, sensors, simulate
+from dtmbnav.cli import (
+    bench,
+    demo,
+    doppler_map,
+    evaluate,
+    fuse,
+    pdr,
+    receive,
+    report,
+    results,
+    run,
+    sensors,
+    simulate,
+    towers,
+)
 from dtmbnav.cli.exits import (
     EXIT_BAD_INPUT,
     EXIT_INTERNAL,
@@ -54,7 +68,8 @@ __all__ = ["EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "EXIT_NO_RESUL
            "build_parser", "main", "run_command"]
 
 #: The subcommands' modules, in the order of ``--help``.
-COMMANDS = (simulate, receive, pdr, sensors, fuse, run, report, doppler_map, evaluate, bench, results, demo)
+COMMANDS = (simulate, receive, pdr, sensors, fuse, towers, run, report, doppler_map, evaluate, bench, results,
+            demo)
 
 EXAMPLES = """\
 examples:
@@ -68,6 +83,7 @@ examples:
   dtmbnav pdr out/truth.h5 -o out/pdr.h5
   dtmbnav fuse --receiver out/rx.h5 --sensors out/truth.h5 -o out/fused.h5
   dtmbnav sensors gnss_log.txt -o sensors.h5      # a phone's GnssLogger (or Sensor Logger) log -> /imu, /gnss
+  dtmbnav towers calibrate rx.h5 sensors.h5 --towers towers.csv -o surveyed.csv  # SFN delays from a GNSS walk
   dtmbnav run captures/                          # the whole chain on the bundled capture set
   dtmbnav report out/results.h5 -o out/report
   dtmbnav evaluate park-loop --seeds 20 --json table.json

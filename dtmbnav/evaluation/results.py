@@ -50,10 +50,11 @@ from dtmbnav.evaluation.seeds import IQ_SEEDS, OBS_SEEDS, REPORTING_SEEDS, RESUL
 #: Scenarios of the fusion tables, in the order they are printed.
 FUSION_SCENARIOS = ("park-loop-cw", "park-loop-ccw", "sfn-park", "sfn3-park", "street-out", "street-back",
                     "street-out-sfn")
-#: Further rows of the observation-level table: the SFN walks with the network plan's transmit delay offsets,
-#: and with the walks' true ones (the fusion's bound; the rows above know nothing of them).
-SFN_DELAY_ROWS = ("sfn-park (delays plan)", "sfn-park (delays exact)", "sfn3-park (delays plan)",
-                  "sfn3-park (delays exact)")
+#: Further rows of the observation-level table: the SFN walks with the network plan's transmit delay offsets, with
+#: those surveyed on another walk of the network (dtmbnav.evaluation.survey), and with the walks' true ones (the
+#: fusion's bound; the rows above know nothing of them).
+SFN_DELAY_ROWS = ("sfn-park (delays plan)", "sfn-park (delays surveyed)", "sfn-park (delays exact)",
+                  "sfn3-park (delays plan)", "sfn3-park (delays surveyed)", "sfn3-park (delays exact)")
 #: Scenarios of the exact-range table (the filters' bound with a perfect single-tower receiver).
 EXACT_SCENARIOS = ("park-loop-cw", "park-loop-ccw")
 #: Kalman-type filters in the order of the table's columns (with their column titles).

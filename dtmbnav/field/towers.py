@@ -16,7 +16,8 @@ field                       unit      what
 
 An empty CSV cell is a field not given. Every value is checked as it is read, and an error names the
 file and the CSV line or the ``[[towers]]`` entry (counted from 1). :func:`towers_for_fuse` picks the
-towers a fusion uses and puts them into a sensors file's ENU frame (:func:`tower_in_sensors_frame`).
+towers a fusion uses and puts them into a sensors file's ENU frame (:func:`tower_in_sensors_frame`);
+:func:`write_towers_csv` writes a towers file back (``dtmbnav towers calibrate``'s surveyed one).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from typing import Any
 from dtmbnav_core import schema
 from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ
 from dtmbnav_core.geodetic import GeodeticPoint, tower_in_sensors_frame
-from dtmbnav_core.h5io import read_attrs
+from dtmbnav_core.h5io import atomic_path, read_attrs
 from dtmbnav_core.schema import TOWERS_CSV_COLUMNS, TOWERS_CSV_OPTIONAL, TOWERS_CSV_REQUIRED
 from fusion.transmit_delays import DEFAULT_PLAN_SIGMA_S, TransmitDelays
 
@@ -196,6 +197,20 @@ def read_towers(path: str | os.PathLike) -> tuple[Tower, ...]:
     if repeated:
         raise ValueError(f"{path}: tower name(s) {', '.join(map(repr, repeated))} given more than once")
     return tuple(towers)
+
+
+def write_towers_csv(path: str | os.PathLike, towers: tuple[Tower, ...]) -> Path:
+    """Write ``towers`` as a towers CSV (every column of :data:`~dtmbnav_core.schema.TOWERS_CSV_COLUMNS`, an
+    empty cell for a field not given; numbers as the shortest text that reads back to the same float),
+    atomically; its path."""
+    path = Path(path)
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(TOWERS_CSV_COLUMNS)
+        for tower in towers:
+            writer.writerow([tower.name, *("" if (v := getattr(tower, field)) is None else repr(float(v))
+                                           for field in TOWERS_CSV_COLUMNS[1:])])
+    return path
 
 
 def choose_towers(towers: tuple[Tower, ...], path: str | os.PathLike, names: tuple[str, ...] | None = None,
