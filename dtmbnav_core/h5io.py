@@ -21,8 +21,16 @@ from typing import Any
 import h5py
 import numpy as np
 
+from dtmbnav_core.records import FusedTrack, Track, with_unstated_error
+from dtmbnav_core.schema import (
+    COMPLETE_ATTR,
+    FUSION_COVARIANCE_COLUMNS,
+    PACKAGE_VERSION_ATTR,
+    SCHEMA_VERSION,
+    SCHEMA_VERSION_ATTR,
+    TRACK_COLUMNS,
+)
 from dtmbnav_core.version import package_version
-from dtmbnav_core.schema import COMPLETE_ATTR, PACKAGE_VERSION_ATTR, SCHEMA_VERSION, SCHEMA_VERSION_ATTR
 
 
 def partial_path(path: str | os.PathLike) -> Path:
@@ -176,3 +184,22 @@ def read_attrs(path: str | os.PathLike, name: str) -> dict[str, Any]:
         if name not in f:
             raise ValueError(f"{path}: no group /{name.lstrip('/')}")
         return dict(f[name].attrs)
+
+
+def read_fused_track(parent: h5py.Group | str | os.PathLike, name: str) -> FusedTrack:
+    """The fused track of group ``name`` (``fusion/<filter>`` or its ``smoothed`` subgroup) with its stated error.
+
+    A group written before the covariance columns existed (:data:`~dtmbnav_core.schema.FUSION_COVARIANCE_COLUMNS`)
+    reads with NaN covariance: :meth:`~dtmbnav_core.records.FusedTrack.has_stated_error` is then False. A group
+    with only some of them is a broken file (ValueError).
+    """
+    columns = read_columns(parent, name)
+    track = Track(**{k: columns[k] for k in TRACK_COLUMNS})
+    present = [k for k in FUSION_COVARIANCE_COLUMNS if k in columns]
+    if not present:
+        return with_unstated_error(track)
+    if len(present) < len(FUSION_COVARIANCE_COLUMNS):
+        where = parent.file.filename if isinstance(parent, h5py.Group) else parent
+        raise ValueError(f"{where}: /{name.lstrip('/')} has {', '.join(present)} but not all of "
+                         f"{', '.join(FUSION_COVARIANCE_COLUMNS)}")
+    return FusedTrack(**track.columns(), **{k: columns[k] for k in FUSION_COVARIANCE_COLUMNS})

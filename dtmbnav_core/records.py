@@ -59,6 +59,70 @@ class Track(ColumnRecord):
     speed_mps: np.ndarray
 
 
+#: The 0.95 quantile of the chi-square distribution with 2 degrees of freedom, ``-2 ln(0.05)``: a 2-D
+#: Gaussian error lies inside its ellipse ``d^T C^-1 d <= ELLIPSE_95_CHI2`` with probability 0.95.
+ELLIPSE_95_CHI2 = float(-2.0 * np.log(0.05))
+
+
+@dataclass
+class FusedTrack(Track):
+    """A fusion filter's track with the error it states: its east/north position covariance per row.
+
+    The covariance is the filter's own (a Kalman-type filter's ``P`` block, the particles' weighted
+    spread), or a smoother's (``/fusion/<filter>/smoothed``, ``docs/schema.md``). NaN where the track
+    states no error (a file written before the columns existed, :func:`with_unstated_error`).
+
+    Attributes
+    ----------
+    t_s, x_m, y_m, heading_rad, speed_mps : ndarray
+        As :class:`Track`.
+    var_x_m2, var_y_m2 : ndarray
+        Variance of the east and the north position, m^2.
+    cov_xy_m2 : ndarray
+        Their covariance, m^2.
+    """
+
+    var_x_m2: np.ndarray
+    var_y_m2: np.ndarray
+    cov_xy_m2: np.ndarray
+
+    @classmethod
+    def from_track(cls, track: Track, covariance_m2: np.ndarray) -> FusedTrack:
+        """``track`` with ``covariance_m2`` (N x 2 x 2, east/north, m^2) as its stated error."""
+        covariance_m2 = np.asarray(covariance_m2, dtype=np.float64)
+        return cls(**_track_columns(track), var_x_m2=covariance_m2[:, 0, 0], var_y_m2=covariance_m2[:, 1, 1],
+                   cov_xy_m2=0.5 * (covariance_m2[:, 0, 1] + covariance_m2[:, 1, 0]))
+
+    def position_covariance_m2(self) -> np.ndarray:
+        """The stated east/north covariance per row, N x 2 x 2, m^2."""
+        return np.stack([np.stack([self.var_x_m2, self.cov_xy_m2], axis=-1),
+                         np.stack([self.cov_xy_m2, self.var_y_m2], axis=-1)], axis=-2)
+
+    def has_stated_error(self) -> bool:
+        """Whether every row states its error (finite covariance)."""
+        return bool(np.all(np.isfinite(self.position_covariance_m2())))
+
+    def accuracy_radius_m(self) -> np.ndarray:
+        """Radius of the circle that bounds each row's 95 % error ellipse, m: ``sqrt(ELLIPSE_95_CHI2)``
+        (2.448) times the square root of the covariance's largest eigenvalue (its semi-major axis). NaN where no
+        error is stated."""
+        half_trace = 0.5 * (self.var_x_m2 + self.var_y_m2)
+        spread = np.sqrt((0.5 * (self.var_x_m2 - self.var_y_m2)) ** 2 + self.cov_xy_m2**2)
+        return np.sqrt(ELLIPSE_95_CHI2 * np.maximum(half_trace + spread, 0.0))
+
+
+def _track_columns(track: Track) -> dict[str, np.ndarray]:
+    """The :class:`Track` columns of ``track`` (of a :class:`FusedTrack` too, without its covariance)."""
+    return {f.name: getattr(track, f.name) for f in fields(Track)}
+
+
+def with_unstated_error(track: Track) -> FusedTrack:
+    """``track`` as a :class:`FusedTrack` that states no error (NaN covariance): what a fused track written
+    before the covariance columns existed reads as."""
+    nan = np.full(len(track), np.nan)
+    return FusedTrack(**_track_columns(track), var_x_m2=nan, var_y_m2=nan.copy(), cov_xy_m2=nan.copy())
+
+
 @dataclass
 class PdrSteps(ColumnRecord):
     """Pedestrian dead reckoning, one row per detected step.

@@ -34,13 +34,21 @@ PDR_TRACK = "pdr/track"
 FUSION = "fusion"
 
 
-def fusion_group(filter_name: str) -> str:
-    """Group of one filter's fused track, ``fusion/<filter name>``."""
-    return f"{FUSION}/{filter_name}"
+#: Subgroup of ``fusion/<filter>`` holding the filter's smoothed track (the whole recording's data at every row).
+SMOOTHED = "smoothed"
+
+
+def fusion_group(filter_name: str, smoothed: bool = False) -> str:
+    """Group of one filter's fused track, ``fusion/<filter name>``, or of its smoothed track,
+    ``fusion/<filter name>/smoothed``."""
+    return f"{FUSION}/{filter_name}/{SMOOTHED}" if smoothed else f"{FUSION}/{filter_name}"
 
 
 # --- columns ---------------------------------------------------------------------------------
 TRACK_COLUMNS = ("t_s", "x_m", "y_m", "heading_rad", "speed_mps")
+#: Further /fusion/<filter> (and .../smoothed) columns: the stated east/north position covariance, m^2
+#: (``dtmbnav_core.records.FusedTrack``). Files written before them have none; they read as NaN (no stated error).
+FUSION_COVARIANCE_COLUMNS = ("var_x_m2", "var_y_m2", "cov_xy_m2")
 STEP_COLUMNS = ("t_s", "step_length_m")
 IMU_COLUMNS = ("t_s", "acc_mps2", "gyro_radps", "mag_ut")
 GNSS_COLUMNS = ("t_s", "x_m", "y_m", "cn0_dbhz")

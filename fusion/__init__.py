@@ -12,6 +12,9 @@ FILTER_NAMES = ("pf", "ukf", "wt-ukf", "adaptive-kf", "rank-kf")
 #: move a walk's error little next to what the ranges and the PDR decide, so that whether a walk ends worse
 #: than its PDR does not turn on the filter's seed (chosen on the tuning walks; docs/decisions.md, D18).
 DEFAULT_PARTICLES = 40_000
+#: Lag of the particle filter's fixed-lag smoother, epochs (``fusion.particle_filter``): each particle carries
+#: this many of its ancestors' states, so its memory is Np x lag states.
+DEFAULT_SMOOTHING_LAG = 30
 #: Row name of the foot-mounted ZUPT INS (:mod:`fusion.foot_ins`) in evaluations: it runs on its own
 #: IMU, not on the range/PDR epochs the filters share.
 FOOT_INS = "zupt-ins"

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dtmbnav_core.phone import ACCURACY_RADIUS_SIGMAS
-from dtmbnav_core.records import Track
+from dtmbnav_core.records import FusedTrack
 from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig
 from fusion.kalman import RangeKalmanFilter
@@ -125,11 +125,14 @@ class AdaptiveEkf(RangeKalmanFilter):
             self.gnss_variances_m2 = gnss.variances_m2()
         self.gnss = gnss
 
-    def time_update(self, control: StepControl) -> None:
-        """EKF prediction through :meth:`model_propagate`."""
+    def time_update(self, control: StepControl) -> np.ndarray:
+        """EKF prediction through :meth:`model_propagate`; returns ``P F^T``, the cross-covariance of the
+        state before and after."""
         f = self.model_transition_jacobian(self.x, control)
+        cross = self.P @ f.T
         self._x = self.model_propagate(self.x, control)
-        self._P = f @ self.P @ f.T + self.model_process_covariance(control)
+        self._P = f @ cross + self.model_process_covariance(control)
+        return cross
 
     def replace_state(self, x: np.ndarray, P: np.ndarray) -> None:
         """Take ``x``, ``P`` as the state."""
@@ -174,6 +177,6 @@ class AdaptiveEkf(RangeKalmanFilter):
 
 def run_adaptive_kf(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise(),
                     gnss: GnssFixes | None = None, clock: ClockModel = ClockModel(),
-                    integrity: IntegrityConfig = IntegrityConfig()) -> Track:
+                    integrity: IntegrityConfig = IntegrityConfig()) -> FusedTrack:
     """Run the quality-adaptive EKF over all epochs."""
     return run_filter(AdaptiveEkf(geometry, noise, epochs, gnss, clock=clock, integrity=integrity), epochs)

@@ -40,6 +40,12 @@ filter is compared on the same equations:
 Where the monitor drops a channel, the filter takes the monitor's open-loop
 motion (and clock) state instead of its own
 (:meth:`RangeKalmanFilter.replace_state`); the origins keep their values.
+
+Every epoch states its error: the east/north block of ``P``
+(:meth:`RangeKalmanFilter.position_covariance_m2`). For a recorded walk
+(:meth:`RangeKalmanFilter.record_history`) the filter keeps each epoch's
+prior, posterior and ``Cov(x_{k-1}, x_k^-)``, carried through the
+re-anchoring above, for the RTS smoother (:mod:`fusion.smoothing`).
 The model functions of :mod:`fusion.model` work on the motion and clock
 columns; :meth:`RangeKalmanFilter.model_propagate`,
 :meth:`~RangeKalmanFilter.model_observe` and the Jacobians here extend them
@@ -57,6 +63,7 @@ from fusion.model import (CLOCK_STATE_SIZE, CODE_ANCHOR_GATE_SIGMAS, STATE_SIZE,
                           Geometry, KalmanObservation, ModelNoise, ObservationLayout, StepControl, X, Y,
                           initial_covariance, initial_state, observation_jacobian, observe, process_covariance,
                           propagate, transition_jacobian, walk_range_origins)
+from fusion.smoothing import KalmanHistory, rts_smooth
 
 #: Independent standard deviation of a single-tower channel's origin at P0, m. A clone of the start is an exact
 #: function of the state, which would leave P singular (and the sigma-point filters' Cholesky factor undefined);
@@ -100,6 +107,10 @@ class RangeKalmanFilter(ABC):
         #: Channels whose first observation re-anchors them: under a free-running clock the single-tower ones,
         #: whose first value holds the clock's drift since the capture start, not the fix's error.
         self._unanchored = clock.free_running & (self.layout.clock_coefficients() > 0)
+        #: ``Cov(x_{k-1}, x)``: the last filtered state with the current one (:meth:`time_update`, re-anchoring).
+        self._cross: np.ndarray | None = None
+        #: What the RTS smoother needs, when recording (:meth:`record_history`).
+        self.history: KalmanHistory | None = None
 
     @property
     def origins_m(self) -> np.ndarray:
@@ -122,8 +133,9 @@ class RangeKalmanFilter(ABC):
         """Current state covariance."""
 
     @abstractmethod
-    def time_update(self, control: StepControl) -> None:
-        """Propagate the state and its covariance one epoch."""
+    def time_update(self, control: StepControl) -> np.ndarray:
+        """Propagate the state and its covariance one epoch; return ``Cov(x_before, x_after)``
+        (the filter's own cross-covariance of its state before and after, for the smoother)."""
 
     @abstractmethod
     def correct(self, observation: KalmanObservation, epoch: int) -> None:
@@ -183,8 +195,29 @@ class RangeKalmanFilter(ABC):
 
     def predict(self, control: StepControl) -> None:
         """:meth:`time_update`, and the integrity monitor's open-loop predictions with it."""
-        self.time_update(control)
+        self._cross = self.time_update(control)
         self.monitor.predict(control)
+
+    def record_history(self) -> None:
+        """Keep every epoch's prior, posterior and cross-covariance from now on (:meth:`smoothed`)."""
+        self.history = KalmanHistory()
+
+    def position_covariance_m2(self) -> np.ndarray:
+        """The stated error of the current position: the east/north block of ``P``, m^2."""
+        return np.array(self.P[np.ix_([X, Y], [X, Y])])
+
+    def smoothed(self) -> tuple[np.ndarray, np.ndarray]:
+        """The RTS-smoothed states (N, n) and their east/north covariances (N, 2, 2) of the recorded epochs.
+
+        Raises
+        ------
+        ValueError
+            If nothing was recorded (:meth:`record_history` not called before the run).
+        """
+        if self.history is None or not self.history.post_x:
+            raise ValueError("smoothed: no recorded epochs (call record_history before the run)")
+        states, covariances = rts_smooth(self.history)
+        return states, covariances[:, [X, Y]][:, :, [X, Y]]
 
     def update(self, observation: EpochObservation) -> None:
         """Vet and re-anchor the range channels (module docstring), then :meth:`correct` with the rest."""
@@ -196,6 +229,7 @@ class RangeKalmanFilter(ABC):
         if fallback is not None:   # the monitor's motion and clock, without their covariance with the origins
             x[core], P[core, core] = fallback
             P[core, self._origins] = P[self._origins, core] = 0.0
+            self._reset_cross(core)
         origins = self._origin_columns
         lost = walk_range_origins(P, origins, use, self.noise)
         reanchor = use & (new_origin | returning | lost | self._unanchored)
@@ -214,12 +248,22 @@ class RangeKalmanFilter(ABC):
             x[o] = anchors[j] - z[j]
             P[o, :] = P[:, o] = 0.0
             P[o, o] = anchor_sigmas[j]**2
+            self._reset_cross(o)
         self._origin_from_code = on_code | (self._origin_from_code & ~reanchor)
         self.replace_state(x, P)
+        if self.history is not None:
+            self.history.record_prior(self.x, self.P, self._cross)
         kalman = observation.kalman(self.noise, self.layout.n_towers, use & (~reanchor | on_code))
         if len(kalman.rows):
             self.correct(kalman, observation.index)
+        if self.history is not None:
+            self.history.record_posterior(self.x, self.P)
         self.monitor.posterior(self.x[core], self.P[core, core])
+
+    def _reset_cross(self, columns: slice | int) -> None:
+        """State columns set anew, independent of the last filtered state: their cross-covariance is 0."""
+        if self._cross is not None:
+            self._cross[:, columns] = 0.0
 
     def _clone_origin(self, x: np.ndarray, P: np.ndarray, channel: int, origin_m: float, sigma_m: float) -> None:
         """Set ``channel``'s origin in ``x``, ``P`` (in place) to ``origin_m``, the state's value less the
@@ -231,6 +275,8 @@ class RangeKalmanFilter(ABC):
         P[o, :] = P[:, o] = row
         P[o, o] = row @ h + sigma_m**2
         x[o] = origin_m
+        if self._cross is not None:          # the clone is h x: its covariance with the last filtered state is C h
+            self._cross[:, o] = self._cross @ h
 
     def _code_anchors_pass(self, anchors: np.ndarray, anchor_sigmas: np.ndarray, geometric: np.ndarray,
                            x: np.ndarray, P: np.ndarray) -> np.ndarray:

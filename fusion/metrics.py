@@ -6,6 +6,14 @@ percentiles (numpy's linear interpolation between order statistics) and the
 maximum, plus the empirical CDF for plotting. The PDR baseline is placed the
 way the paper does when it reports PDR error: its relative track rotated by
 the true initial heading and shifted to the true start.
+
+Whether a track's stated error holds (:class:`dtmbnav_core.records.FusedTrack`):
+each row's squared Mahalanobis distance of the true position,
+``d^2 = e^T C^-1 e`` with ``e`` the east/north error and ``C`` the stated
+covariance, is the normalised estimation error squared (NEES). For an error
+that is Gaussian with the stated covariance it follows chi-square with two
+degrees of freedom: mean 2, and ``d^2 <= 5.991`` (the stated 95 % ellipse)
+on 95 % of the rows.
 """
 
 from __future__ import annotations
@@ -14,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav_core.records import PdrSteps, Track
+from dtmbnav_core.records import ELLIPSE_95_CHI2, FusedTrack, PdrSteps, Track
 from fusion.heading_init import rotate_pdr
 from fusion.model import wrap_angle
 
@@ -69,6 +77,47 @@ def error_stats(errors_m: np.ndarray) -> ErrorStats:
         raise ValueError("error_stats: no errors given")
     p68, p95 = np.percentile(errors_m, [68.0, 95.0])
     return ErrorStats(p68_m=float(p68), p95_m=float(p95), max_m=float(errors_m.max()), n=int(errors_m.size))
+
+
+@dataclass(frozen=True)
+class StatedErrorStats:
+    """How well a track's stated error holds the truth (module docstring).
+
+    Attributes
+    ----------
+    in_ellipse_95 : float
+        Share of the rows whose true position lies inside the stated 95 % ellipse (``d^2 <= 5.991``).
+    mean_nees : float
+        Mean of ``d^2`` over the rows (2 where the stated covariance is right).
+    n : int
+        Number of rows.
+    """
+
+    in_ellipse_95: float
+    mean_nees: float
+    n: int
+
+
+def position_nees(estimate: FusedTrack, truth: Track) -> np.ndarray:
+    """Each row's NEES ``e^T C^-1 e`` of the true position against the stated covariance (NaN where none)."""
+    ref = interpolate_track(truth, estimate.t_s)
+    error = np.stack([ref.x_m - estimate.x_m, ref.y_m - estimate.y_m], axis=-1)
+    cov = estimate.position_covariance_m2()
+    det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # The 2x2 inverse written out: C^-1 = [[c11, -c01], [-c01, c00]] / det.
+        return (cov[:, 1, 1] * error[:, 0] ** 2 - 2.0 * cov[:, 0, 1] * error[:, 0] * error[:, 1]
+                + cov[:, 0, 0] * error[:, 1] ** 2) / det
+
+
+def stated_error_stats(estimate: FusedTrack, truth: Track) -> StatedErrorStats:
+    """Share of rows inside the stated 95 % ellipse and mean NEES; NaN for a track without stated error."""
+    nees = position_nees(estimate, truth)
+    if nees.size == 0:
+        raise ValueError("stated_error_stats: no rows given")
+    if not estimate.has_stated_error():
+        return StatedErrorStats(float("nan"), float("nan"), int(nees.size))
+    return StatedErrorStats(float(np.mean(nees <= ELLIPSE_95_CHI2)), float(np.mean(nees)), int(nees.size))
 
 
 def error_cdf(errors_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

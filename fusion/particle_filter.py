@@ -69,6 +69,22 @@ Robustness choices:
   caller and is handed to the kernels as arrays, so a seed fixes the result and
   the numba kernels and their plain-numpy references are exactly comparable.
 
+Stated error: each epoch's east/north covariance is the weighted covariance
+of the particles' positions. The marginalised linear state (offsets, clock)
+holds no position, so it adds nothing to it.
+
+Smoothing a recorded walk (:meth:`ParticleFilter.record_history`): a
+fixed-lag smoother on the particles' ancestry [Kitagawa 1996]. Each
+particle carries its ancestors' states of the last ``lag`` epochs, resampled
+with it, so that epoch ``k``'s smoothed state is the weighted cloud of epoch
+``k + lag - 1``'s particles' ancestors at ``k`` (the last epochs: the final
+cloud's). Memory is bounded by ``Np x lag`` states (float32).
+Forward-filtering backward-simulation was not taken: its backward weights
+need every stored particle's transition density to every later one, and the
+process noise per step (centimetres) is far narrower than the cloud (metres),
+so on a bounded subsample of stored particles the backward draw degenerates
+to the nearest neighbour (docs/decisions.md).
+
 The hot kernels are numba ``@njit`` functions; each has a ``*_reference``
 twin in vectorised numpy that the tests compare against and the benchmark
 times.
@@ -83,8 +99,8 @@ from typing import Callable
 import numpy as np
 from numba import njit
 
-from dtmbnav_core.records import Track
-from fusion import DEFAULT_PARTICLES
+from dtmbnav_core.records import FusedTrack
+from fusion import DEFAULT_PARTICLES, DEFAULT_SMOOTHING_LAG
 from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig, IntegrityMonitor
 from fusion.model import (CODE_ANCHOR_GATE_SIGMAS, HEADING, HEADING_RATE, SPEED, STATE_SIZE, ClockModel,
@@ -312,6 +328,8 @@ class ParticleFilter:
         The receiver clock; a free-running one adds the clock to the linear state.
     integrity : IntegrityConfig
         The range integrity monitor (:mod:`fusion.integrity`).
+    smoothing_lag : int
+        Lag of the fixed-lag smoother, epochs (:meth:`record_history`).
 
     Attributes
     ----------
@@ -324,13 +342,17 @@ class ParticleFilter:
 
     def __init__(self, geometry: Geometry, noise: ModelNoise = ModelNoise(), n_particles: int = DEFAULT_PARTICLES,
                  seed: int = 0, resample_ess_fraction: float = 0.5, backend: str = "numba",
-                 clock: ClockModel = ClockModel(), integrity: IntegrityConfig = IntegrityConfig()) -> None:
+                 clock: ClockModel = ClockModel(), integrity: IntegrityConfig = IntegrityConfig(),
+                 smoothing_lag: int = DEFAULT_SMOOTHING_LAG) -> None:
         if n_particles < 2:
             raise ValueError(f"n_particles must be >= 2, got {n_particles}")
         if not 0.0 < resample_ess_fraction <= 1.0:
             raise ValueError(f"resample_ess_fraction must be in (0, 1], got {resample_ess_fraction}")
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {sorted(BACKENDS)}, got {backend!r}")
+        if smoothing_lag < 1:
+            raise ValueError(f"smoothing_lag must be >= 1, got {smoothing_lag}")
+        self.smoothing_lag = smoothing_lag
         self.geometry = geometry
         self.noise = noise
         self.clock = clock
@@ -358,6 +380,11 @@ class ParticleFilter:
         self.weights = np.full(n_particles, 1.0 / n_particles)
         self.ess = float(n_particles)
         self.resample_count = 0
+        #: Each particle's ancestors' states of the last epochs, (lag, Np, STATE_SIZE), a ring over axis 0
+        #: (:meth:`record_history`).
+        self._ancestry: np.ndarray | None = None
+        self._epoch = 0
+        self._smoothed: list[tuple[np.ndarray, np.ndarray]] = []
 
     @property
     def range_offset_m(self) -> np.ndarray:
@@ -478,11 +505,54 @@ class ParticleFilter:
             index = self.kernels.resample(self.weights, self.rng.random())
             self.particles = self.particles[index]
             self.linear = self.linear[index]
+            if self._ancestry is not None:
+                self._ancestry = self._ancestry[:, index]
             self.log_w[:] = -np.log(self.n_particles)
             self.weights[:] = 1.0 / self.n_particles
             self.resample_count += 1
         if self.monitor.config.enabled:
             self.monitor.posterior(*self.summary())
+        if self._ancestry is not None:
+            self._record_epoch()
+
+    def record_history(self) -> None:
+        """Smooth from now on with a fixed lag of ``smoothing_lag`` epochs (module docstring; :meth:`smoothed`)."""
+        self._ancestry = np.empty((self.smoothing_lag, self.n_particles, STATE_SIZE), dtype=np.float32)
+        self._epoch = 0
+        self._smoothed = []
+
+    def _record_epoch(self) -> None:
+        """Store this epoch's particles in their ancestry; the epoch ``lag - 1`` back is then final."""
+        lag = len(self._ancestry)
+        self._ancestry[self._epoch % lag] = self.particles
+        self._epoch += 1
+        if self._epoch >= lag:
+            self._smoothed.append(self._ancestor_summary((self._epoch - lag) % lag))
+
+    def _ancestor_summary(self, slot: int) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean state and east/north covariance of the current particles' ancestors in ``slot``."""
+        states = self._ancestry[slot].astype(np.float64)
+        return state_mean(states, self.weights), weighted_position_covariance(states, self.weights)
+
+    def smoothed(self) -> tuple[np.ndarray, np.ndarray]:
+        """The fixed-lag smoothed states (N, STATE_SIZE) and east/north covariances (N, 2, 2) of the recorded
+        epochs (module docstring); the last ``lag - 1`` from the final cloud's ancestry.
+
+        Raises
+        ------
+        ValueError
+            If nothing was recorded (:meth:`record_history` not called before the run).
+        """
+        if self._ancestry is None or self._epoch == 0:
+            raise ValueError("smoothed: no recorded epochs (call record_history before the run)")
+        lag = len(self._ancestry)
+        final = [self._ancestor_summary(k % lag) for k in range(max(self._epoch - lag + 1, 0), self._epoch)]
+        rows = self._smoothed + final
+        return np.array([state for state, _ in rows]), np.array([cov for _, cov in rows])
+
+    def position_covariance_m2(self) -> np.ndarray:
+        """The stated error of the current position: the particles' weighted east/north covariance, m^2."""
+        return weighted_position_covariance(self.particles, self.weights)
 
     def _weigh_range(self, channel: int, z: float, sigma: float) -> None:
         """One range channel's likelihood and Kalman step of the linear state (module docstring)."""
@@ -547,23 +617,41 @@ class ParticleFilter:
         return mean
 
 
-def run_particle_filter(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise(),
-                        n_particles: int = DEFAULT_PARTICLES, seed: int = 0, backend: str = "numba",
-                        resample_ess_fraction: float = 0.5, clock: ClockModel = ClockModel(),
-                        integrity: IntegrityConfig = IntegrityConfig()) -> Track:
-    """Run Algorithm 1 over all epochs and return the estimated track.
+def weighted_position_covariance(states: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Weighted east/north covariance of state rows (weights summing to 1), m^2."""
+    d = states[:, [X, Y]] - weights @ states[:, [X, Y]]
+    return (d * weights[:, None]).T @ d
+
+
+def start_particle_filter(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise(),
+                          n_particles: int = DEFAULT_PARTICLES, seed: int = 0, backend: str = "numba",
+                          resample_ess_fraction: float = 0.5, clock: ClockModel = ClockModel(),
+                          integrity: IntegrityConfig = IntegrityConfig(),
+                          smoothing_lag: int = DEFAULT_SMOOTHING_LAG) -> ParticleFilter:
+    """A :class:`ParticleFilter` drawn at P0 (Algorithm 1, step 1) for ``epochs``.
 
     The initial heading and speed are the first step's PDR heading (already
     absolute: relative heading + solved initial heading) and PDR speed.
+    """
+    pf = ParticleFilter(geometry, noise, n_particles, seed, resample_ess_fraction, backend, clock, integrity,
+                        smoothing_lag)
+    pf.initialise(*epochs.initial_heading_speed())
+    return pf
+
+
+def run_particle_filter(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise(),
+                        n_particles: int = DEFAULT_PARTICLES, seed: int = 0, backend: str = "numba",
+                        resample_ess_fraction: float = 0.5, clock: ClockModel = ClockModel(),
+                        integrity: IntegrityConfig = IntegrityConfig()) -> FusedTrack:
+    """Run Algorithm 1 over all epochs and return the estimated track with its stated error.
 
     Returns
     -------
-    Track
+    FusedTrack
         One row per step epoch, at the epoch times.
     """
-    pf = ParticleFilter(geometry, noise, n_particles, seed, resample_ess_fraction, backend, clock, integrity)
-    pf.initialise(*epochs.initial_heading_speed())
-    return run_filter(pf, epochs)
+    return run_filter(start_particle_filter(epochs, geometry, noise, n_particles, seed, backend,
+                                            resample_ess_fraction, clock, integrity), epochs)
 
 
 def particle_updates_per_second(n_particles: int, backend: str, n_epochs: int = 50, seed: int = 0) -> float:

@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 from scipy.stats import norm
 
-from dtmbnav_core.records import Track
+from dtmbnav_core.records import FusedTrack
 from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig
 from fusion.kalman import RangeKalmanFilter
@@ -67,12 +67,22 @@ class RankKalmanFilter:
         self.residual_fn = residual_fn
         self.lambdas, self.omega = rank_quantiles(layers)
 
-    def predict(self, fx: Callable[[np.ndarray], np.ndarray], Q: np.ndarray) -> None:
-        """Eq. 6-9: propagate the rank points through ``fx`` (rows -> rows)."""
-        propagated = fx(rank_points(self.x, self.P, self.lambdas))
+    def predict(self, fx: Callable[[np.ndarray], np.ndarray], Q: np.ndarray) -> np.ndarray:
+        """Eq. 6-9: propagate the rank points through ``fx`` (rows -> rows).
+
+        Returns
+        -------
+        ndarray
+            The cross-covariance of the state before and after, ``(1/omega) sum (.)(.)^T`` of the points'
+            residuals before and after (as eq. 17 forms ``P_xz``), for a smoother.
+        """
+        before_x = self.x
+        points = rank_points(self.x, self.P, self.lambdas)
+        propagated = fx(points)
         self.x = self.mean_fn(propagated)
         d = self.residual_fn(propagated, self.x)
         self.P = d.T @ d / self.omega + Q
+        return self.residual_fn(points, before_x).T @ d / self.omega
 
     def update(self, z: np.ndarray, hx: Callable[[np.ndarray], np.ndarray], R: np.ndarray,
                z_mean_fn: Callable[[np.ndarray], np.ndarray],
@@ -116,9 +126,11 @@ class RangePdrRankKf(RangeKalmanFilter):
         """Current state covariance."""
         return self.rkf.P
 
-    def time_update(self, control: StepControl) -> None:
-        """Rank-sampled prediction through :meth:`model_propagate`."""
-        self.rkf.predict(lambda pts: self.model_propagate(pts, control), self.model_process_covariance(control))
+    def time_update(self, control: StepControl) -> np.ndarray:
+        """Rank-sampled prediction through :meth:`model_propagate`; returns the cross-covariance of the state
+        before and after."""
+        return self.rkf.predict(lambda pts: self.model_propagate(pts, control),
+                                self.model_process_covariance(control))
 
     def replace_state(self, x: np.ndarray, P: np.ndarray) -> None:
         """Take ``x``, ``P`` as the state."""
@@ -135,7 +147,7 @@ class RangePdrRankKf(RangeKalmanFilter):
 
 
 def run_rank_kf(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise(),
-                clock: ClockModel = ClockModel(), integrity: IntegrityConfig = IntegrityConfig()) -> Track:
+                clock: ClockModel = ClockModel(), integrity: IntegrityConfig = IntegrityConfig()) -> FusedTrack:
     """Run the rank KF over all epochs."""
     kf = RangePdrRankKf(geometry, noise, *epochs.initial_heading_speed(), clock=clock, integrity=integrity)
     return run_filter(kf, epochs)

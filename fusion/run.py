@@ -15,29 +15,36 @@ of them vet the range channels with the same integrity monitor
 (:mod:`fusion.integrity`). The WT-UKF re-estimates the SI-carrier range's
 noise only, the adaptive EKF grades the SI-carrier range's by the link SNR;
 the path channels keep the sigma of their aggregation rule.
+
+Every track states its error (an east/north covariance per row,
+:class:`dtmbnav_core.records.FusedTrack`), and with ``FusionConfig.smooth``
+each filter also gives its smoothed track (:mod:`fusion.smoothing`): the
+filtered track stays the real-time answer.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Callable
 
 import numpy as np
 
-from dtmbnav_core.records import PdrSteps, RangeSeries, Track
+from dtmbnav_core.records import FusedTrack, PdrSteps, RangeSeries
 from fusion import (CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DEFAULT_PARTICLES, DEFAULT_SI_RANGE_USE,
-                    FILTER_NAMES, HEADING_RANGES, SI_RANGE_USES)
-from fusion.adaptive_kf import run_adaptive_kf
+                    DEFAULT_SMOOTHING_LAG, FILTER_NAMES, HEADING_RANGES, SI_RANGE_USES)
+from fusion.adaptive_kf import AdaptiveEkf
+from fusion.driver import FusionFilter, drive_filter, run_filter
 from fusion.heading_init import HeadingSolution, solve_initial_heading
 from fusion.integrity import IntegrityConfig
 from fusion.model import ClockModel, Geometry, ModelNoise
 from fusion.observations import AggregationConfig, FilterEpochs, PathAggregationConfig, PathEpochs, RangeEpochs, StandstillConfig, aggregate_paths, aggregate_ranges, build_epochs, epoch_times, si_range_epochs
 from dtmbnav_core.records import PathRanges
-from fusion.particle_filter import run_particle_filter
-from fusion.rank_kf import run_rank_kf
+from fusion.particle_filter import start_particle_filter
+from fusion.rank_kf import RangePdrRankKf
 from fusion.transmit_delays import CodeOffsets, TransmitDelays, tie_code_differences
-from fusion.ukf import run_ukf
-from fusion.wt_ukf import run_wt_ukf
+from fusion.ukf import RangePdrUkf
+from fusion.wt_ukf import WaveletUkf
 
 
 @dataclass(frozen=True)
@@ -84,6 +91,13 @@ class FusionConfig:
         initial heading-rate spread, which must also hold a bias the range
         has not yet shown (chosen on the tuning walks so that the sigma holds
         the heading errors; docs/decisions.md, D45).
+    smooth : bool
+        Whether every filter also smooths the recording (:mod:`fusion.smoothing`;
+        ``FusionResult.smoothed``). Off unless asked for: a Monte Carlo evaluation
+        scores the filtered tracks and the particle filter's smoother costs time;
+        ``dtmbnav fuse`` always smooths (``dtmbnav.chain.fuse.fuse_files``).
+    smoothing_lag : int
+        The particle filter's smoothing lag, epochs (:mod:`fusion.particle_filter`).
     """
 
     noise: ModelNoise = field(default_factory=ModelNoise)
@@ -100,6 +114,8 @@ class FusionConfig:
     heading_range: str = DEFAULT_HEADING_RANGE
     si_range: str = DEFAULT_SI_RANGE_USE
     heading_drift_radps: float = np.deg2rad(0.02)
+    smooth: bool = False
+    smoothing_lag: int = DEFAULT_SMOOTHING_LAG
 
     def __post_init__(self) -> None:
         if self.clock_model not in CLOCK_MODELS:
@@ -167,17 +183,27 @@ def with_heading_spread(config: FusionConfig, heading: HeadingSolution) -> Fusio
     return replace(config, noise=replace(config.noise, initial_heading_rad=heading.sigma_rad))
 
 
-FilterRunner = Callable[[FilterEpochs, Geometry, FusionConfig], Track]
+FilterBuilder = Callable[[FilterEpochs, Geometry, FusionConfig], FusionFilter]
+FilterRunner = Callable[[FilterEpochs, Geometry, FusionConfig], FusedTrack]
 
-#: Filter name -> runner. "pf" is the main paper's particle filter.
-FILTERS: dict[str, FilterRunner] = {
-    "pf": lambda e, g, c: run_particle_filter(e, g, c.noise, c.n_particles, c.seed, clock=c.clock(),
+#: Filter name -> the filter, started at P0 for the epochs. "pf" is the main paper's particle filter.
+FILTER_BUILDERS: dict[str, FilterBuilder] = {
+    "pf": lambda e, g, c: start_particle_filter(e, g, c.noise, c.n_particles, c.seed, clock=c.clock(),
+                                                integrity=c.integrity, smoothing_lag=c.smoothing_lag),
+    "ukf": lambda e, g, c: RangePdrUkf(g, c.noise, *e.initial_heading_speed(), c.clock(), c.integrity),
+    "wt-ukf": lambda e, g, c: WaveletUkf(g, c.noise, e, clock=c.clock(), integrity=c.integrity),
+    "adaptive-kf": lambda e, g, c: AdaptiveEkf(g, c.noise, e, clock=c.clock(), integrity=c.integrity),
+    "rank-kf": lambda e, g, c: RangePdrRankKf(g, c.noise, *e.initial_heading_speed(), clock=c.clock(),
                                               integrity=c.integrity),
-    "ukf": lambda e, g, c: run_ukf(e, g, c.noise, c.clock(), c.integrity),
-    "wt-ukf": lambda e, g, c: run_wt_ukf(e, g, c.noise, clock=c.clock(), integrity=c.integrity),
-    "adaptive-kf": lambda e, g, c: run_adaptive_kf(e, g, c.noise, clock=c.clock(), integrity=c.integrity),
-    "rank-kf": lambda e, g, c: run_rank_kf(e, g, c.noise, c.clock(), c.integrity),
 }
+
+
+def _run_built(build: FilterBuilder, epochs: FilterEpochs, geometry: Geometry, config: FusionConfig) -> FusedTrack:
+    return run_filter(build(epochs, geometry, config), epochs)
+
+
+#: Filter name -> runner: the filtered track of :data:`FILTER_BUILDERS`' filter (no smoothing).
+FILTERS: dict[str, FilterRunner] = {name: partial(_run_built, build) for name, build in FILTER_BUILDERS.items()}
 assert tuple(FILTERS) == FILTER_NAMES, "fusion.FILTER_NAMES and fusion.run.FILTERS must list the same filters"
 
 
@@ -187,8 +213,8 @@ class FusionResult:
 
     Attributes
     ----------
-    tracks : dict of str -> Track
-        Each filter's estimate, one row per PDR step.
+    tracks : dict of str -> FusedTrack
+        Each filter's estimate with its stated error, one row per PDR step.
     heading : HeadingSolution
         The eq. 15 solution whose ``heading_rad`` every filter started from.
     epochs : FilterEpochs
@@ -199,13 +225,16 @@ class FusionResult:
         The transmit delay offsets taken out of the tower differences' codes
         (:func:`fusion.transmit_delays.tie_code_differences`); None without
         path observations.
+    smoothed : dict of str -> FusedTrack
+        Each filter's smoothed track with its error (empty unless ``FusionConfig.smooth``).
     """
 
-    tracks: dict[str, Track]
+    tracks: dict[str, FusedTrack]
     heading: HeadingSolution
     epochs: FilterEpochs
     start_xy_m: tuple[float, float]
     code_offsets: CodeOffsets | None = None
+    smoothed: dict[str, FusedTrack] = field(default_factory=dict)
 
 
 def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], tower_xy_m: tuple[float, float],
@@ -264,6 +293,8 @@ def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], to
     epochs = build_epochs(pdr, si_range_epochs(range_epochs, path_epochs, config.si_range), heading.heading_rad,
                           path_epochs)
     filter_config = with_heading_spread(config, heading)
-    tracks = {name: FILTERS[name](epochs, geometry, filter_config) for name in filters}
-    return FusionResult(tracks=tracks, heading=heading, epochs=epochs, start_xy_m=(start_xy_m[0], start_xy_m[1]),
-                        code_offsets=code_offsets)
+    runs = {name: drive_filter(FILTER_BUILDERS[name](epochs, geometry, filter_config), epochs, config.smooth)
+            for name in filters}
+    return FusionResult(tracks={name: run.track for name, run in runs.items()}, heading=heading, epochs=epochs,
+                        start_xy_m=(start_xy_m[0], start_xy_m[1]), code_offsets=code_offsets,
+                        smoothed={name: run.smoothed for name, run in runs.items() if run.smoothed is not None})

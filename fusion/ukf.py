@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
-from dtmbnav_core.records import Track
+from dtmbnav_core.records import FusedTrack
 from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig
 from fusion.kalman import RangeKalmanFilter
@@ -64,10 +64,17 @@ class RangePdrUkf(RangeKalmanFilter):
         """Current state covariance."""
         return self.ukf.P
 
-    def time_update(self, control: StepControl) -> None:
-        """Unscented prediction through :meth:`model_propagate`."""
+    def time_update(self, control: StepControl) -> np.ndarray:
+        """Unscented prediction through :meth:`model_propagate`; returns the sigma points' cross-covariance of
+        the state before and after (what filterpy's ``rts_smoother`` forms from them)."""
+        before_x = np.array(self.ukf.x)
+        before = self.ukf.points_fn.sigma_points(before_x, self.ukf.P)   # the points filterpy's predict draws
         self.ukf.Q = self.model_process_covariance(control)
         self.ukf.predict(dt=control.dt_s, control=control)
+        # filterpy replaces its propagated points by fresh ones around the prior: propagate them again here.
+        d_before = state_residual(before, before_x)
+        d_after = state_residual(self.model_propagate(before, control), self.ukf.x)
+        return (d_before * self.ukf.Wc[:, None]).T @ d_after
 
     def replace_state(self, x: np.ndarray, P: np.ndarray) -> None:
         """Take ``x``, ``P`` as the prior (and its sigma points, which the update propagates)."""
@@ -87,6 +94,6 @@ class RangePdrUkf(RangeKalmanFilter):
 
 
 def run_ukf(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise(),
-            clock: ClockModel = ClockModel(), integrity: IntegrityConfig = IntegrityConfig()) -> Track:
+            clock: ClockModel = ClockModel(), integrity: IntegrityConfig = IntegrityConfig()) -> FusedTrack:
     """Run the UKF over all epochs; initial heading and speed from the first step's PDR."""
     return run_filter(RangePdrUkf(geometry, noise, *epochs.initial_heading_speed(), clock, integrity), epochs)

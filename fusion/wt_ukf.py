@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 import pywt
 
-from dtmbnav_core.records import Track
+from dtmbnav_core.records import FusedTrack
 from fusion.driver import run_filter
 from fusion.integrity import IntegrityConfig
 from fusion.model import ClockModel, Geometry, KalmanObservation, ModelNoise
@@ -114,7 +114,7 @@ class WaveletUkf(RangePdrUkf):
 
 def run_wt_ukf(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise(), window: int = 32,
                wavelet_rows: tuple[int, ...] = (0,), clock: ClockModel = ClockModel(),
-               integrity: IntegrityConfig = IntegrityConfig()) -> Track:
+               integrity: IntegrityConfig = IntegrityConfig()) -> FusedTrack:
     """Run the WT-UKF over all epochs (``wavelet_rows``: see :class:`WaveletUkf`)."""
     return run_filter(WaveletUkf(geometry, noise, epochs, window, wavelet_rows=wavelet_rows, clock=clock,
                                  integrity=integrity), epochs)

@@ -40,7 +40,8 @@ from receiver.observables import observations_from_receiver, ranges_from_frames
 
 
 def write_fusion(h5: h5py.File, result: FusionResult) -> None:
-    """Write ``/fusion/<filter>`` for every filter, with the initial heading used."""
+    """Write ``/fusion/<filter>`` for every filter (its track and stated error), with the initial heading used,
+    and its smoothed track as ``/fusion/<filter>/smoothed`` where the result has one."""
     heading = result.heading
     for name, track in result.tracks.items():
         write_columns(h5, schema.fusion_group(name), track, {
@@ -48,6 +49,8 @@ def write_fusion(h5: h5py.File, result: FusionResult) -> None:
             "initial_heading_sigma_rad": heading.sigma_rad, "initial_heading_uncertain": heading.uncertain(),
             **dict(zip(schema.FUSION_START_ATTRS, result.start_xy_m)),
             "initial_heading_minima_rad": heading.minima_rad, "initial_heading_costs_m": heading.costs_m})
+        if name in result.smoothed:
+            write_columns(h5, schema.fusion_group(name, smoothed=True), result.smoothed[name])
 
 
 def write_geodetic(h5: h5py.File, sensors_path: str | os.PathLike, origin: GeodeticPoint,
@@ -55,13 +58,15 @@ def write_geodetic(h5: h5py.File, sensors_path: str | os.PathLike, origin: Geode
     """What a map of the results needs, for a sensors file with a geodetic origin (``docs/schema.md``).
 
     Copies the sensors file's ``/gnss`` (its fixes, and the origin as its attributes), adds
-    ``lat_deg`` and ``lon_deg`` to every ``/fusion/<filter>`` (up 0 m: at the origin's height), and
+    ``lat_deg`` and ``lon_deg`` to every ``/fusion/<filter>`` and its smoothed track (up 0 m: at the origin's
+    height), and
     records ``towers`` (east, north and height above the receiver's antenna, m) with their latitude
     and longitude on ``/fusion``.
     """
     write_columns(h5, schema.GNSS, read_columns(sensors_path, schema.GNSS), read_attrs(sensors_path, schema.GNSS))
     fusion = h5[schema.FUSION]
-    for group in fusion.values():
+    groups = [g for filtered in fusion.values() for g in (filtered, filtered.get(schema.SMOOTHED)) if g is not None]
+    for group in groups:
         lat, lon = to_geodetic(group["x_m"][()], group["y_m"][()], 0.0, origin)
         for name, values in zip(schema.FUSION_GEODETIC_COLUMNS, (lat, lon)):
             group.create_dataset(name, data=values)
@@ -113,8 +118,10 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
     observed = observations_from_receiver(
         frames, read_receiver_paths(receiver_path), rx_attrs, geometry.n_towers, alignment.offset_s,
         None if transmit_delays is None else transmit_delays.delays_s, geometry.start_ranges_m())
+    # A results file is a recording's: it always holds the smoothed tracks beside the filtered ones.
     result = fuse(pdr.steps, observed.ranges, start_xy_m, tower_xy_m, filters, tower_height_m=height_m,
-                  other_towers=other_towers, paths=observed.paths, transmit_delays=transmit_delays, config=config)
+                  other_towers=other_towers, paths=observed.paths, transmit_delays=transmit_delays,
+                  config=dataclasses.replace(config, smooth=True))
     with atomic_h5(out_path) as h5:
         write_columns(h5, schema.RECEIVER_FRAMES, frames, rx_attrs)
         write_pdr(h5, pdr, walk.pdr_config)

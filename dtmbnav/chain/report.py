@@ -7,6 +7,12 @@ paper's figures (``docs/method.md`` §6) next to ours. Where the results' ENU
 frame has a geodetic origin (stored by ``fuse`` from a sensors file of
 ``dtmbnav sensors``, or given as ``report --origin``), the tracks, the GNSS
 fixes and the towers also go onto WGS84 as map files (:mod:`dtmbnav.field.maps`).
+
+Each filter's smoothed track (``/fusion/<filter>/smoothed``) is shown beside
+its filtered one as ``<filter> smoothed``. A track that states its error has
+its 95 % ellipse drawn along it every :data:`ELLIPSE_EVERY_S` seconds, its
+truth coverage and NEES in the table (:func:`fusion.metrics.stated_error_stats`),
+and a 95 % radius per point on the map files.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (backend chosen first: reports run headless)
 import numpy as np  # noqa: E402
+from matplotlib.patches import Ellipse  # noqa: E402
 
 from dtmbnav.chain.inputs import read_receiver_frames  # noqa: E402
 from dtmbnav.chain.paper import paper_figures  # noqa: E402
@@ -30,6 +37,7 @@ from dtmbnav.field.maps import (  # noqa: E402
     KIND_FILTER,
     KIND_FIX,
     KIND_PDR,
+    KIND_SMOOTHED,
     KIND_TOWER,
     KIND_TRUTH,
     MapPoint,
@@ -38,8 +46,8 @@ from dtmbnav.field.maps import (  # noqa: E402
 )
 from dtmbnav_core import schema  # noqa: E402
 from dtmbnav_core.geodetic import GeodeticPoint, read_origin, to_geodetic  # noqa: E402
-from dtmbnav_core.h5io import atomic_folder, open_h5, read_attrs, read_columns  # noqa: E402
-from dtmbnav_core.records import PdrSteps, Track  # noqa: E402
+from dtmbnav_core.h5io import atomic_folder, open_h5, read_attrs, read_columns, read_fused_track  # noqa: E402
+from dtmbnav_core.records import ELLIPSE_95_CHI2, FusedTrack, PdrSteps, Track  # noqa: E402
 from dtmbnav_core.sensors import read_tower, read_walk_truth  # noqa: E402
 from fusion.metrics import (  # noqa: E402
     PDR_AT_FIX,
@@ -50,7 +58,13 @@ from fusion.metrics import (  # noqa: E402
     pdr_baselines,
     place_pdr,
     position_errors_m,
+    stated_error_stats,
 )
+
+#: What a smoothed track's name adds to its filter's in the report (``pf smoothed``).
+SMOOTHED_SUFFIX = " smoothed"
+#: Seconds between the 95 % ellipses drawn along a track that states its error.
+ELLIPSE_EVERY_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -63,23 +77,27 @@ class SummaryRow:
     max_m: float
     reduction_95: float | None
     paper: tuple[float, float, float] | None
+    in_ellipse_95: float | None = None
+    mean_nees: float | None = None
 
 
-def _track(columns: dict[str, np.ndarray]) -> Track:
-    return Track(**{k: columns[k] for k in schema.TRACK_COLUMNS})
-
-
-def load_results(results_path: str | os.PathLike) -> tuple[dict[str, Track], PdrSteps, float, tuple[float, float]]:
-    """Fused tracks by filter, the PDR steps, the initial heading and the start P0 used.
+def load_results(results_path: str | os.PathLike) -> tuple[dict[str, FusedTrack], PdrSteps, float,
+                                                           tuple[float, float]]:
+    """Fused tracks by filter (and ``<filter> smoothed`` where the file has it), the PDR steps, the initial
+    heading and the start P0 used.
 
     A file written before the start was recorded gives the first filter's first
-    position for it (a filter that moved during the first standstill moves it too).
+    position for it (a filter that moved during the first standstill moves it too);
+    one written before the tracks stated their error gives them NaN covariance.
     """
     with h5py.File(results_path, "r") as f:
         if schema.FUSION not in f:
             raise ValueError(f"{results_path}: no /{schema.FUSION} group (run 'dtmbnav fuse' or 'dtmbnav run' first)")
         names = list(f[schema.FUSION])
-    tracks = {name: _track(read_columns(results_path, schema.fusion_group(name))) for name in names}
+        groups = {name: schema.fusion_group(name) for name in names}
+        groups.update({name + SMOOTHED_SUFFIX: schema.fusion_group(name, smoothed=True) for name in names
+                       if schema.SMOOTHED in f[schema.fusion_group(name)]})
+        tracks = {name: read_fused_track(f, group) for name, group in groups.items()}
     pdr_cols = read_columns(results_path, schema.PDR)
     pdr = PdrSteps(**{k: pdr_cols[k] for k in (*schema.TRACK_COLUMNS, "step_length_m")})
     attrs = read_attrs(results_path, schema.fusion_group(names[0]))
@@ -92,22 +110,28 @@ def load_results(results_path: str | os.PathLike) -> tuple[dict[str, Track], Pdr
 def summary_rows(truth: Track, estimates: dict[str, Track], scenario_name: str) -> list[SummaryRow]:
     """68/95/max of every estimate against the truth, with the 95 % reduction vs the ``pdr`` row."""
     stats = {name: error_stats(position_errors_m(track, truth)) for name, track in estimates.items()}
+    stated = {name: stated_error_stats(track, truth) for name, track in estimates.items() if stated_error(track)}
     pdr95 = stats[PDR_BASELINE].p95_m if PDR_BASELINE in stats else None
     figures = paper_figures(scenario_name)
     paper = {PDR_BASELINE: figures.pdr, "pf": figures.pf} if figures else {}
     return [SummaryRow(name, s.p68_m, s.p95_m, s.max_m,
-                       None if name == PDR_BASELINE or pdr95 is None else 1.0 - s.p95_m / pdr95, paper.get(name))
+                       None if name == PDR_BASELINE or pdr95 is None else 1.0 - s.p95_m / pdr95, paper.get(name),
+                       stated[name].in_ellipse_95 if name in stated else None,
+                       stated[name].mean_nees if name in stated else None)
             for name, s in stats.items()]
 
 
 def format_rows(rows: list[SummaryRow]) -> str:
     """The summary as a Markdown table."""
-    lines = ["| estimate | 68 % (m) | 95 % (m) | max (m) | 95 % reduction vs PDR | paper 68/95/max |",
-             "|---|---|---|---|---|---|"]
+    lines = ["| estimate | 68 % (m) | 95 % (m) | max (m) | 95 % reduction vs PDR | in 95 % ellipse | NEES | "
+             "paper 68/95/max |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         red = "" if r.reduction_95 is None else f"{100 * r.reduction_95:.0f} %"
+        inside = "" if r.in_ellipse_95 is None else f"{100 * r.in_ellipse_95:.0f} %"
+        nees = "" if r.mean_nees is None else f"{r.mean_nees:.2f}"
         paper = "" if r.paper is None else "/".join(f"{v:.2f}" for v in r.paper)
-        lines.append(f"| {r.estimate} | {r.p68_m:.2f} | {r.p95_m:.2f} | {r.max_m:.2f} | {red} | {paper} |")
+        lines.append(f"| {r.estimate} | {r.p68_m:.2f} | {r.p95_m:.2f} | {r.max_m:.2f} | {red} | {inside} | {nees} | "
+                     f"{paper} |")
     return "\n".join(lines)
 
 
@@ -116,12 +140,44 @@ def _scenario_name(truth_path: str | os.PathLike) -> str:
     return tomllib.loads(text).get("name", "") if text else ""
 
 
+def stated_error(track: Track) -> bool:
+    """Whether ``track`` is a fused track that states its error (not the PDR, not an old file's)."""
+    return isinstance(track, FusedTrack) and track.has_stated_error()
+
+
+def ellipse_rows(t_s: np.ndarray, every_s: float = ELLIPSE_EVERY_S) -> np.ndarray:
+    """Rows of a track, the first and then the first at or after each further ``every_s`` seconds."""
+    marks = np.arange(t_s[0], t_s[-1] + 1e-9, every_s)
+    return np.unique(np.searchsorted(t_s, marks))
+
+
+def ellipse_axes(covariance_m2: np.ndarray) -> tuple[float, float, float]:
+    """Full width and height (m) of a 2-D covariance's 95 % ellipse (:data:`ELLIPSE_95_CHI2`), and the angle of
+    its width from east, counter-clockwise, deg (matplotlib's ``Ellipse``)."""
+    values, vectors = np.linalg.eigh(covariance_m2)
+    width, height = 2.0 * np.sqrt(ELLIPSE_95_CHI2 * np.maximum(values[::-1], 0.0))
+    major = vectors[:, 1]
+    return float(width), float(height), float(np.degrees(np.arctan2(major[1], major[0])))
+
+
+def draw_ellipses(ax, track: FusedTrack, colour: str) -> None:
+    """The track's stated 95 % ellipse every :data:`ELLIPSE_EVERY_S` seconds."""
+    covariances = track.position_covariance_m2()
+    for i in ellipse_rows(track.t_s):
+        width, height, angle = ellipse_axes(covariances[i])
+        ax.add_patch(Ellipse((track.x_m[i], track.y_m[i]), width, height, angle=angle, fill=False, lw=0.6,
+                             color=colour, alpha=0.6))
+
+
 def plot_trajectories(path: Path, truth: Track | None, estimates: dict[str, Track], tower_xy: tuple[float, float] | None):
     fig, ax = plt.subplots(figsize=(7, 7))
     if truth is not None:
         ax.plot(truth.x_m, truth.y_m, "k-", lw=2.5, label="truth")
     for name, track in estimates.items():
-        ax.plot(track.x_m, track.y_m, "--" if name == PDR_BASELINE else "-", lw=1.2, label=name)
+        style = "--" if name == PDR_BASELINE else ":" if name.endswith(SMOOTHED_SUFFIX) else "-"
+        (line,) = ax.plot(track.x_m, track.y_m, style, lw=1.2, label=name)
+        if stated_error(track):
+            draw_ellipses(ax, track, line.get_color())
     if tower_xy is not None:
         span = max(np.ptp(truth.x_m), np.ptp(truth.y_m)) if truth is not None else 50.0
         bearing = np.arctan2(tower_xy[0] - truth.x_m[0], tower_xy[1] - truth.y_m[0]) if truth is not None else 0.0
@@ -279,15 +335,21 @@ def map_fixes(results_path: str | os.PathLike, truth_path: str | os.PathLike | N
 
 
 def map_tracks(estimates: dict[str, Track], truth: Track | None, origin: GeodeticPoint) -> list[MapTrack]:
-    """The truth (when given), ``pdr@fix`` and every filter's track on WGS84, at up 0 m.
+    """The truth (when given), ``pdr@fix`` and every filter's track (and smoothed track) on WGS84, at up 0 m,
+    each filter's with its 95 % radius per point where it states its error
+    (:meth:`~dtmbnav_core.records.FusedTrack.accuracy_radius_m`).
 
     The ``pdr`` baseline is left out: it is placed with the truth's start and heading, which a
     user in the field does not have.
     """
+    def kind(name: str) -> str:
+        return KIND_PDR if name == PDR_AT_FIX else KIND_SMOOTHED if name.endswith(SMOOTHED_SUFFIX) else KIND_FILTER
+
     named = ([("truth", KIND_TRUTH, truth)] if truth is not None else []) + [
-        (name, KIND_PDR if name == PDR_AT_FIX else KIND_FILTER, track) for name, track in estimates.items()
-        if name != PDR_BASELINE]
-    return [MapTrack(name, kind, *to_geodetic(track.x_m, track.y_m, 0.0, origin)) for name, kind, track in named]
+        (name, kind(name), track) for name, track in estimates.items() if name != PDR_BASELINE]
+    return [MapTrack(name, kind, *to_geodetic(track.x_m, track.y_m, 0.0, origin),
+                     accuracy_m=track.accuracy_radius_m() if stated_error(track) else None)
+            for name, kind, track in named]
 
 
 def write_report(results_path: str | os.PathLike, out_dir: str | os.PathLike,

@@ -4,14 +4,19 @@ Tracks and points come in on WGS84 (latitude and longitude, deg; :func:`dtmbnav_
 puts the ENU frame there), each with a name and a kind, and go out as:
 
 - ``tracks.geojson``: a FeatureCollection, one LineString per track and one Point per point, with the
-  properties ``name`` and ``kind`` (RFC 7946 order: longitude, latitude);
+  properties ``name`` and ``kind`` (RFC 7946 order: longitude, latitude); a track that states its error
+  also has ``accuracy_m``, one value per coordinate of its line (null where none is stated);
 - ``tracks.gpx``: GPX 1.1, one ``<trk>`` per track (``<name>``, ``<type>`` = kind) and one ``<wpt>``
-  per point;
+  per point; a point of a track that states its error has ``<extensions><dtmbnav:accuracy_m>``;
 - ``map.html``: a folium (Leaflet) map, every track a PolyLine in its own layer, the GNSS fixes as
   circle markers and the towers as markers, with a layer control. The page loads its map tiles when
   opened; writing it needs no network.
 
 Points that are not finite (a filter that diverged) are left out of every file.
+
+A point's accuracy is the radius of the circle that bounds the 95 % ellipse of the error the filter states,
+m (:meth:`dtmbnav_core.records.FusedTrack.accuracy_radius_m`): the ellipse's semi-major axis, so the
+circle holds at least 95 % of a Gaussian error of that covariance.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import itertools
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from xml.etree import ElementTree
 
 import folium
 import geojson
@@ -30,10 +36,13 @@ import numpy as np
 GEOJSON_PRECISION = 9
 #: Kinds of tracks and points (the ``kind`` property, the GPX ``<type>``).
 KIND_FILTER = "filter"
+KIND_SMOOTHED = "smoothed"
 KIND_PDR = "pdr"
 KIND_TRUTH = "truth"
 KIND_FIX = "gnss_fix"
 KIND_TOWER = "tower"
+#: XML namespace of the GPX extension element ``accuracy_m`` (the 95 % radius of a track point, m).
+GPX_NAMESPACE = "urn:dtmbnav:gpx:1"
 #: File names of the map files in a report folder.
 GEOJSON_NAME = "tracks.geojson"
 GPX_NAME = "tracks.gpx"
@@ -52,21 +61,35 @@ class MapTrack:
     name : str
         What the map calls it (a filter's name, ``pdr@fix``, ``truth``).
     kind : str
-        :data:`KIND_FILTER`, :data:`KIND_PDR` or :data:`KIND_TRUTH`.
+        :data:`KIND_FILTER`, :data:`KIND_SMOOTHED` (a filter's smoothed track), :data:`KIND_PDR` or
+        :data:`KIND_TRUTH`.
     lat_deg, lon_deg : ndarray
         Latitude and longitude of each point, deg.
+    accuracy_m : ndarray or None
+        Each point's accuracy (module docstring), m; NaN where not stated; None: a track that states none.
     """
 
     name: str
     kind: str
     lat_deg: np.ndarray
     lon_deg: np.ndarray
+    accuracy_m: np.ndarray | None = None
+
+    def _finite_rows(self) -> np.ndarray:
+        lat, lon = np.asarray(self.lat_deg, dtype=np.float64), np.asarray(self.lon_deg, dtype=np.float64)
+        return np.isfinite(lat) & np.isfinite(lon)
 
     def finite(self) -> tuple[np.ndarray, np.ndarray]:
         """Latitude and longitude of the finite points, deg."""
-        lat, lon = np.asarray(self.lat_deg, dtype=np.float64), np.asarray(self.lon_deg, dtype=np.float64)
-        ok = np.isfinite(lat) & np.isfinite(lon)
-        return lat[ok], lon[ok]
+        ok = self._finite_rows()
+        return np.asarray(self.lat_deg, dtype=np.float64)[ok], np.asarray(self.lon_deg, dtype=np.float64)[ok]
+
+    def finite_accuracy(self) -> list[float | None] | None:
+        """The accuracy of the finite points, m (None where not stated); None for a track that states none."""
+        if self.accuracy_m is None:
+            return None
+        accuracy = np.asarray(self.accuracy_m, dtype=np.float64)[self._finite_rows()]
+        return [float(a) if np.isfinite(a) else None for a in accuracy]
 
 
 @dataclass(frozen=True)
@@ -108,7 +131,11 @@ def tracks_to_geojson(tracks: list[MapTrack], points: list[MapPoint]) -> geojson
             continue
         geometry = (geojson.LineString(coords, precision=GEOJSON_PRECISION) if len(coords) >= 2
                     else geojson.Point(coords[0], precision=GEOJSON_PRECISION))
-        features.append(geojson.Feature(geometry=geometry, properties={"name": track.name, "kind": track.kind}))
+        properties = {"name": track.name, "kind": track.kind}
+        accuracy = track.finite_accuracy()
+        if accuracy is not None:
+            properties["accuracy_m"] = [None if a is None else round(a, 3) for a in accuracy]
+        features.append(geojson.Feature(geometry=geometry, properties=properties))
     for point in points:
         if point.is_finite():
             geometry = geojson.Point((float(point.lon_deg), float(point.lat_deg)), precision=GEOJSON_PRECISION)
@@ -120,9 +147,15 @@ def tracks_to_gpx(tracks: list[MapTrack], points: list[MapPoint]) -> gpxpy.gpx.G
     """GPX 1.1: one track (one segment) per track, named, its kind as ``<type>``; one waypoint per point."""
     gpx = gpxpy.gpx.GPX()
     gpx.creator = "dtmbnav"
+    gpx.nsmap["dtmbnav"] = GPX_NAMESPACE
     for track in tracks:
         lat, lon = track.finite()
         segment = gpxpy.gpx.GPXTrackSegment([gpxpy.gpx.GPXTrackPoint(float(y), float(x)) for y, x in zip(lat, lon)])
+        for point, accuracy in zip(segment.points, track.finite_accuracy() or ()):
+            if accuracy is not None:
+                element = ElementTree.Element(f"{{{GPX_NAMESPACE}}}accuracy_m")
+                element.text = f"{accuracy:.3f}"
+                point.extensions.append(element)
         trk = gpxpy.gpx.GPXTrack(name=track.name)
         trk.type = track.kind
         trk.segments.append(segment)
