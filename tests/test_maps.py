@@ -240,4 +240,5 @@ def test_fuse_without_an_origin_writes_the_old_layout(tiny_results):
         assert all(key.startswith("time_offset_") for key in attrs)
         assert attrs["time_offset_source"] == "simulation record" and attrs["time_offset_sigma_s"] == 0.0
         for name in f[schema.FUSION]:
-            assert set(f[schema.fusion_group(name)]) == set(schema.TRACK_COLUMNS)
+            assert set(f[schema.fusion_group(name)]) == {*schema.TRACK_COLUMNS, *schema.FUSION_COVARIANCE_COLUMNS,
+                                                         schema.SMOOTHED}
