@@ -6,8 +6,12 @@ with them (``dtmbnav towers calibrate``; :func:`fusion.transmit_delays.survey_co
 Here the survey walk of a Monte Carlo walk is the same network
 (:attr:`sim.scenario.Scenario.network_seed`: the same true offsets) and the
 same layout, walked again on another seed (:func:`survey_scenario`): its own
-walker noise, receiver clock, code errors and GNSS fix errors. Its fixes state
-their accuracy as a phone's do (:func:`sim.gnss.fix_sigma_m`).
+walker noise, receiver clock, code errors and GNSS fix errors. The surveyor
+stands :data:`SURVEY_STILL_S` at the start before walking the route, as a
+survey should (``docs/cli.md``, "Surveying a network"): the fixes' errors are
+correlated over tens of seconds, so minutes of them are what lowers the
+survey's sigma. Its fixes state their accuracy as a phone's do
+(:func:`sim.gnss.fix_sigma_m`).
 """
 
 from __future__ import annotations
@@ -25,6 +29,9 @@ from sim.walk import simulate_walk
 #: (:func:`dtmbnav.evaluation.seeds.monte_carlo_seed`, below a million for any scenario file's seed under a
 #: thousand), so a survey walk is never a walk of a table.
 SURVEY_SEED_OFFSET = 10**9
+#: How long the survey walk stands at its start before walking the route, s: five minutes under the walk's sky,
+#: about five independent fixes' worth (``dtmbnav_core.start_fix``).
+SURVEY_STILL_S = 300.0
 
 
 def scenario_towers(scenario: Scenario) -> tuple[tuple[float, float], float, tuple[tuple[float, float, float], ...]]:
@@ -37,10 +44,12 @@ def scenario_towers(scenario: Scenario) -> tuple[tuple[float, float], float, tup
 
 
 def survey_scenario(scenario: Scenario) -> Scenario:
-    """The walk that surveys ``scenario``'s network: its network (seed) and layout, on seed
-    ``seed + SURVEY_SEED_OFFSET``, told nothing of the offsets."""
+    """The walk that surveys ``scenario``'s network: its network (seed), layout and route, on seed
+    ``seed + SURVEY_SEED_OFFSET``, standing at least :data:`SURVEY_STILL_S` before it walks, told nothing of
+    the offsets."""
     return scenario.replace(seed=scenario.seed + SURVEY_SEED_OFFSET,
                             network={"seed": scenario.network_seed, "known": "unknown"},
+                            walk={"start_still_s": max(scenario.walk.start_still_s, SURVEY_STILL_S)},
                             name=f"{scenario.name} (survey)")
 
 
