@@ -20,3 +20,9 @@ DEFAULT_CFO_SEARCH_HZ = 60e3
 #: agree (:mod:`receiver.ranging`; docs/paths.md, "Which path measures f_s"; docs/decisions.md, D5).
 CLOCK_PATHS = ("first", "steadiest")
 DEFAULT_CLOCK_PATH = "steadiest"
+
+#: Whether the path tracker follows paths up to the guard interval either side of the frame timing
+#: (``receiver.paths.PathConfig.guard_span``; with a rotating header phase): the towers of a
+#: single-frequency network may arrive up to the guard interval apart, beyond the header's cyclic
+#: extension (docs/paths.md, "The guard-interval span").
+DEFAULT_GUARD_SPAN = True

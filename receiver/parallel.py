@@ -22,7 +22,9 @@ update. When the batch comes, each block whose inputs (windows, header
 phases, coarse CFO, samples) are exactly those prefetched takes the
 prefetched result, and any other is computed afresh: a block's result is a
 function of its inputs alone, so prefetching changes when the work is done,
-never what it gives.
+never what it gives. The path tracker's views are planned only once the batch
+before is done: a block prefetched without them gets their taps on the calling
+thread when the batch comes.
 """
 
 from __future__ import annotations
@@ -187,11 +189,18 @@ class FrameWorkers:
                        views_out=views_out)
         prefetched, self._prefetched = self._prefetched, {}
         hits = {}
+        # Blocks prefetched without the views (the path tracker plans them only once the batch before is
+        # done): their views' taps are taken here, on the calling thread (:meth:`_view_block`).
+        without_views: set[tuple[int, int]] = set()
         for block in blocks if prefetched else ():
-            buf_start = self._block_span(mode, windows, *block, views)[0]
-            key = self._key(mode, windows, *block, buf_start, keep_bodies, span, views, generation)
-            if key in prefetched:
-                hits[block] = prefetched.pop(key)
+            for asked in (views, ()) if views else (views,):
+                buf_start = self._block_span(mode, windows, *block, asked)[0]
+                key = self._key(mode, windows, *block, buf_start, keep_bodies, span, asked, generation)
+                if key in prefetched:
+                    hits[block] = prefetched.pop(key)
+                    if asked != views:
+                        without_views.add(block)
+                    break
         for future, _ in prefetched.values():   # prefetched for a batch that did not come
             future.cancel()
         self.prefetch_hits += len(hits)
@@ -208,9 +217,11 @@ class FrameWorkers:
                     del hits[block]
             missed = [block for block in blocks if block not in hits]
             done = dict(zip(missed, run_share(missed)))
+            for block in without_views & hits.keys():
+                self._view_block(mode, windows, *block, views, views_out)
             for (lo, hi), (future, pre_views) in hits.items():
                 done[lo, hi] = future.result()
-                if views_out is not None:
+                if views_out is not None and (lo, hi) not in without_views:
                     views_out[lo:hi] = pre_views[lo:hi]
             parts = [done[block] for block in blocks]
         else:
@@ -318,6 +329,22 @@ class FrameWorkers:
         t3 = time.perf_counter()
         bodies = ofdm.bodies[: hi - lo].copy() if keep_bodies else None
         return ch, si, bodies, span_taps, (t1 - t0, t2 - t1, t3 - t2, 0.0)
+
+    def _view_block(self, mode: PnMode, w: BatchWindows, lo: int, hi: int, views: tuple[int, ...],
+                    views_out: np.ndarray) -> None:
+        """The views' taps of frames ``lo:hi`` alone (into ``views_out[lo:hi]``), as :meth:`_block` takes them.
+
+        The frame's own window (shift 0) is read from the channel estimate's
+        correlations, so those are made again; the bodies are not.
+        """
+        est = self._estimator(mode)
+        starts = w.starts[lo:hi]
+        buf, buf_start = self._block_samples(mode, w, lo, hi, views)
+        derotate_segments(buf, buf_start, starts + est.window_offset, est.window_length, w.cfo_cycles_per_sample,
+                          w.rot, est.windows)
+        est.estimate(hi - lo, w.phases[lo:hi])
+        est.view_taps(hi - lo, buf, buf_start, starts, views, w.phases[lo:hi], w.cfo_cycles_per_sample, w.rot,
+                      views_out[lo:hi])
 
     def _compiled_block(self, mode: PnMode, w: BatchWindows, lo: int, hi: int, keep_bodies: bool,
                         span: tuple[int, int] | None, views: tuple[int, ...] = (),

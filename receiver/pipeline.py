@@ -707,8 +707,9 @@ class Receiver:
         are those the next batch will have unless the estimators or the path
         tracker end the lock first. :meth:`FrameWorkers.run` uses a prefetched
         block only when its inputs are exactly those of the batch; the views
-        of the guard-interval span are planned per batch, so those batches
-        are not prefetched.
+        of the guard-interval span are planned per batch, so the blocks are
+        prefetched without them and their views' taps are taken when the
+        batch comes.
         """
         starts = np.rint(lock.tracker.predict(self.config.batch_frames)).astype(np.int64)
         if self._frame_stops(lock, starts)[-1] > self._queue.end:
@@ -810,7 +811,7 @@ class Receiver:
         if shift:
             lock.tracker.tau -= shift
             lock.drop_pending = True
-        if self._workers.jobs > 1 and count == size and lost_at is None and not views:
+        if self._workers.jobs > 1 and count == size and lost_at is None:
             self._prefetch_next(lock, int(frame_index[-1]) + 1, work)
         t2 = time.perf_counter()
         self.stage_seconds["sync"] += t2 - t1

@@ -2,11 +2,9 @@
 
 The header correlation's views see a path where the coverage model says (all of its header chips
 in the window of the view centred on it, the share the window holds elsewhere); the kernels agree
-with their numpy twin. On the simulator's captures of a two-tower single-frequency network (the
-tiny walk's tower and one 3 dB weaker, 15, 30 or 50 us later in PN420, 60 us in PN945; a
-free-running TCXO) the second tower is tracked at its true delay, with no alias one m-sequence period
-off, and the change of the tower difference follows the truth; the header's cyclic extension alone
-loses such towers or takes them a period off. A single tower is tracked as without the option.
+with their numpy twin; a constant header phase keeps the tracker to the cyclic extension. On the
+simulator's capture of the tiny walk a single tower is tracked as without the span. Towers up to
+the guard interval apart, on the tests' own transmitter, are in ``tests/test_sfn_towers_apart.py``.
 """
 
 import numpy as np
@@ -14,12 +12,10 @@ import pytest
 from conftest import TINY_WALK
 from receiver_signals import SignalPath, frame_start_samples, make_paths_signal
 
-from dtmbnav.evaluation.accuracy import direct_range_m
 from dtmbnav_core import gb20600
-from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
-from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ, PnMode
+from dtmbnav_core.gb20600 import PnMode
 from dtmbnav_core.iqformat import decode
-from dtmbnav_core.records import FrameBatch, PathBatch, PathFlag
+from dtmbnav_core.records import FrameBatch, PathBatch
 from receiver.channel_estimate import ChannelEstimator, view_first_lag
 from receiver.derotate import derotate_segments, rotation_table
 from receiver.paths import (
@@ -32,21 +28,14 @@ from receiver.paths import (
     pulse_tables,
 )
 from receiver.pipeline import Receiver, ReceiverConfig
-from sim.channel import DIRECT
 from sim.path_truth import PathTruth, path_truth
 from sim.rf import CaptureGenerator
 from sim.scenario import load_scenario
 from sim.walk import simulate_walk
 
 START = 123_457
-#: Capture segment of the tiny walk (it stands still until 3 s, then walks 12 m): the towers' first
-#: paths have matured by CHECK_FROM_S (capture time), from which the tower difference is scored.
-SEGMENT_START_S, SEGMENT_S, CHECK_FROM_S = 1.0, 5.0, 2.5
-#: 95th percentile of the error of the tower difference's change, m. Beside the first tower's body
-#: chips (noise in the second tower's window: a frame noise of the difference of 5 mm at 30-50 us,
-#: 2 mm at 15 us, on tuning seeds) the first tower's partial m-sequence sums there leave a wander
-#: that does not average out over a batch; the tuning seeds' 95th percentiles were 4-16 mm.
-DIFFERENCE_P95_M = 0.03
+#: Capture segment of the tiny walk (it stands still until 3 s, then walks 12 m).
+SEGMENT_START_S, SEGMENT_S = 1.0, 5.0
 
 
 # ---- the views and the kernels ---------------------------------------------------------------
@@ -134,21 +123,7 @@ def test_a_constant_header_phase_keeps_the_tracker_to_the_cyclic_extension():
         assert tracker.view_lead == (420 - 82 + 1 if rotating else 0)
 
 
-# ---- two towers of a single-frequency network ------------------------------------------------
-
-def sfn_scenario(later_us: float, pn_mode: str = "PN420"):
-    """The tiny walk with a second tower 3 dB weaker whose direct path arrives ``later_us`` after the first's.
-
-    The second tower's transmit delay makes up the difference of the towers' distances from the
-    walk's start; the receiver's clock is the free-running TCXO.
-    """
-    scn = load_scenario(TINY_WALK)
-    a = {"x_m": 2000.0, "y_m": 2200.0, "height_m": 150.0, "power_db": 0.0}
-    b = {"x_m": -1560.0, "y_m": -4285.0, "height_m": 120.0, "power_db": -3.0}
-    extra_m = np.hypot(np.hypot(b["x_m"], b["y_m"]), b["height_m"]) - np.hypot(np.hypot(a["x_m"], a["y_m"]), a["height_m"])
-    b["transmit_delay_s"] = later_us * 1e-6 - extra_m / SPEED_OF_LIGHT_MPS
-    return scn.replace(towers=[a, b], tower={"pn_mode": pn_mode}, receiver={"clock": {"preset": "free-running"}})
-
+# ---- one tower on the simulator's capture ----------------------------------------------------
 
 def receive_segment(scn, guard_span: bool) -> tuple[FrameBatch, PathBatch, PathTruth]:
     """Frames, path rows and path truth of the receiver on the segment of ``scn``."""
@@ -163,54 +138,6 @@ def receive_segment(scn, guard_span: bool) -> tuple[FrameBatch, PathBatch, PathT
     frames += rx.finish()
     paths.append(rx.pop_paths())
     return FrameBatch.concatenate(frames), PathBatch.concatenate(paths), path_truth(gen)
-
-
-def tower_delay_error_chips(rows: PathBatch, truth: PathTruth, tower: int) -> np.ndarray:
-    """Tower ``tower``'s first-path delay after tower 0's, minus the truth's, per frame from CHECK_FROM_S, chips."""
-    first = rows.select(((rows.flags & PathFlag.FIRST_PATH) > 0) & (rows.t_s >= CHECK_FROM_S))
-    zero, other = first.select(first.tower_id == 0), first.select(first.tower_id == tower)
-    zero = zero.select(np.isin(zero.frame_index, other.frame_index))
-    other = other.select(np.isin(other.frame_index, zero.frame_index))
-
-    def direct(k: int) -> np.ndarray:
-        rows_k = (truth.tower_id == k) & (truth.kind == DIRECT)
-        return np.interp(other.t_s, truth.t_s[rows_k], truth.delay_s[rows_k])
-
-    return ((other.delay_s - zero.delay_s) - (direct(tower) - direct(0))) * SYMBOL_RATE_HZ
-
-
-def difference_change_error_m(frames: FrameBatch, truth: PathTruth) -> np.ndarray:
-    """Error of the change of the tower difference (tower 1 minus tower 0) since CHECK_FROM_S, m.
-
-    The reference is the mean over the first 10 ms, so one frame's noise does not offset the rest.
-    """
-    on = frames.t_s >= CHECK_FROM_S
-    true = (direct_range_m(truth, 1, frames.t_s) - direct_range_m(truth, 0, frames.t_s))[on]
-    measured = frames.range_difference_change_1_m[on]
-    ref = frames.t_s[on] < CHECK_FROM_S + 0.01
-    return (measured - np.mean(measured[ref])) - (true - np.mean(true[ref]))
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("later_us,pn_mode", [(15.0, "PN420"), (30.0, "PN420"), (50.0, "PN420"), (60.0, "PN945")])
-def test_a_second_tower_beyond_the_cyclic_extension_is_tracked_at_its_true_delay(later_us, pn_mode):
-    frames, rows, truth = receive_segment(sfn_scenario(later_us, pn_mode), guard_span=True)
-    late = frames.t_s >= CHECK_FROM_S
-    assert np.all(frames.tower_count[late] == 2)
-    # At its true delay: one m-sequence period (255 or 511 chips) off would be an alias.
-    delay_error = tower_delay_error_chips(rows, truth, 1)
-    assert len(delay_error) > 0.9 * late.sum() and np.max(np.abs(delay_error)) < 0.5
-    error = difference_change_error_m(frames, truth)
-    assert np.all(np.isfinite(error)) and np.percentile(np.abs(error), 95) < DIFFERENCE_P95_M
-
-
-@pytest.mark.slow
-def test_the_cyclic_extension_alone_takes_a_tower_30_us_later_one_period_early():
-    # What the option is for: the header's cyclic extension (-83..82) holds the tower 30 us (227 chips)
-    # later only as its alias at -28, with 110 of its 255 chips.
-    _, rows, truth = receive_segment(sfn_scenario(30.0), guard_span=False)
-    delay_error = tower_delay_error_chips(rows, truth, 1)
-    assert len(delay_error) and np.all(np.abs(delay_error + 255.0) < 0.5)
 
 
 @pytest.mark.slow

@@ -10,7 +10,7 @@ from pathlib import Path
 from dtmbnav.cli import options
 from dtmbnav.cli.exits import EXIT_NO_RESULT, EXIT_OK, UsageError
 from dtmbnav.cli.paths import IoPaths, given_paths
-from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH
+from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH, DEFAULT_GUARD_SPAN
 
 
 def add_parser(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
@@ -37,6 +37,12 @@ def add_parser(subparsers: argparse._SubParsersAction, common: argparse.Argument
     p.add_argument("--clock-path", choices=CLOCK_PATHS, default=DEFAULT_CLOCK_PATH,
                    help="measure the path ranges' f_s at the standstill on the first path or on the path whose "
                         f"phase is steadiest there (default {DEFAULT_CLOCK_PATH}; docs/paths.md)")
+    p.add_argument("--guard-span", action=argparse.BooleanOptionalAction, default=DEFAULT_GUARD_SPAN,
+                   help="track paths up to the guard interval either side of the frame timing (55.6 us in PN420, "
+                        "125 us in PN945: the towers of a single-frequency network that far apart), the m-sequence "
+                        "alias resolved, where the header phase rotates; --no-guard-span: the header's cyclic "
+                        "extension only (-11..11 us in PN420, -29..29 us in PN945), faster (default: "
+                        f"{'on' if DEFAULT_GUARD_SPAN else 'off'}; docs/paths.md)")
     p.add_argument("--dump", metavar="FILE", type=Path,
                    help="also write the stages' intermediate outputs, one row per frame, to an HDF5 file")
     p.add_argument("--dump-stages", metavar="LIST",
@@ -106,7 +112,8 @@ def _receiver_config(args: argparse.Namespace):
     return ReceiverConfig(pn_mode=args.pn_mode, static_window_s=args.static_window,
                           clock_offset_hz=args.clock_offset,
                           iq_orientation="conjugate" if args.conjugate else "auto", jobs=args.jobs,
-                          track_paths=not args.no_paths, paths=PathConfig(doppler=doppler, clock_path=args.clock_path),
+                          track_paths=not args.no_paths, paths=PathConfig(doppler=doppler, clock_path=args.clock_path,
+                                                                       guard_span=args.guard_span),
                           remove_dc=not args.keep_dc, correct_iq=args.correct_iq)
 
 

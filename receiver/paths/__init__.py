@@ -5,8 +5,9 @@ the strongest reflection. The PN header gives, every frame, the channel
 impulse response (CIR) over the header's cyclic extension
 (:meth:`receiver.channel_estimate.ChannelEstimator.span_taps`: inside it no
 previous body and no header tail reach the correlation window, so nothing
-needs removing), or with ``PathConfig.guard_span`` over shifted windows up to
-the guard interval (:mod:`receiver.paths.tracking`, step 5); this package
+needs removing), and, where the header phase rotates, over shifted windows up
+to the guard interval (``PathConfig.guard_span``, :mod:`receiver.paths.tracking`,
+step 5); this package
 separates the paths in it and tracks each one:
 
 1. **Fit** (:mod:`receiver.paths.fit`). The CIR is a sum of known pulses (the

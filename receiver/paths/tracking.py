@@ -30,7 +30,7 @@ and keeps each path's state between batches:
    :class:`receiver.delay_doppler.FirstPathDoppler` maps the CIR around tower
    0's first path in delay and Doppler and moves the first-path frequency to
    the Doppler line whose super-resolved earliest path comes first.
-5. **Guard-interval span** (``guard_span``, an option). The CIR of the
+5. **Guard-interval span** (``guard_span``, on by default). The CIR of the
    header's cyclic extension sees paths within -postamble..preamble of the
    window start; an SFN's towers may arrive up to the guard interval (the
    header's length) apart. With ``guard_span`` the tracker reads the header
@@ -61,7 +61,7 @@ from numba import njit
 from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
 from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ, PnMode
 from dtmbnav_core.records import PathBatch, PathFlag
-from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH
+from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH, DEFAULT_GUARD_SPAN
 from receiver.cfo import cfo_from_theta
 from receiver.channel_estimate import view_first_lag
 from receiver.delay_doppler import DopplerConfig, FirstPathDoppler
@@ -163,8 +163,10 @@ class PathConfig:
         Track paths up to the guard interval (the header's length) before
         and after the window start, on views of the header correlation, with
         the m-sequence period's ambiguity resolved (module docstring, step 5),
-        where the header phase rotates; off, or with a constant header phase:
-        the header's cyclic extension (``taps_before``, ``taps_after``).
+        where the header phase rotates (on by default: the towers of a
+        single-frequency network may arrive that far apart); off, or with a
+        constant header phase: the header's cyclic extension (``taps_before``,
+        ``taps_after``).
     """
 
     taps_before: int | None = None
@@ -193,7 +195,7 @@ class PathConfig:
     frequency_time_s: float = 0.1
     doppler: DopplerConfig = field(default_factory=DopplerConfig)
     clock_path: str = DEFAULT_CLOCK_PATH
-    guard_span: bool = False
+    guard_span: bool = DEFAULT_GUARD_SPAN
 
     def __post_init__(self) -> None:
         if self.clock_path not in CLOCK_PATHS:
@@ -447,6 +449,8 @@ class PathTracker:
                  resample: tuple[int, int] = (1, 1), rotating: bool = True) -> None:
         self.config = config or PathConfig()
         self.wavelength_m = SPEED_OF_LIGHT_MPS / carrier_hz
+        #: The views the last plan_views gave (a new lock between the plan and its batch keeps them).
+        self._planned: tuple[int, ...] = ()
         self._resample = resample
         self._next_id = 0
         self._range_difference = np.zeros(RANGE_DIFFERENCE_TOWERS)
@@ -553,7 +557,7 @@ class PathTracker:
                 self._checks[len(views)] = i
                 views.append(round(lag + k * self.mode.value.period))
         self._groups = groups
-        self._views = tuple(views)
+        self._views = self._planned = tuple(views)
         return self._views
 
     def break_phase(self) -> None:
@@ -625,6 +629,10 @@ class PathTracker:
         if self.guard:
             if views is None:
                 raise ValueError("PathTracker.update: guard_span needs the views of plan_views")
+            if views.shape[1] == len(self._planned) != len(self._views):
+                # A new lock came between the plan and its batch (the lock's first batch after a loss): the
+                # batch is fitted on the views the new lock plans, which every plan holds (the frame's own).
+                views = views[:, [self._planned.index(shift) for shift in self._views]]
             amplitudes, lags, amp_variance, tap_noise, path_noise, found_in = self._fit_views(
                 views, offsets, delay, rate, max_step)
         else:
@@ -877,11 +885,23 @@ class PathTracker:
         first = view_first_lag(self.mode)
         offset = float(np.mean(offsets))
         strongest = max((p.power for p in self.paths), default=0.0)
+        grid = np.arange(len(self.table) - 1) / PULSE_OVERSAMPLING
 
         def around(view: int, lag: float) -> float:
-            """Tap power of the residual at the column nearest ``lag`` or a neighbour, in view ``view``."""
+            """Peak tap power of a pulse at ``lag`` in view ``view``'s residual, its noise included.
+
+            The residual's power on the three columns nearest ``lag``, less
+            their noise, over the pulse's energy there: a column's own power
+            would miss up to 0.6 of the peak of a pulse half a chip off it,
+            and a path is compared with its fitted power.
+            """
             column = round(lag) - self._views[view] - first
-            return float(np.max(self._view_power[view, max(column - 1, 0): column + 2])) * self._view_noise[view]
+            columns = np.arange(max(column - 1, 0), min(column + 2, period))
+            pulse = np.interp(np.mod(columns + self._views[view] + first - lag, period), grid, self.table[:-1],
+                              period=period) ** 2
+            noise = self._view_noise[view]
+            excess = float(np.sum(self._view_power[view, columns]) - len(columns)) * noise
+            return max(excess, 0.0) / max(float(np.sum(pulse)), 1e-12) + noise
 
         for p in self.paths:
             if not p.pending:
@@ -910,13 +930,27 @@ class PathTracker:
 
         A fading path does not become a first path; the first path stays one
         while it lives (a short fade does not hand its range to a reflection).
+        A tower without a first path waits while an earlier confirmed path of
+        it is still maturing or fades (it matures within
+        ``first_path_batches``, recovers or is dropped within
+        ``lost_batches``): a later path born before it, a reflection or a
+        fitting artefact beside the direct path, would otherwise give the
+        tower's range difference its own frequency until the earlier path
+        takes over.
         """
         first: dict[int, int] = {}
+        waiting: dict[int, float] = {}     # each tower's earliest confirmed path that is not yet eligible
+        has_first = {p.tower_id for p in paths if p.first}
         mean_lag = lags.mean(axis=0) if len(lags) else np.zeros(len(paths))
         for i, p in enumerate(paths):
-            eligible = p.confirmed and p.age >= self.config.first_path_batches and (p.first or not p.fading)
-            if eligible and (p.tower_id not in first or mean_lag[i] < mean_lag[first[p.tower_id]]):
+            if not p.confirmed:
+                continue
+            if p.age < self.config.first_path_batches or (p.fading and not p.first):
+                waiting[p.tower_id] = min(waiting.get(p.tower_id, np.inf), float(mean_lag[i]))
+            elif p.tower_id not in first or mean_lag[i] < mean_lag[first[p.tower_id]]:
                 first[p.tower_id] = i
+        for tower in [t for t, i in first.items() if t not in has_first and waiting.get(t, np.inf) < mean_lag[i]]:
+            del first[tower]
         for i, p in enumerate(paths):
             p.first = first.get(p.tower_id) == i
         return first
