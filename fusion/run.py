@@ -240,7 +240,8 @@ class FusionResult:
 def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], tower_xy_m: tuple[float, float],
          filters: tuple[str, ...] = tuple(FILTERS), *, tower_height_m: float = 0.0,
          other_towers: tuple[tuple[float, float, float], ...] = (), paths: PathRanges | None = None,
-         transmit_delays: TransmitDelays | None = None, config: FusionConfig = FusionConfig()) -> FusionResult:
+         transmit_delays: TransmitDelays | None = None, start_sigma_m: float | None = None,
+         config: FusionConfig = FusionConfig()) -> FusionResult:
     """Run the requested filters on one recording's PDR and receiver output.
 
     Parameters
@@ -265,6 +266,11 @@ def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], to
         The towers' transmit delay offsets (a network plan's, with their
         sigmas); None: unknown, estimated at the start fix
         (:mod:`fusion.transmit_delays`).
+    start_sigma_m : float, optional
+        The start fix's stated standard deviation per axis, m: the filters'
+        initial position spread, eq. 15's sigma and the code offsets' tie to
+        the fix take it in place of ``config.noise.initial_position_m`` (a
+        fix under a blocked sky states a wider one). None: that default.
     config : FusionConfig
 
     Returns
@@ -279,6 +285,10 @@ def fuse(pdr: PdrSteps, ranges: RangeSeries, start_xy_m: tuple[float, float], to
     unknown = [f for f in filters if f not in FILTERS]
     if unknown:
         raise ValueError(f"fuse: unknown filter(s) {unknown}; known: {', '.join(FILTERS)}")
+    if start_sigma_m is not None:
+        if not (np.isfinite(start_sigma_m) and start_sigma_m > 0):
+            raise ValueError(f"fuse: the start fix's sigma must be positive and finite, got {start_sigma_m}")
+        config = replace(config, noise=replace(config.noise, initial_position_m=float(start_sigma_m)))
     geometry = Geometry(start_xy_m[0], start_xy_m[1], tower_xy_m[0], tower_xy_m[1], tower_height_m, other_towers)
     standstills = config.standstills if config.clock().free_running else None
     t_s = epoch_times(pdr.t_s, float(ranges.t_s[0]), standstills)

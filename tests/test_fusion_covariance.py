@@ -13,7 +13,7 @@ from dtmbnav_core.records import ELLIPSE_95_CHI2, FusedTrack, Track
 from fusion.driver import drive_filter
 from fusion.metrics import position_nees, stated_error_stats
 from fusion.observations import aggregate_ranges, build_epochs
-from fusion.run import FILTER_BUILDERS, FusionConfig
+from fusion.run import FILTER_BUILDERS, FusionConfig, fuse
 
 
 def constant_velocity_runs(runs: int = 20, steps: int = 100, seed: int = 1) -> tuple[list[FusedTrack], list[Track]]:
@@ -178,3 +178,20 @@ def test_report_ellipse_axes_and_table_columns():
     table = format_rows([SummaryRow("ukf", 1.0, 2.0, 3.0, 0.5, None, 0.93, 2.1),
                          SummaryRow("pdr", 1.0, 2.0, 3.0, None, None)])
     assert "in 95 % ellipse | NEES" in table and "| 93 % | 2.10 |" in table
+
+
+def test_the_start_fixs_sigma_is_the_filters_first_stated_error(synthetic_run):
+    """A start fix stating 6 m (a blocked sky) starts every filter four times wider than one stating 1.5 m:
+    the first epoch's stated variance across the range follows the fix's, where the range says nothing."""
+    walk, _ = synthetic_run
+    g = walk.geometry
+    start, tower = (g.start_x_m, g.start_y_m), (g.tower_x_m, g.tower_y_m)
+    first_var = {}
+    for sigma in (1.5, 6.0):
+        track = fuse(walk.pdr, exact_ranges(walk), start, tower, ("ukf",), tower_height_m=g.tower_height_m,
+                     start_sigma_m=sigma).tracks["ukf"]
+        first_var[sigma] = np.linalg.eigvalsh(np.array([[track.var_x_m2[0], track.cov_xy_m2[0]],
+                                                        [track.cov_xy_m2[0], track.var_y_m2[0]]])).max()
+    assert first_var[6.0] / first_var[1.5] == pytest.approx(16.0, rel=0.25)
+    with pytest.raises(ValueError, match="sigma"):
+        fuse(walk.pdr, exact_ranges(walk), start, tower, ("ukf",), start_sigma_m=0.0)

@@ -101,9 +101,10 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
     walk = read_aligned_walk(receiver_path, sensors_path, pdr_config, time_offset_s, alignment_config)
     frames, rx_attrs, pdr, alignment = walk.frames, walk.rx_attrs, walk.pdr, walk.alignment
     origin = read_origin(sensors_path)
+    start_sigma_m = None   # a start given by hand states no sigma: the filters' default spread
     if start_xy_m is None:
         fix = read_gnss(sensors_path)[1]
-        start_xy_m = (fix.x_m, fix.y_m)
+        start_xy_m, start_sigma_m = (fix.x_m, fix.y_m), fix.sigma_m
     height_m = tower_height_m
     if tower_xy_m is None:
         with open_h5(sensors_path) as f:
@@ -121,7 +122,7 @@ def fuse_files(receiver_path: str | os.PathLike, sensors_path: str | os.PathLike
     # A results file is a recording's: it always holds the smoothed tracks beside the filtered ones.
     result = fuse(pdr.steps, observed.ranges, start_xy_m, tower_xy_m, filters, tower_height_m=height_m,
                   other_towers=other_towers, paths=observed.paths, transmit_delays=transmit_delays,
-                  config=dataclasses.replace(config, smooth=True))
+                  start_sigma_m=start_sigma_m, config=dataclasses.replace(config, smooth=True))
     with atomic_h5(out_path) as h5:
         write_columns(h5, schema.RECEIVER_FRAMES, frames, rx_attrs)
         write_pdr(h5, pdr, walk.pdr_config)

@@ -101,6 +101,8 @@ class ChainOutput:
         A foot-mounted IMU on the same walk, when asked for (the ZUPT INS).
     paths : PathRanges or None
         The path tracker's first-path ranges and tower differences (IQ level), when the range source has them.
+    start_fix_sigma_m : float or None
+        The start fix's stated sigma per axis, m (None: the filters' default spread).
     """
 
     truth: Track
@@ -110,6 +112,7 @@ class ChainOutput:
     ranges: RangeSeries
     foot_imu: ImuLog | None = None
     paths: PathRanges | None = None
+    start_fix_sigma_m: float | None = None
 
 
 RangeSource = Callable[[Scenario, Track], Observations]
@@ -200,7 +203,7 @@ def simulated_chain(scenario: Scenario, range_source: RangeSource, foot_imu: boo
     observed = range_source(scenario, walk.track)
     return ChainOutput(truth=walk.track, pdr=pdr.steps, start_fix_xy_m=(start_fix.x_m, start_fix.y_m),
                        walk_start_t_s=walk.walk_start_t_s, ranges=observed.ranges, foot_imu=foot,
-                       paths=observed.paths)
+                       paths=observed.paths, start_fix_sigma_m=start_fix.sigma_m)
 
 
 @dataclass
@@ -241,7 +244,8 @@ def run_seed(scenario: Scenario, filters: tuple[str, ...], config: FusionConfig,
     config = dataclasses.replace(config, clock_model=receiver_clock_model(scenario))
     result = fuse(out.pdr, out.ranges, out.start_fix_xy_m, tower_xy, fused, tower_height_m=tower_height,
                   other_towers=other_towers, paths=out.paths,
-                  transmit_delays=scenario_transmit_delays(scenario, range_source), config=config)
+                  transmit_delays=scenario_transmit_delays(scenario, range_source),
+                  start_sigma_m=out.start_fix_sigma_m, config=config)
     baselines, true_heading = pdr_baselines(out.pdr, out.truth, out.walk_start_t_s, out.start_fix_xy_m,
                                             result.heading.heading_rad)
     tracks = {**baselines, **result.tracks}
