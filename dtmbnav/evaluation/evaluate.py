@@ -43,7 +43,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -59,11 +59,13 @@ from fusion.foot_ins import ZuptInsRankKf
 from fusion.metrics import (
     PDR_AT_FIX,
     PDR_BASELINE,
+    StatedErrorStats,
     error_stats,
     heading_error_rad,
     interpolate_track,
     pdr_baselines,
     position_errors_m,
+    stated_error_stats,
 )
 from fusion.pdr import PdrConfig, run_pdr
 from fusion.run import FusionConfig, fuse
@@ -220,12 +222,23 @@ class SeedResult:
         Position error at each PDR step, same keys (CDFs: fusion.metrics.error_cdf).
     heading_error_rad : float
         Error of the eq. 15 initial heading.
+    heading_sigma_rad : float
+        Its stated standard uncertainty (:attr:`fusion.heading_init.HeadingSolution.sigma_rad`).
+    heading_uncertain : bool
+        Whether the solution said it may be more than a few degrees off
+        (:meth:`fusion.heading_init.HeadingSolution.uncertain`).
+    stated : dict of str -> StatedErrorStats
+        Each filter's stated error against the truth (:func:`fusion.metrics.stated_error_stats`): the share of its
+        rows inside its stated 95 % ellipse and its mean NEES.
     """
 
     truth: Track
     tracks: dict[str, Track]
     errors_m: dict[str, np.ndarray]
     heading_error_rad: float
+    heading_sigma_rad: float = float("nan")
+    heading_uncertain: bool = False
+    stated: dict[str, StatedErrorStats] = field(default_factory=dict)
 
 
 def run_seed(scenario: Scenario, filters: tuple[str, ...], config: FusionConfig,
@@ -258,7 +271,9 @@ def run_seed(scenario: Scenario, filters: tuple[str, ...], config: FusionConfig,
         tracks[FOOT_INS] = interpolate_track(ins, out.pdr.t_s)
     return SeedResult(truth=out.truth, tracks=tracks,
                       errors_m={name: position_errors_m(track, out.truth) for name, track in tracks.items()},
-                      heading_error_rad=float(heading_error_rad(result.heading.heading_rad, true_heading)))
+                      heading_error_rad=float(heading_error_rad(result.heading.heading_rad, true_heading)),
+                      heading_sigma_rad=float(result.heading.sigma_rad), heading_uncertain=result.heading.uncertain(),
+                      stated={name: stated_error_stats(track, out.truth) for name, track in result.tracks.items()})
 
 
 @dataclass(frozen=True)
@@ -334,14 +349,19 @@ def walk_record(scenario_name: str, k: int, seed: int, result: SeedResult, setti
     """One walk's figures, JSON-ready: a line of ``dtmbnav evaluate --walks`` (the table averages them).
 
     Keys: ``scenario``, ``k`` (Monte Carlo index within the run), ``seed``,
-    ``first_seed``, ``level``, ``geometry_varied``, ``heading_error_deg``
-    (eq. 15), and per track (the PDR baselines and each filter) ``p68_m``,
+    ``first_seed``, ``level``, ``geometry_varied``, ``heading_error_deg``,
+    ``heading_sigma_deg`` and ``heading_uncertain`` (eq. 15), per filter ``in_ellipse_95`` and ``nees`` (its
+    stated error against the truth), and per track (the PDR baselines and each filter) ``p68_m``,
     ``p95_m``, ``max_m``.
     """
     stats = {name: error_stats(errors) for name, errors in result.errors_m.items()}
     return {"scenario": scenario_name, "k": k, "seed": seed, "first_seed": settings.first_seed,
             "level": settings.level, "geometry_varied": settings.vary_geometry,
             "heading_error_deg": float(np.rad2deg(result.heading_error_rad)),
+            "heading_sigma_deg": float(np.rad2deg(result.heading_sigma_rad)),
+            "heading_uncertain": bool(result.heading_uncertain),
+            "in_ellipse_95": {name: s.in_ellipse_95 for name, s in result.stated.items()},
+            "nees": {name: s.mean_nees for name, s in result.stated.items()},
             **{key: {name: getattr(s, key) for name, s in stats.items()} for key in ("p68_m", "p95_m", "max_m")}}
 
 

@@ -162,8 +162,8 @@ def fusion_table(rows: Sequence, walks: Sequence[dict[str, object]]) -> tuple[Ta
     kalman_titles = [title for name, title in KALMAN_COLUMNS]
     header = ("walk (clock)", "walks", *(title for _, title in BASELINE_COLUMNS), PF_COLUMN, *kalman_titles,
               "PF worst@fix",
-              "walks > 5 % worse than PDR@fix (PF, " + ", ".join(kalman_titles) + ")", "heading error (median)",
-              "paper PF reduction")
+              "walks > 5 % worse than PDR@fix (PF, " + ", ".join(kalman_titles) + ")",
+              "truth in the stated 95 % ellipse, PF / UKF (mean NEES)", "heading error (median)", "paper PF reduction")
     cells, headline = [], []
     for scenario, named in by_scenario.items():
         pdr, at_fix, pf = named["pdr"], named["pdr@fix"], named.get("pf")
@@ -178,6 +178,10 @@ def fusion_table(rows: Sequence, walks: Sequence[dict[str, object]]) -> tuple[Ta
                       *(number(named[name].p95_m, 2, "m") if name in named else no_pf for name, _ in KALMAN_COLUMNS),
                       percent(pf.worst_vs_fix, 1, signed=True) if pf else no_pf,
                       _separated([number(n, 0) for n in worse.values()]),
+                      join(percent(_walk_mean(mine, "in_ellipse_95", "pf"), 0), " / ",
+                           percent(_walk_mean(mine, "in_ellipse_95", "ukf"), 0), " (",
+                           number(_walk_mean(mine, "nees", "pf"), 1), " / ", number(_walk_mean(mine, "nees", "ukf"), 1),
+                           ")"),
                       number(pdr.heading_error_median_deg, 2, "deg"),
                       percent(pf.paper_reduction_95, 0) if pf else no_pf))
         figures = {"scenario": scenario, "level": pdr.level, "walks": pdr.seeds, "pdr": pdr.p95_m,
@@ -188,6 +192,13 @@ def fusion_table(rows: Sequence, walks: Sequence[dict[str, object]]) -> tuple[Ta
                    "paper": pf.paper_reduction_95 if pf else None}
         headline.append({key: round(value, 4) if isinstance(value, float) else value for key, value in figures.items()})
     return Table(header, tuple(cells), tuple(by_scenario), "fusion"), headline
+
+
+def _walk_mean(walks: Sequence[dict[str, object]], key: str, track: str) -> float | None:
+    """Mean over the walks of one track's per-walk figure ``key`` (``in_ellipse_95``, ``nees``); None where no
+    walk has it (walks printed before the tracks stated their error)."""
+    values = [w[key][track] for w in walks if track in w.get(key, {})]
+    return math.fsum(values) / len(values) if values else None
 
 
 def _walk_order(walks: Sequence[dict[str, object]]) -> list[dict[str, object]]:
