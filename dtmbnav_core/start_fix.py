@@ -78,6 +78,37 @@ def correlated_mean_variance(t_s: np.ndarray, a: np.ndarray, tau_s: float) -> fl
     return float(np.sum(a**2) + 2.0 * cross)
 
 
+def correlated_weighted_mean(t_s: np.ndarray, values: np.ndarray, sigma_m: np.ndarray, tau_s: float
+                             ) -> tuple[np.ndarray | float, float, float]:
+    """Inverse-variance weighted mean of ``values`` whose errors are ``sigma_i z(t_i)`` (module docstring), its
+    variance under that correlation and the effective number of independent values, unchecked.
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Times, s, non-decreasing.
+    values : ndarray
+        (N,) or (N, k) values, averaged along the first axis.
+    sigma_m : ndarray
+        Each value's stated 1-sigma error (> 0).
+    tau_s : float
+        Correlation time of the errors, s.
+
+    Returns
+    -------
+    mean : float or ndarray
+        ``sum_i w_i values_i`` with ``w_i`` proportional to ``sigma_i^-2``.
+    variance : float
+        ``sum_ij w_i w_j sigma_i sigma_j exp(-|t_i - t_j| / tau_s)`` (per column).
+    n_effective : float
+        ``N sigma_ind^2 / variance`` with ``sigma_ind^2 = (sum_j sigma_j^-2)^-1``.
+    """
+    inverse = sigma_m**-2.0
+    w = inverse / inverse.sum()
+    variance = correlated_mean_variance(t_s, w * sigma_m, tau_s)
+    return w @ values, variance, float(len(t_s) / (inverse.sum() * variance))
+
+
 def combine_fixes(t_s: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, sigma_m: np.ndarray,
                   tau_s: float = FIX_ERROR_TAU_S) -> CombinedFix:
     """Inverse-variance weighted mean of fixes and its sigma under Gauss-Markov errors (module docstring).
@@ -108,14 +139,12 @@ def combine_fixes(t_s: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, sigma_m: np
         raise ValueError("combine_fixes: every fix's sigma must be positive and finite")
     if not tau_s > 0:
         raise ValueError(f"combine_fixes: the correlation time must be > 0, got {tau_s}")
-    inverse = sigma**-2.0
-    w = inverse / inverse.sum()
-    variance = correlated_mean_variance(t, w * sigma, tau_s)
+    mean, variance, n_effective = correlated_weighted_mean(
+        t, np.column_stack([np.asarray(x_m, dtype=np.float64), np.asarray(y_m, dtype=np.float64)]), sigma, tau_s)
     # The weights are positive, so the variance lies between the independent and the fully correlated one;
     # the clamp only keeps rounding from taking n_eff past its bounds.
-    n_effective = min(float(t.size), max(1.0, float(t.size / (inverse.sum() * variance))))
-    fix = StartFix(t_s=float(t[-1]), x_m=float(w @ np.asarray(x_m, dtype=np.float64)),
-                   y_m=float(w @ np.asarray(y_m, dtype=np.float64)), sigma_m=math.sqrt(variance))
+    n_effective = min(float(t.size), max(1.0, n_effective))
+    fix = StartFix(t_s=float(t[-1]), x_m=float(mean[0]), y_m=float(mean[1]), sigma_m=math.sqrt(variance))
     return CombinedFix(fix=fix, n_fixes=int(t.size), n_effective=n_effective)
 
 

@@ -46,7 +46,7 @@ import numpy as np
 
 from dtmbnav_core.constants import SPEED_OF_LIGHT_MPS
 from dtmbnav_core.records import PathRanges
-from dtmbnav_core.start_fix import FIX_ERROR_TAU_S, correlated_mean_variance
+from dtmbnav_core.start_fix import FIX_ERROR_TAU_S, correlated_weighted_mean
 from fusion.model import Geometry
 from fusion.observations import PathAggregationConfig, PathEpochs, aggregate_paths
 
@@ -325,7 +325,7 @@ def survey_code_offsets(paths: PathRanges, geometry: Geometry, fixes: SurveyFixe
     their median are left out; the rest are averaged with weights
     ``1 / (g sigma_fix)^2``. The sigma is that mean's under the fixes'
     first-order Gauss-Markov correlation in time
-    (:func:`dtmbnav_core.start_fix.correlated_mean_variance`, ``tau_s``), plus
+    (:func:`dtmbnav_core.start_fix.correlated_weighted_mean`, ``tau_s``), plus
     the residuals' scatter beyond the fixes' stated errors (the code's own,
     taken as independent from fix to fix).
 
@@ -361,13 +361,11 @@ def survey_code_offsets(paths: PathRanges, geometry: Geometry, fixes: SurveyFixe
         centre = float(np.median(residual[have]))
         spread = 1.4826 * float(np.median(np.abs(residual[have] - centre)))
         keep = have[np.abs(residual[have] - centre) <= SURVEY_OUTLIER_SIGMAS * np.maximum(seen[have], spread)]
-        weights = 1.0 / seen[keep] ** 2
-        mean = float(np.sum(weights * residual[keep]) / np.sum(weights))
-        fix_variance = correlated_mean_variance(t[keep], weights * seen[keep] / np.sum(weights), tau_s)
+        mean, fix_variance, effective[column] = correlated_weighted_mean(t[keep], residual[keep], seen[keep], tau_s)
         # What the residuals scatter beyond their fixes' stated errors is the code's own, independent per fix.
+        weights = seen[keep] ** -2.0
         excess = float(np.sum(weights * ((residual[keep] - mean) ** 2 - seen[keep] ** 2)) / np.sum(weights))
         offset[column] = mean
         sigma[column] = float(np.sqrt(fix_variance + max(excess, 0.0) / len(keep)))
         used[column] = len(keep)
-        effective[column] = len(keep) / float(np.sum(weights)) / fix_variance
     return CodeOffsetSurvey(offset, sigma, used, effective)
