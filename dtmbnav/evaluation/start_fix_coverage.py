@@ -22,12 +22,14 @@ import numpy as np
 
 from dtmbnav.evaluation.evaluate import seed_scenario
 from dtmbnav.evaluation.seeds import OBS_SEEDS
+from dtmbnav_core.records import ELLIPSE_95_CHI2
 from sim.gnss import simulate_gnss, simulate_start_fix
 from sim.scenario import Scenario, load_scenario
 from sim.walk import simulate_walk
 
-#: Radius of the 95 % circle of a circular normal error, in per-axis sigmas (chi-square, 2 degrees of freedom).
-CIRCLE_95_SIGMAS = math.sqrt(-2.0 * math.log(0.05))
+#: Radius of the 95 % circle of a circular normal error, in per-axis sigmas (chi-square, 2 degrees of freedom):
+#: the stated 95 % ellipse's bound for equal variances.
+CIRCLE_95_SIGMAS = math.sqrt(ELLIPSE_95_CHI2)
 
 
 @dataclass(frozen=True)
