@@ -189,6 +189,53 @@ def step_threshold(dyn_mps2: np.ndarray, rate_hz: float, config: StepDetectorCon
     return np.maximum(config.threshold_fraction * level, config.floor_mps2)
 
 
+@dataclass(frozen=True)
+class StepCandidates:
+    """Peaks held to the step period, before the bouts are found (:func:`step_candidates`).
+
+    Attributes
+    ----------
+    dyn_mps2 : ndarray
+        Smoothed, gravity-free acceleration norm at every sample, m/s^2.
+    rate_hz : float
+        Sample rate, Hz.
+    peaks : ndarray of int
+        Sample index of each candidate step, ascending.
+    period_samples : ndarray
+        Local step period at each candidate, samples.
+    periodic : ndarray of bool
+        Whether the walk's autocorrelation at each candidate reaches ``min_walk_strength``.
+    """
+
+    dyn_mps2: np.ndarray
+    rate_hz: float
+    peaks: np.ndarray
+    period_samples: np.ndarray
+    periodic: np.ndarray
+
+
+def step_candidates(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDetectorConfig) -> StepCandidates | None:
+    """Peaks of the dynamic acceleration held to the step period (steps 1-2 of the module docstring).
+
+    None where nothing is periodic anywhere (no walk). :func:`detect_steps` keeps
+    those in bouts; a stream (:mod:`fusion.pdr.streaming`) decides which of them are final.
+    """
+    t_s = np.asarray(t_s, dtype=np.float64)
+    dyn = dynamic_acceleration(t_s, acc_mps2, config)
+    rate_hz = (len(t_s) - 1) / (t_s[-1] - t_s[0])
+    candidates, _ = find_peaks(dyn, height=step_threshold(dyn, rate_hz, config))
+    period = step_period(t_s, dyn, config.period_window_s, config.period_hop_s, config.min_step_s,
+                         config.max_period_s, config.stride_ratio)
+    period_s, _ = period.at(t_s[candidates])
+    if candidates.size == 0 or not np.all(np.isfinite(period_s)):  # nothing periodic anywhere: no walk
+        return None
+    peaks = _one_per_period(candidates, dyn[candidates], period_s * rate_hz, config.spacing_fraction)
+    peaks = _put_in_missed(peaks, t_s, rate_hz, period, config)
+    period_s, strength = period.at(t_s[peaks])
+    return StepCandidates(dyn_mps2=dyn, rate_hz=rate_hz, peaks=peaks, period_samples=period_s * rate_hz,
+                          periodic=strength >= config.min_walk_strength)
+
+
 def detect_steps(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDetectorConfig) -> DetectedSteps:
     """Detect steps: peaks of the dynamic acceleration, one per step period, in bouts of walking (docs/method.md §3).
 
@@ -196,12 +243,7 @@ def detect_steps(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDetectorConf
     :func:`step_threshold`; they are held to the local step period
     (:func:`fusion.pdr.step_period.step_period`) by :func:`_one_per_period`,
     :func:`_put_in_missed` and :func:`_in_bouts`, with its periodicity floor (the module docstring says why).
-    A step's window runs from the previous step's peak; a step more than
-    ``max_step_s`` after the previous one (the first after a standstill) has no
-    previous peak, and gets the duration of the walker's next step, clipped to
-    ``[min_step_s, max_step_s]`` (or the median step duration of the record when
-    the next step is not part of the same walk), so that its speed and length
-    are those of a real step.
+    Each step gets its window from :func:`step_windows`.
 
     Parameters
     ----------
@@ -216,19 +258,24 @@ def detect_steps(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDetectorConf
     DetectedSteps
     """
     t_s = np.asarray(t_s, dtype=np.float64)
-    dyn = dynamic_acceleration(t_s, acc_mps2, config)
-    rate_hz = (len(t_s) - 1) / (t_s[-1] - t_s[0])
-    candidates, _ = find_peaks(dyn, height=step_threshold(dyn, rate_hz, config))
-    period = step_period(t_s, dyn, config.period_window_s, config.period_hop_s, config.min_step_s,
-                         config.max_period_s, config.stride_ratio)
-    period_s, _ = period.at(t_s[candidates])
-    if candidates.size == 0 or not np.all(np.isfinite(period_s)):  # nothing periodic anywhere: no walk
-        empty = np.zeros(0)
-        return DetectedSteps(t_s=empty, start_t_s=empty, acc_max_mps2=empty, acc_min_mps2=empty)
-    peaks = _one_per_period(candidates, dyn[candidates], period_s * rate_hz, config.spacing_fraction)
-    peaks = _put_in_missed(peaks, t_s, rate_hz, period, config)
-    period_s, strength = period.at(t_s[peaks])
-    peaks = _in_bouts(peaks, period_s * rate_hz, strength >= config.min_walk_strength, config)
+    candidates = step_candidates(t_s, acc_mps2, config)
+    if candidates is None:
+        return step_windows(t_s, np.zeros(len(t_s)), np.zeros(0, dtype=int), 1.0, config)
+    peaks = _in_bouts(candidates.peaks, candidates.period_samples, candidates.periodic, config)
+    return step_windows(t_s, candidates.dyn_mps2, peaks, candidates.rate_hz, config)
+
+
+def step_windows(t_s: np.ndarray, dyn_mps2: np.ndarray, peaks: np.ndarray, rate_hz: float,
+                 config: StepDetectorConfig) -> DetectedSteps:
+    """The steps at sample indices ``peaks`` (ascending), with their windows and extremes.
+
+    A step's window runs from the previous step's peak; a step more than
+    ``max_step_s`` after the previous one (the first after a standstill) has no
+    previous peak, and gets the duration of the walker's next step, clipped to
+    ``[min_step_s, max_step_s]`` (or the median step duration of the steps
+    given when the next step is not part of the same walk), so that its speed
+    and length are those of a real step.
+    """
     if peaks.size == 0:
         empty = np.zeros(0)
         return DetectedSteps(t_s=empty, start_t_s=empty, acc_max_mps2=empty, acc_min_mps2=empty)
@@ -236,7 +283,7 @@ def detect_steps(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDetectorConf
     after_standstill = gap > config.max_step_s * rate_hz
     start = peaks - np.where(after_standstill, _first_step_samples(gap, after_standstill, rate_hz, config), gap)
     start = np.maximum(start, 0)
-    acc_max, acc_min = _window_extremes(dyn, start, peaks + 1)
+    acc_max, acc_min = _window_extremes(dyn_mps2, start, peaks + 1)
     return DetectedSteps(t_s=t_s[peaks], start_t_s=t_s[start], acc_max_mps2=acc_max, acc_min_mps2=acc_min)
 
 
@@ -296,12 +343,9 @@ def _in_bouts(peaks: np.ndarray, period_samples: np.ndarray, periodic: np.ndarra
     the next step up to ``last_step_tolerance`` periods after a bout's last
     belongs to the bout, periodic or not.
     """
-    strong = np.flatnonzero(periodic)
+    strong, bout = bouts(peaks, period_samples, periodic, config)
     if strong.size == 0:
         return peaks[:0]
-    gap = np.diff(peaks[strong])
-    linked = (gap > 0.5 * period_samples[strong[1:]]) & (gap < config.bout_tolerance * period_samples[strong[1:]])
-    bout = np.concatenate([[0], np.cumsum(~linked)])
     kept = np.zeros(len(peaks), dtype=bool)
     kept[strong] = np.bincount(bout)[bout] >= config.min_bout_steps
     # The step after each kept bout's last one.
@@ -312,6 +356,19 @@ def _in_bouts(peaks: np.ndarray, period_samples: np.ndarray, periodic: np.ndarra
               & (closing_gap < config.last_step_tolerance * period_samples[last + 1]))
     kept[last[closes] + 1] = True
     return peaks[kept]
+
+
+def bouts(peaks: np.ndarray, period_samples: np.ndarray, periodic: np.ndarray,
+          config: StepDetectorConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The periodic steps (indices into ``peaks``) and the bout each belongs to (0, 1, ... in time order).
+
+    Two periodic steps in a row are in one bout when their interval lies between
+    half a period and ``bout_tolerance`` periods (the period at the later one).
+    """
+    strong = np.flatnonzero(periodic)
+    gap = np.diff(peaks[strong])
+    linked = (gap > 0.5 * period_samples[strong[1:]]) & (gap < config.bout_tolerance * period_samples[strong[1:]])
+    return strong, np.concatenate([[0], np.cumsum(~linked)])[:strong.size]
 
 
 def _first_step_samples(gap: np.ndarray, after_standstill: np.ndarray, rate_hz: float,
