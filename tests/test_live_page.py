@@ -1,4 +1,4 @@
-"""The live web page (dtmbnav.webview): its state route, its ellipses, and the page in a real headless browser."""
+"""The live web page (dtmbnav.field.live_page): its state route, its ellipses, and the page in a real headless browser."""
 
 from __future__ import annotations
 
@@ -15,8 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dtmbnav_core.records import ELLIPSE_95_CHI2
-from dtmbnav.webview import LiveView, ViewRow, ViewScene
-from dtmbnav.webview.server import ellipse_95
+from dtmbnav.field.live_page import LiveView, ViewRow, ViewScene, ellipse_95
 
 CHROMIUM = next((shutil.which(name) for name in ("chromium", "chromium-browser", "google-chrome")
                  if shutil.which(name)), None)
