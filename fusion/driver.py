@@ -53,13 +53,20 @@ class FilterRun:
     smoothed: FusedTrack | None = None
 
 
-def _step_track(epochs: FilterEpochs, states: np.ndarray, covariances_m2: np.ndarray) -> FusedTrack:
+def step_track(epochs: FilterEpochs, states: np.ndarray, covariances_m2: np.ndarray) -> FusedTrack:
     """The rows of the step epochs (standstills give none) as a track."""
     step = epochs.is_step
     states, covariances_m2 = states[step], covariances_m2[step]
     track = Track(t_s=np.asarray(epochs.t_s, dtype=np.float64)[step], x_m=states[:, X], y_m=states[:, Y],
                   heading_rad=states[:, HEADING] % (2.0 * np.pi), speed_mps=states[:, SPEED])
     return FusedTrack.from_track(track, covariances_m2)
+
+
+def step_filter(fusion_filter: FusionFilter, epochs: FilterEpochs, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Predict and update with epoch ``n``; the state (its first ``STATE_SIZE`` entries) and east/north covariance."""
+    fusion_filter.predict(epochs.control(n))
+    fusion_filter.update(epochs.observation(n))
+    return fusion_filter.estimate()[:STATE_SIZE], fusion_filter.position_covariance_m2()
 
 
 def drive_filter(fusion_filter: FusionFilter, epochs: FilterEpochs, smooth: bool = False) -> FilterRun:
@@ -75,14 +82,11 @@ def drive_filter(fusion_filter: FusionFilter, epochs: FilterEpochs, smooth: bool
     states = np.empty((len(epochs), STATE_SIZE))
     covariances = np.empty((len(epochs), 2, 2))
     for n in range(len(epochs)):
-        fusion_filter.predict(epochs.control(n))
-        fusion_filter.update(epochs.observation(n))
-        states[n] = fusion_filter.estimate()[:STATE_SIZE]
-        covariances[n] = fusion_filter.position_covariance_m2()
-    run = FilterRun(_step_track(epochs, states, covariances))
+        states[n], covariances[n] = step_filter(fusion_filter, epochs, n)
+    run = FilterRun(step_track(epochs, states, covariances))
     if smooth:
         smoothed_states, smoothed_covariances = fusion_filter.smoothed()
-        run.smoothed = _step_track(epochs, smoothed_states[:, :STATE_SIZE], smoothed_covariances)
+        run.smoothed = step_track(epochs, smoothed_states[:, :STATE_SIZE], smoothed_covariances)
     return run
 
 

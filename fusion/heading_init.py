@@ -46,6 +46,10 @@ UNCERTAIN_HEADING_RAD = np.deg2rad(5.0)
 #: Confidence below which the mirror minimum is nearly as good as the chosen one (:func:`solve_initial_heading`).
 MIN_CONFIDENCE = 0.3
 
+#: The first window eq. 15 is solved over, s (:func:`solve_initial_heading`'s ``max_duration_s``): doubled
+#: while the solution's confidence stays below :data:`MIN_CONFIDENCE`.
+HEADING_WINDOW_S = 45.0
+
 #: Epochs a window needs beyond the free offsets of its runs (each run after a gap spends one on its offset);
 #: with no more of them than solved parameters the window's solution has no confidence.
 MIN_CONSTRAINING_EPOCHS = 2
@@ -167,7 +171,7 @@ def free_offset_runs(observed: np.ndarray) -> list[np.ndarray]:
 def solve_initial_heading(pdr_t_s: np.ndarray, pdr_x_m: np.ndarray, pdr_y_m: np.ndarray,
                           range_change_m: np.ndarray, geometry: Geometry, *,
                           scale_bounds: tuple[float, float] | None = (0.8, 1.25),
-                          max_duration_s: float | None = 45.0, min_confidence: float = MIN_CONFIDENCE,
+                          max_duration_s: float | None = HEADING_WINDOW_S, min_confidence: float = MIN_CONFIDENCE,
                           difference_tower: int = 0, start_sigma_m: float = 0.0,
                           heading_rate_sigma_radps: float = 0.0) -> HeadingSolution:
     """Solve eq. 15 for the initial heading.

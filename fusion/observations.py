@@ -422,18 +422,27 @@ def segment_breaks(ranges: RangeSeries) -> np.ndarray:
     return np.concatenate([[False], np.diff(segment) != 0])
 
 
-def segment_changes(ranges: RangeSeries, epoch_t_s: np.ndarray, window_s: float) -> np.ndarray:
+def segment_changes(ranges: RangeSeries, epoch_t_s: np.ndarray, window_s: float,
+                    previous_segment: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Epochs whose window reaches into a new segment, or that follow a change of segment (module rule 7).
 
     The segment at the end of each epoch's window (of the last frame at or
     before it) is compared with the one at its start and with the previous
-    epoch's.
+    epoch's: ``previous_segment`` for the first epoch (a stream's epoch before
+    these, :mod:`fusion.streaming`), or its own where None.
+
+    Returns
+    -------
+    changes : ndarray of bool
+    at_end : ndarray of int
+        The segment at the end of each epoch's window.
     """
     segment = np.asarray(ranges.segment_id, dtype=np.int64)
     last = len(segment) - 1
     at_start = segment[np.clip(np.searchsorted(ranges.t_s, epoch_t_s - window_s / 2.0, side="left"), 0, last)]
     at_end = segment[np.clip(np.searchsorted(ranges.t_s, epoch_t_s + window_s / 2.0, side="right") - 1, 0, last)]
-    return (at_start != at_end) | (at_end != np.concatenate([at_end[:1], at_end[:-1]]))
+    before = np.concatenate([at_end[:1] if previous_segment is None else [previous_segment], at_end[:-1]])
+    return (at_start != at_end) | (at_end != before), at_end
 
 
 def new_origins(t_s: np.ndarray, breaks: np.ndarray, epoch_t_s: np.ndarray, keep: np.ndarray) -> np.ndarray:
@@ -450,16 +459,108 @@ def new_origins(t_s: np.ndarray, breaks: np.ndarray, epoch_t_s: np.ndarray, keep
     keep : ndarray of bool
         Epochs that have an observation.
     """
-    breaks_before = np.cumsum(breaks)[np.clip(np.searchsorted(t_s, epoch_t_s, side="right") - 1, 0, None)]
-    breaks_before = np.where(epoch_t_s < t_s[0], 0, breaks_before)
-    new_origin = np.zeros(len(epoch_t_s), dtype=bool)
-    new_origin[keep] = np.diff(breaks_before[keep], prepend=0) > 0
+    return origins_from_counts(origin_counts(t_s, breaks, epoch_t_s), keep)
+
+
+def origin_counts(t_s: np.ndarray, breaks: np.ndarray, epoch_t_s: np.ndarray) -> np.ndarray:
+    """Origin breaks at the frames up to each epoch time (0 before the first frame)."""
+    counts = np.cumsum(breaks)[np.clip(np.searchsorted(t_s, epoch_t_s, side="right") - 1, 0, None)]
+    return np.where(epoch_t_s < t_s[0], 0, counts)
+
+
+def origins_from_counts(counts: np.ndarray, keep: np.ndarray, counted_before: int = 0) -> np.ndarray:
+    """Kept epochs whose :func:`origin_counts` grew since the previous kept one (or since ``counted_before``)."""
+    new_origin = np.zeros(len(counts), dtype=bool)
+    new_origin[keep] = np.diff(counts[keep], prepend=counted_before) > 0
     return new_origin
+
+
+@dataclass
+class RangeWindows(ColumnRecord):
+    """The module's rules 1-7 at the epoch times, before the line-of-sight cut (rule 5's deficit) and settling.
+
+    Attributes
+    ----------
+    t_s : ndarray
+        Epoch time, s.
+    range_change_m, sigma_m : ndarray
+        Mean range change of the window's valid frames and its standard deviation, m (NaN: no valid frame).
+    snr_db, rician_k_db : ndarray
+        As :class:`RangeEpochs` (NaN: none).
+    passing : ndarray of bool
+        Epochs that pass rules 3, 6 and 7.
+    segment_at_end : ndarray of int
+        The receiver segment at the end of each epoch's window (:func:`segment_changes`).
+    """
+
+    t_s: np.ndarray
+    range_change_m: np.ndarray
+    sigma_m: np.ndarray
+    snr_db: np.ndarray
+    rician_k_db: np.ndarray
+    passing: np.ndarray
+    segment_at_end: np.ndarray
+
+    def epochs(self, keep: np.ndarray, new_origin: np.ndarray) -> RangeEpochs:
+        """The :class:`RangeEpochs` that keep the ``keep`` epochs' observations."""
+        nan = np.full(len(self.t_s), np.nan)
+        return RangeEpochs(t_s=self.t_s, range_change_m=np.where(keep, self.range_change_m, nan),
+                           sigma_m=np.where(keep, self.sigma_m, nan), snr_db=self.snr_db,
+                           rician_k_db=self.rician_k_db, new_origin=new_origin)
+
+
+def range_windows(ranges: RangeSeries, epoch_t_s: np.ndarray, config: AggregationConfig = AggregationConfig(),
+                  previous_segment: int | None = None) -> RangeWindows:
+    """Rules 1-7 of the module at each epoch time, each epoch from the frames of its own windows.
+
+    ``previous_segment``: as :func:`segment_changes`.
+    """
+    _check_ranges(ranges)
+    epoch_t_s = np.asarray(epoch_t_s, dtype=np.float64)
+    valid = np.asarray(ranges.valid, dtype=bool) & np.isfinite(ranges.range_change_m)
+    n_valid, range_sum, snr_lin_sum = _window_sums(
+        ranges.t_s, np.stack([valid.astype(np.float64), np.where(valid, ranges.range_change_m, 0.0),
+                              np.where(valid, 10.0 ** (ranges.snr_db / 10.0), 0.0)], axis=1),
+        epoch_t_s, config.window_s)
+    expected = config.window_s / np.median(np.diff(ranges.t_s))
+    fraction = np.minimum(n_valid / expected, 1.0)
+    k_db = rician_k_db(ranges.t_s, ranges.snr_db, valid, epoch_t_s, config.fading_window_s)
+    changes, at_end = segment_changes(ranges, epoch_t_s, config.window_s, previous_segment)
+    passing = (fraction >= config.min_valid_fraction) & (n_valid > 0) & ~changes
+    if config.min_rician_k_db is not None:
+        passing &= ~(k_db < config.min_rician_k_db)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_range = range_sum / n_valid
+        snr_db = 10.0 * np.log10(snr_lin_sum / n_valid)
+        sigma = config.base_sigma_m * np.sqrt(snr_inflation(snr_db, config.good_snr_db) / fraction)
+    return RangeWindows(t_s=epoch_t_s, range_change_m=mean_range, sigma_m=sigma,
+                        snr_db=np.where(n_valid > 0, snr_db, np.nan), rician_k_db=k_db, passing=passing,
+                        segment_at_end=at_end)
+
+
+def line_of_sight_snr_db(snr_db: np.ndarray, config: AggregationConfig = AggregationConfig()) -> float:
+    """The line-of-sight SNR level of epoch SNRs: their ``los_snr_percentile`` percentile, dB (NaN: none)."""
+    snr_db = np.asarray(snr_db, dtype=np.float64)
+    if not np.any(np.isfinite(snr_db)):
+        return float("nan")
+    return float(np.nanpercentile(snr_db, config.los_snr_percentile))
+
+
+def snr_deficit_passes(snr_db: np.ndarray, los_snr_db: float | np.ndarray,
+                       config: AggregationConfig = AggregationConfig()) -> np.ndarray:
+    """Epochs whose SNR is not ``max_snr_deficit_db`` below the line-of-sight level (module rule 5; NaN passes)."""
+    snr_db = np.asarray(snr_db, dtype=np.float64)
+    if config.max_snr_deficit_db is None:
+        return np.ones(len(snr_db), dtype=bool)
+    return ~(snr_db < np.asarray(los_snr_db) - config.max_snr_deficit_db)
 
 
 def aggregate_ranges(ranges: RangeSeries, epoch_t_s: np.ndarray,
                      config: AggregationConfig = AggregationConfig()) -> RangeEpochs:
     """Apply the module's aggregation rule at each epoch time.
+
+    The line-of-sight SNR level is the whole recording's (a stream takes the
+    epochs' so far: :mod:`fusion.streaming`).
 
     Parameters
     ----------
@@ -473,37 +574,10 @@ def aggregate_ranges(ranges: RangeSeries, epoch_t_s: np.ndarray,
     -------
     RangeEpochs
     """
-    _check_ranges(ranges)
-    epoch_t_s = np.asarray(epoch_t_s, dtype=np.float64)
-    valid = np.asarray(ranges.valid, dtype=bool) & np.isfinite(ranges.range_change_m)
-    n_valid, range_sum, snr_lin_sum = _window_sums(
-        ranges.t_s, np.stack([valid.astype(np.float64), np.where(valid, ranges.range_change_m, 0.0),
-                              np.where(valid, 10.0 ** (ranges.snr_db / 10.0), 0.0)], axis=1),
-        epoch_t_s, config.window_s)
-    expected = config.window_s / np.median(np.diff(ranges.t_s))
-    fraction = np.minimum(n_valid / expected, 1.0)
-    k_db = rician_k_db(ranges.t_s, ranges.snr_db, valid, epoch_t_s, config.fading_window_s)
-    keep = ((fraction >= config.min_valid_fraction) & (n_valid > 0)
-            & ~segment_changes(ranges, epoch_t_s, config.window_s))
-    if config.min_rician_k_db is not None:
-        keep &= ~(k_db < config.min_rician_k_db)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean_range = range_sum / n_valid
-        snr_db = 10.0 * np.log10(snr_lin_sum / n_valid)
-        sigma = config.base_sigma_m * np.sqrt(snr_inflation(snr_db, config.good_snr_db) / fraction)
-    if config.max_snr_deficit_db is not None and np.any(np.isfinite(snr_db)):
-        los_snr_db = np.nanpercentile(snr_db, config.los_snr_percentile)
-        keep &= ~(snr_db < los_snr_db - config.max_snr_deficit_db)
-    keep = settled(epoch_t_s, keep, config.settle_s)
-    nan = np.full(len(epoch_t_s), np.nan)
-    return RangeEpochs(
-        t_s=epoch_t_s,
-        range_change_m=np.where(keep, mean_range, nan),
-        sigma_m=np.where(keep, sigma, nan),
-        snr_db=np.where(n_valid > 0, snr_db, nan),
-        rician_k_db=k_db,
-        new_origin=new_origins(ranges.t_s, segment_breaks(ranges), epoch_t_s, keep),
-    )
+    windows = range_windows(ranges, epoch_t_s, config)
+    keep = windows.passing & snr_deficit_passes(windows.snr_db, line_of_sight_snr_db(windows.snr_db, config), config)
+    keep = settled(windows.t_s, keep, config.settle_s)
+    return windows.epochs(keep, new_origins(ranges.t_s, segment_breaks(ranges), windows.t_s, keep))
 
 
 def aggregate_path(series: PathRangeSeries, epoch_t_s: np.ndarray,

@@ -35,7 +35,7 @@ from fusion import (CLOCK_MODELS, DEFAULT_CLOCK_MODEL, DEFAULT_HEADING_RANGE, DE
                     DEFAULT_SMOOTHING_LAG, FILTER_NAMES, HEADING_RANGES, SI_RANGE_USES)
 from fusion.adaptive_kf import AdaptiveEkf
 from fusion.driver import FusionFilter, drive_filter, run_filter
-from fusion.heading_init import HeadingSolution, solve_initial_heading
+from fusion.heading_init import HEADING_WINDOW_S, HeadingSolution, solve_initial_heading
 from fusion.integrity import IntegrityConfig
 from fusion.model import ClockModel, Geometry, ModelNoise
 from fusion.observations import AggregationConfig, FilterEpochs, PathAggregationConfig, PathEpochs, RangeEpochs, StandstillConfig, aggregate_paths, aggregate_ranges, build_epochs, epoch_times, si_range_epochs
@@ -133,7 +133,8 @@ class FusionConfig:
 
 
 def initial_heading(pdr: PdrSteps, range_epochs: RangeEpochs, path_epochs: PathEpochs | None, at_steps: np.ndarray,
-                    geometry: Geometry, config: FusionConfig) -> HeadingSolution:
+                    geometry: Geometry, config: FusionConfig, window_s: float | None = HEADING_WINDOW_S
+                    ) -> HeadingSolution:
     """Eq. 15 at the PDR steps: on the range to tower 0, or on a tower difference when the clock runs free.
 
     A free-running receiver clock drifts in a way a single tower's range
@@ -146,11 +147,12 @@ def initial_heading(pdr: PdrSteps, range_epochs: RangeEpochs, path_epochs: PathE
     first-path range where it constrains the heading (in a street whose
     direct path is blocked the SI carriers follow a reflection). A first-path
     epoch that starts from a new origin (a slip, a re-found path) is left
-    out, so that eq. 15 gives the run after it a free offset.
+    out, so that eq. 15 gives the run after it a free offset. ``window_s``: eq. 15's first window
+    (:func:`fusion.heading_init.solve_initial_heading`'s ``max_duration_s``).
     """
     # What eq. 15's sigma counts beyond the residuals: the fix's error and the PDR heading's drift.
     sigmas = dict(start_sigma_m=config.noise.initial_position_m,
-                  heading_rate_sigma_radps=config.heading_drift_radps)
+                  heading_rate_sigma_radps=config.heading_drift_radps, max_duration_s=window_s)
     if config.clock().free_running and path_epochs is not None:
         for k in range(path_epochs.range_difference_m.shape[1]):
             try:
