@@ -122,13 +122,28 @@ class PdrResult:
         return 0 if self.walking is None else int(np.count_nonzero(self.walking.carriage_change))
 
 
-def _check_imu(imu: ImuLog) -> None:
+def check_imu(imu: ImuLog) -> None:
+    """Raise ValueError unless the IMU's three sensors are N x 3 and finite."""
     for name in ("acc_mps2", "gyro_radps", "mag_ut"):
         values = getattr(imu, name)
         if values.ndim != 2 or values.shape[1] != 3:
             raise ValueError(f"imu.{name} must be N x 3, got shape {values.shape}")
         if not np.all(np.isfinite(values)):
             raise ValueError(f"imu.{name} contains NaN or inf")
+
+
+def check_config(config: PdrConfig) -> None:
+    """Raise ValueError for an unknown step model or heading source, the Weinberg model without a
+    gain, or a non-positive output rate."""
+    if config.step_model not in STEP_MODELS:
+        raise ValueError(f"PdrConfig.step_model: unknown {config.step_model!r}; known: {STEP_MODELS}")
+    if config.step_model == "weinberg" and config.weinberg_k_m is None:
+        raise ValueError("PdrConfig.weinberg_k_m is required by the Weinberg model; calibrate it with "
+                         "calibrate_weinberg_k_from_walk on a walk of known length, or use step_model='frequency'")
+    if config.heading_source not in HEADING_SOURCES:
+        raise ValueError(f"PdrConfig.heading_source: unknown {config.heading_source!r}; known: {HEADING_SOURCES}")
+    if config.output_rate_hz <= 0:
+        raise ValueError(f"PdrConfig.output_rate_hz must be > 0, got {config.output_rate_hz}")
 
 
 def uniform_imu(imu: ImuLog) -> tuple[ImuLog, SampleTiming, tuple[str, ...]]:
@@ -185,16 +200,8 @@ def run_pdr(imu: ImuLog, config: PdrConfig) -> PdrResult:
         Malformed IMU data (including sample times that do not strictly
         increase), an unknown step model, or the Weinberg model without a gain.
     """
-    _check_imu(imu)
-    if config.step_model not in STEP_MODELS:
-        raise ValueError(f"PdrConfig.step_model: unknown {config.step_model!r}; known: {STEP_MODELS}")
-    if config.step_model == "weinberg" and config.weinberg_k_m is None:
-        raise ValueError("PdrConfig.weinberg_k_m is required by the Weinberg model; calibrate it with "
-                         "calibrate_weinberg_k_from_walk on a walk of known length, or use step_model='frequency'")
-    if config.heading_source not in HEADING_SOURCES:
-        raise ValueError(f"PdrConfig.heading_source: unknown {config.heading_source!r}; known: {HEADING_SOURCES}")
-    if config.output_rate_hz <= 0:
-        raise ValueError(f"PdrConfig.output_rate_hz must be > 0, got {config.output_rate_hz}")
+    check_imu(imu)
+    check_config(config)
     imu, timing, notes = uniform_imu(imu)
     attitude = config.attitude
     if attitude.use_magnetometer and not has_magnetometer(imu):
@@ -257,7 +264,7 @@ def calibrate_weinberg_k_from_walk(imu: ImuLog, distance_m: float, config: PdrCo
     walked; the detector settings of ``config`` are used so that K matches
     the smoothing that :func:`run_pdr` will apply.
     """
-    _check_imu(imu)
+    check_imu(imu)
     detector = (config or PdrConfig()).steps
     imu, _, _ = uniform_imu(imu)
     detected = detect_steps(imu.t_s, imu.acc_mps2, detector)

@@ -242,7 +242,7 @@ def detect_steps(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDetectorConf
     Candidates are the local peaks of :func:`dynamic_acceleration` above
     :func:`step_threshold`; they are held to the local step period
     (:func:`fusion.pdr.step_period.step_period`) by :func:`_one_per_period`,
-    :func:`_put_in_missed` and :func:`_in_bouts`, with its periodicity floor (the module docstring says why).
+    :func:`_put_in_missed` and :func:`in_bouts`, with its periodicity floor (the module docstring says why).
     Each step gets its window from :func:`step_windows`.
 
     Parameters
@@ -261,7 +261,7 @@ def detect_steps(t_s: np.ndarray, acc_mps2: np.ndarray, config: StepDetectorConf
     candidates = step_candidates(t_s, acc_mps2, config)
     if candidates is None:
         return step_windows(t_s, np.zeros(len(t_s)), np.zeros(0, dtype=int), 1.0, config)
-    peaks = _in_bouts(candidates.peaks, candidates.period_samples, candidates.periodic, config)
+    peaks = in_bouts(candidates.peaks, candidates.period_samples, candidates.periodic, config)
     return step_windows(t_s, candidates.dyn_mps2, peaks, candidates.rate_hz, config)
 
 
@@ -331,7 +331,7 @@ def _put_in_missed(peaks: np.ndarray, t_s: np.ndarray, rate_hz: float, period: S
     return np.sort(np.concatenate([peaks, *added])) if added else peaks
 
 
-def _in_bouts(peaks: np.ndarray, period_samples: np.ndarray, periodic: np.ndarray,
+def in_bouts(peaks: np.ndarray, period_samples: np.ndarray, periodic: np.ndarray,
               config: StepDetectorConfig) -> np.ndarray:
     """The steps that belong to a bout of at least ``min_bout_steps`` regular, periodic steps.
 

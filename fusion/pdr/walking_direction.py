@@ -92,12 +92,16 @@ class WalkingDirection:
         True at the first step after a change of carriage.
     swing_rad : ndarray
         Largest rotation of the attitude from its value mid-stride, over each step's stride, rad.
+    usable : ndarray of bool
+        Whether the step's stride estimated the offset (a clear axis, clear of a change): the
+        running median spans ``smoothing_steps`` of these.
     """
 
     heading_rad: np.ndarray
     offset_rad: np.ndarray
     carriage_change: np.ndarray
     swing_rad: np.ndarray
+    usable: np.ndarray
 
 
 def principal_axis(horizontal_mps2: np.ndarray) -> tuple[float, float]:
@@ -295,4 +299,5 @@ def walking_direction(t_s: np.ndarray, acc_mps2: np.ndarray, gyro_radps: np.ndar
     carriage_change = np.zeros(n, dtype=bool)
     carriage_change[changes[:, 0]] = True
     return WalkingDirection(heading_rad=heading, offset_rad=np.angle(np.exp(1j * offset)),
-                            carriage_change=carriage_change, swing_rad=swing)
+                            carriage_change=carriage_change, swing_rad=swing,
+                            usable=clean & (linearity >= MIN_LINEARITY))
