@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import shutil
@@ -62,6 +63,14 @@ def test_state_route_gives_only_new_rows_and_no_nan() -> None:
         assert first["total"] == 5 and len(first["rows"]) == 5
         assert later["total"] == 8 and [r["t_s"] for r in later["rows"]] == [2.5, 3.0, 3.5]
         assert first["scene"]["start_sigma_m"] is None and first["status"]["snr_db"] is None
+        assert later["revision"] == first["revision"] == 0
+        # Rows that revise the track from t = 1.0 s on (the fusion re-sending a stretch, filtered) replace it.
+        view.add_rows([dataclasses.replace(row, stage="filtered") for row in _rows(2, 4)])
+        view.set_head(_rows(8, 10))
+        revised = _get(view.url + "state.json")
+        assert revised["revision"] == 1 and revised["total"] == 4
+        assert [r["stage"] for r in revised["rows"]] == ["heading", "heading", "filtered", "filtered"]
+        assert [r["t_s"] for r in revised["head"]] == [4.0, 4.5]
         with pytest.raises(urllib.error.HTTPError) as bad:
             _get(view.url + "state.json?since=x")
         assert bad.value.code == 400
@@ -83,13 +92,18 @@ def test_page_draws_the_track_as_it_grows(tmp_path) -> None:
         first = _browse(view.url, "--dump-dom")
         _browse(view.url, f"--screenshot={tmp_path / 'first.png'}")
         view.add_rows(_rows(20, 60))
+        view.set_head(_rows(60, 64))
         later = _browse(view.url, "--dump-dom")
         _browse(view.url, f"--screenshot={tmp_path / 'later.png'}")
+        view.add_rows([dataclasses.replace(row, stage="filtered") for row in _rows(50, 55)])
+        revised = _browse(view.url, "--dump-dom")
     assert re.search(r'id="track"[^>]*data-rows="20"', first)
     assert re.search(r'id="track"[^>]*data-rows="60"', later)
-    last = _rows(59, 60)[0]
+    last = _rows(63, 64)[0]   # the head's end is the newest position
     assert f"{last.lat_deg:.6f}, {last.lon_deg:.6f}" in later
     assert f"{last.ellipse_major_m:.1f} m" in later
     assert later.count("<ellipse") == 60
+    assert len(re.search(r'id="head"[^>]*points="([^"]*)"', later).group(1).split()) == 5   # track end + 4
+    assert re.search(r'id="track"[^>]*data-rows="55"', revised) and revised.count("<ellipse") == 55
     shots = [(tmp_path / name).read_bytes() for name in ("first.png", "later.png")]
     assert shots[0][:8] == b"\x89PNG\r\n\x1a\n" and shots[0] != shots[1]

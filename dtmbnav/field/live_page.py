@@ -8,7 +8,10 @@ fetched, so it works where a walker has no data connection.
 
 The server is the standard library's :class:`http.server.ThreadingHTTPServer` on a daemon thread: two
 routes and a JSON poll need no web framework. The page polls ``/state.json?since=N`` once a second and
-receives only the rows after the N it already holds.
+receives only the rows after the N it already holds. Rows that revise earlier ones (a fusion that re-sends
+the positions of a stretch once it can filter them) truncate the track at their first time and bump the
+state's ``revision``, on which the page fetches the whole track again. The ``head`` is the stretch ahead of
+the settled track (a now-cast past the last settled step), replaced at each update and drawn dashed.
 """
 
 from __future__ import annotations
@@ -98,19 +101,25 @@ def _finite_or_none(value: Any) -> Any:
     return value if not isinstance(value, float) or np.isfinite(value) else None
 
 
+def _row_json(row: ViewRow) -> dict[str, Any]:
+    return {key: _finite_or_none(value) for key, value in asdict(row).items()}
+
+
 class _State:
     """The rows, scene and status the page polls, behind one lock (the live loop writes, the server reads)."""
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
         self.rows: list[dict[str, Any]] = []
+        self.head: list[dict[str, Any]] = []
+        self.revision = 0
         self.scene: dict[str, Any] | None = None
         self.status: dict[str, Any] = {}
 
     def snapshot(self, since: int) -> bytes:
         with self.lock:
-            state = {"scene": self.scene, "status": self.status, "total": len(self.rows),
-                     "since": since, "rows": self.rows[since:]}
+            state = {"scene": self.scene, "status": self.status, "total": len(self.rows), "since": since,
+                     "revision": self.revision, "rows": self.rows[since:], "head": self.head}
         return json.dumps(state, allow_nan=False).encode()
 
 
@@ -156,10 +165,23 @@ class LiveView:
             self._state.status = {key: _finite_or_none(value) for key, value in status.items()}
 
     def add_rows(self, rows: list[ViewRow]) -> None:
-        """Append positions to the track."""
-        converted = [{key: _finite_or_none(value) for key, value in asdict(row).items()} for row in rows]
+        """Append positions to the track; rows at or before the track's last time replace the track from there."""
+        converted = [_row_json(row) for row in rows]
+        if not converted:
+            return
         with self._state.lock:
-            self._state.rows.extend(converted)
+            held = self._state.rows
+            if held and converted[0]["t_s"] <= held[-1]["t_s"]:
+                keep = next(k for k, row in enumerate(held) if row["t_s"] >= converted[0]["t_s"])
+                del held[keep:]
+                self._state.revision += 1
+            held.extend(converted)
+
+    def set_head(self, rows: list[ViewRow]) -> None:
+        """Replace the stretch drawn ahead of the track (module docstring)."""
+        converted = [_row_json(row) for row in rows]
+        with self._state.lock:
+            self._state.head = converted
 
     @property
     def rows(self) -> int:
