@@ -12,7 +12,14 @@ from dataclasses import dataclass
 
 from dtmbnav_core.schema import ENDED_EARLY_ATTR
 from receiver.capture import CaptureSource
-from receiver.pipeline import ReceiverConfig, receive_file
+from receiver.pipeline import Receiver, ReceiverConfig, receive_file, receive_into_sink
+from receiver.reader import read_ahead
+from receiver.rtl_tcp import RtlTcpSource
+from receiver.writer import FrameSink
+
+#: Samples per block read from a live source: a tenth of a second at 2.4 Msps (the source hands on a block
+#: within LinkPolicy.flush_s anyway).
+LIVE_CHUNK_SAMPLES = 1 << 18
 
 
 @dataclass(frozen=True)
@@ -59,9 +66,27 @@ def receive_capture(source: CaptureSource, out_path: str | os.PathLike, config: 
     """Receive a capture into ``out_path`` (``/receiver/frames``) and summarise it.
 
     ``carrier_hz`` is the DTMB channel's centre, Hz (default: the capture's
-    centre plus ``config.channel_offset_hz``).
+    centre plus ``config.channel_offset_hz``). An :class:`~receiver.rtl_tcp.RtlTcpSource` is received as
+    it streams, its outages and start time (known only as the samples come) in the attributes.
     """
-    sink, attrs = receive_file(source, out_path, config, csv_path=csv_path, progress=progress, carrier_hz=carrier_hz)
+    if isinstance(source, RtlTcpSource):
+        sink, attrs = _receive_rtl_tcp(source, out_path, config, csv_path, progress, carrier_hz)
+    else:
+        sink, attrs = receive_file(source, out_path, config, csv_path=csv_path, progress=progress,
+                                   carrier_hz=carrier_hz)
     span = sink.last_t_s - sink.first_t_s if sink.frames else 0.0
     return ReceiveSummary(frames=sink.frames, attrs=attrs, gaps=sink.gaps, seconds=span,
                           ended_early=attrs.get(ENDED_EARLY_ATTR), path_rows=sink.paths)
+
+
+def _receive_rtl_tcp(source: RtlTcpSource, out_path: str | os.PathLike, config: ReceiverConfig,
+                     csv_path: str | None, progress: bool, carrier_hz: float | None) -> tuple[FrameSink, dict]:
+    """:func:`receiver.pipeline.receive_file` for a live source: its attributes are read after the stream."""
+    carrier = carrier_hz if carrier_hz is not None else source.center_hz + config.channel_offset_hz
+    rx = Receiver(source.sample_rate_hz, carrier, config)
+    with source:
+        chunks = read_ahead(source.chunks(LIVE_CHUNK_SAMPLES))   # connects first: no output without a server
+        sink = FrameSink(out_path, csv_path)
+        attrs = receive_into_sink(rx, chunks, sink, source=source.path, progress=progress,
+                                  attrs=source.attributes(), keep_on_input_error=True)
+    return sink, attrs

@@ -16,7 +16,9 @@ from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH, DEFAULT_GUARD_SPAN
 def add_parser(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
     """``dtmbnav receive`` and its options."""
     p = options.command_parser(subparsers, common, "receive", "IQ capture -> per-frame CFO, Doppler, range (HDF5)")
-    p.add_argument("capture", help="SigMF .sigmf-meta/.sigmf-data, raw file (+ .json sidecar), or - for stdin")
+    p.add_argument("capture", help="SigMF .sigmf-meta/.sigmf-data, raw file (+ .json sidecar), - for stdin, or "
+                                   "rtl_tcp://HOST[:PORT] for an RTL-SDR served by rtl_tcp (port 1234 by default; "
+                                   "needs --rate and --center; runs until the server goes away or Ctrl-C)")
     p.add_argument("-o", "--output", required=True, type=Path, help="output HDF5 file")
     p.add_argument("--format", choices=options.IQ_FORMATS, help="sample format of a raw file/stdin")
     p.add_argument("--rate", type=options.positive, help="sample rate of a raw file/stdin, Hz")
@@ -50,6 +52,10 @@ def add_parser(subparsers: argparse._SubParsersAction, common: argparse.Argument
                         "channel,tracking,paths; body is 30 kB a frame)")
     p.add_argument("--dump-window", metavar="START:STOP", type=options.seconds_window,
                    help="dump only the frames within these capture seconds")
+    g = p.add_argument_group("rtl_tcp")
+    g.add_argument("--gain", type=options.number, metavar="DB",
+                   help="tuner gain, dB (the tuner takes its nearest step; default: the tuner's automatic gain)")
+    g.add_argument("--ppm", type=int, metavar="N", help="frequency correction sent to the dongle, ppm (default 0)")
     options.add_receiver_options(p)
     p.set_defaults(handler=run, io_paths=io_paths, usage_problem=usage_problem)
 
@@ -58,10 +64,14 @@ def run(args: argparse.Namespace) -> int:
     """Run ``dtmbnav receive``; its exit code."""
     from dtmbnav.chain.receive import receive_capture
     from receiver.capture import MissingCaptureOptions, open_capture
+    from receiver.rtl_tcp import RtlTcpSource, parse_url
 
+    address = parse_url(args.capture)
     try:
-        source = open_capture(args.capture, sample_format=args.format, sample_rate_hz=args.rate,
-                              center_hz=args.center)
+        source = (RtlTcpSource(*address, sample_rate_hz=args.rate, center_hz=args.center, gain_db=args.gain,
+                               ppm=args.ppm or 0) if address is not None else
+                  open_capture(args.capture, sample_format=args.format, sample_rate_hz=args.rate,
+                               center_hz=args.center))
     except MissingCaptureOptions as exc:
         raise UsageError(f"{exc} (--format, --rate)") from None
     if source.center_hz is None:
@@ -97,10 +107,25 @@ def run(args: argparse.Namespace) -> int:
     print(summary.describe(), file=sys.stderr)
     for note in filter(None, str(summary.attrs.get("notes", "")).split("\n")):
         options.warn(args, note)
+    if address is not None:
+        _warn_outages(args, source)
     if summary.ended_early:
         options.warn(args, f"the input ended early ({summary.ended_early}); {args.output} holds the "
                            f"{summary.frames} frame(s) received before it and says so (attribute ended_early)")
     return EXIT_OK if summary.frames else EXIT_NO_RESULT
+
+
+def _warn_outages(args: argparse.Namespace, source) -> None:
+    """The rtl_tcp connection's outages and end, one line each."""
+    for outage in source.outages:
+        unfilled = outage.lost_samples - outage.filled_samples
+        options.warn(args, f"connection lost at stream second {outage.sample_index / source.sample_rate_hz:.2f} "
+                           f"({outage.reason}) for {outage.duration_s:.2f} s: {outage.lost_samples} samples lost, "
+                           "handed on as zeros (the first frame after them is flagged GAP)"
+                           + (f"; {unfilled} of them beyond the fill limit: the frames after it are early by "
+                              f"{unfilled / source.sample_rate_hz:.2f} s" if unfilled else ""))
+    if source.end_reason:
+        options.warn(args, f"the stream ended: {source.end_reason}")
 
 
 def _receiver_config(args: argparse.Namespace):
@@ -143,12 +168,33 @@ def io_paths(args: argparse.Namespace) -> IoPaths:
     stands for (both SigMF files, a raw file's sidecar), so that no output can overwrite one of them."""
     from receiver.capture import capture_files
 
+    if args.capture.startswith("rtl_tcp://"):
+        return given_paths([], [("-o", args.output), ("--csv", args.csv), ("--dump", args.dump)])
     return given_paths([("CAPTURE", str(f)) for f in capture_files(args.capture)],
                        [("-o", args.output), ("--csv", args.csv), ("--dump", args.dump)])
 
 
 def usage_problem(args: argparse.Namespace) -> str | None:
     """Option combinations argparse cannot see; None when fine."""
+    from dtmbnav_core.rtltcp import SAMPLE_FORMAT
+    from receiver.rtl_tcp import parse_url
+
+    try:
+        live = parse_url(args.capture) is not None
+    except ValueError as exc:
+        return str(exc)
+    if live:
+        if args.rate is None or args.center is None:
+            return "rtl_tcp:// needs --rate and --center (they are sent to the dongle)"
+        if args.format not in (None, SAMPLE_FORMAT):
+            return f"rtl_tcp streams {SAMPLE_FORMAT}, not --format {args.format}"
+        if args.start_time is not None:
+            return "--start-time does not go with rtl_tcp:// (the host's clock gives the start time)"
+        for name, value in (("--rate", args.rate), ("--center", args.center)):
+            if value != round(value) or value >= 2 ** 32:
+                return f"{name} {value:g}: rtl_tcp takes a whole number of Hz below 2**32"
+    elif args.gain is not None or args.ppm is not None:
+        return "--gain and --ppm are sent to an rtl_tcp:// server; a capture cannot take them"
     if args.capture == "-" and (args.format is None or args.rate is None):
         return "reading stdin (-) needs --format and --rate"
     if args.static_window <= 0 and args.clock_offset is None:
