@@ -103,17 +103,25 @@ def read_origin(path: str | os.PathLike) -> GeodeticPoint | None:
     return None if origin is None else GeodeticPoint(*origin)
 
 
-def tower_in_sensors_frame(sensors_path: str | os.PathLike, tower: GeodeticPoint) -> tuple[float, float, float]:
-    """A tower given by latitude and longitude in the ENU frame of a sensors file.
+def tower_in_frame(origin: GeodeticPoint, tower: GeodeticPoint) -> tuple[float, float, float]:
+    """A tower given by latitude and longitude in the ENU frame about ``origin`` (the phone's first fix).
 
     Returns
     -------
     x_m, y_m : float
-        East and north of the tower about the file's origin, m.
+        East and north of the tower about the origin, m.
     height_m : float
         The tower antenna's height above the receiver's antenna, m: its up coordinate (the origin is the
         phone's first fix, so its height is the antenna's) when the tower's height is given, else 0 (as
         ``--tower X,Y``).
+    """
+    height = tower.height_m if tower.height_m is not None else origin.height_m
+    east, north, up = to_enu(np.array([tower.lat_deg]), np.array([tower.lon_deg]), np.array([height]), origin)
+    return float(east[0]), float(north[0]), float(up[0]) if tower.height_m is not None else 0.0
+
+
+def required_origin(sensors_path: str | os.PathLike) -> GeodeticPoint:
+    """A sensors file's geodetic origin (:func:`read_origin`).
 
     Raises
     ------
@@ -124,6 +132,9 @@ def tower_in_sensors_frame(sensors_path: str | os.PathLike, tower: GeodeticPoint
     if origin is None:
         raise ValueError(f"{sensors_path}: no geodetic origin (/gnss attributes origin_lat_deg, origin_lon_deg, "
                          "origin_height_m, written by 'dtmbnav sensors'); give the tower in its frame with --tower X,Y")
-    height = tower.height_m if tower.height_m is not None else origin.height_m
-    east, north, up = to_enu(np.array([tower.lat_deg]), np.array([tower.lon_deg]), np.array([height]), origin)
-    return float(east[0]), float(north[0]), float(up[0]) if tower.height_m is not None else 0.0
+    return origin
+
+
+def tower_in_sensors_frame(sensors_path: str | os.PathLike, tower: GeodeticPoint) -> tuple[float, float, float]:
+    """:func:`tower_in_frame` about a sensors file's origin (ValueError without one: :func:`required_origin`)."""
+    return tower_in_frame(required_origin(sensors_path), tower)

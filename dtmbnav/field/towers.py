@@ -16,7 +16,7 @@ field                       unit      what
 
 An empty CSV cell is a field not given. Every value is checked as it is read, and an error names the
 file and the CSV line or the ``[[towers]]`` entry (counted from 1). :func:`towers_for_fuse` picks the
-towers a fusion uses and puts them into a sensors file's ENU frame (:func:`tower_in_sensors_frame`);
+towers a fusion uses and puts them into a sensors file's ENU frame (:func:`towers_about`: about any origin);
 :func:`write_towers_csv` writes a towers file back (``dtmbnav towers calibrate``'s surveyed one).
 """
 
@@ -34,7 +34,7 @@ from typing import Any
 
 from dtmbnav_core import schema
 from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ
-from dtmbnav_core.geodetic import GeodeticPoint, tower_in_sensors_frame
+from dtmbnav_core.geodetic import GeodeticPoint, required_origin, tower_in_frame
 from dtmbnav_core.h5io import atomic_path, read_attrs
 from dtmbnav_core.schema import TOWERS_CSV_COLUMNS, TOWERS_CSV_OPTIONAL, TOWERS_CSV_REQUIRED
 from fusion.transmit_delays import DEFAULT_PLAN_SIGMA_S, TransmitDelays
@@ -316,7 +316,12 @@ def towers_for_fuse(towers_path: str | os.PathLike, names: tuple[str, ...] | Non
     if any(t.channel_hz is not None for t in towers):
         carrier_hz = _recorded_carrier_hz(receiver_path)
     chosen, note = choose_towers(towers, towers_path, names, carrier_hz)
-    sites = [tower_in_sensors_frame(sensors_path, t.point()) for t in chosen]
+    return towers_about(chosen, required_origin(sensors_path), note)
+
+
+def towers_about(chosen: tuple[Tower, ...], origin: GeodeticPoint, note: str | None = None) -> TowerLayout:
+    """The towers ``chosen`` (the ranging tower first) as a :class:`TowerLayout` in the ENU frame about ``origin``."""
+    sites = [tower_in_frame(origin, t.point()) for t in chosen]
     delays = None
     if any(t.transmit_delay_s is not None for t in chosen):
         delays = TransmitDelays(
