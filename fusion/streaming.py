@@ -25,12 +25,22 @@ caller aligns them). It runs the batch path's own pieces in the same order:
    heading the batch starts from (given the same epochs). Until then each
    step is given as the PDR from the start fix rotated by the best heading
    so far (eq. 15 over all complete epochs, re-solved every
-   :data:`PROVISIONAL_SOLVE_S`), with a covariance that holds that heading's
+   :data:`PROVISIONAL_SOLVE_S` or :data:`PROVISIONAL_SOLVE_FRACTION` of the
+   walk so far, whichever is longer), with a covariance that holds that heading's
    uncertainty (:func:`provisional_covariance_m2`), flagged unfiltered.
 3. **Filters.** Once the heading is confident the filters start at P0, run
    the buffered epochs (their rows are given again, filtered: a row
    supersedes an earlier one of the same time), then step with each epoch
    as it completes.
+4. **Now-cast.** Settled steps come seconds after their samples, so
+   :meth:`~StreamingFusion.nowcast` carries the live position on to the
+   PDR's provisional steps (those it found after its last settled one, which
+   may still change or vanish): from the live filter's latest estimate along
+   their displacement, turned by the filter's heading and scaled by its
+   speed, with a covariance that adds the displacement's uncertainty
+   (before the heading is confident, the provisional stage's rule on them).
+   Its rows never enter the filters; each call's rows replace the previous
+   call's, and the settled rows supersede them.
 
 Only the filters that need nothing of the epochs ahead run here
 (:data:`STREAMING_FILTERS`): the WT-UKF and the adaptive EKF read their
@@ -52,18 +62,33 @@ import numpy as np
 from dtmbnav_core.records import FusedTrack, PdrSteps, RangeSeries
 from fusion.driver import FusionFilter, step_filter, step_track
 from fusion.heading_init import HEADING_WINDOW_S, MIN_CONFIDENCE, HeadingSolution, rotate_pdr
-from fusion.model import Geometry, STATE_SIZE, wrap_angle
-from fusion.observations import (FilterEpochs, RangeEpochs, build_epochs, line_of_sight_snr_db, origin_counts,
-                                 origins_from_counts, range_windows, segment_breaks, settled, snr_deficit_passes,
-                                 standstill_times)
+from fusion.model import HEADING, SPEED, STATE_SIZE, Geometry, X, Y, wrap_angle
+from fusion.observations import (
+    RangeEpochs,
+    build_epochs,
+    line_of_sight_snr_db,
+    origin_counts,
+    origins_from_counts,
+    range_windows,
+    segment_breaks,
+    settled,
+    snr_deficit_passes,
+    standstill_times,
+)
 from fusion.run import FILTER_BUILDERS, FusionConfig, FusionResult, initial_heading, with_heading_spread
 
 #: The filters that can be streamed: built from the first step alone, each epoch seen once, in order.
 STREAMING_FILTERS = ("pf", "ukf", "rank-kf")
 
-#: How often the provisional heading (eq. 15 over all complete epochs) is re-solved, s of walk: each solve
-#: costs a grid search, and the heading moves little between solves.
+#: How often the provisional heading (eq. 15 over all complete epochs) is re-solved, s of walk, at the least:
+#: each solve costs a grid search and a refinement of every local minimum, and the heading moves little between
+#: solves.
 PROVISIONAL_SOLVE_S = 5.0
+
+#: ... and at the least this fraction of the walk so far apart: a solve costs in proportion to the epochs, so
+#: the solves of a heading that stays unconfident (a long straight start) cost a bounded CPU per second of walk
+#: instead of one growing with the walk, while the first minute's solves stay 5 s apart.
+PROVISIONAL_SOLVE_FRACTION = 0.25
 
 #: The PDR's distance error the provisional positions state, as a fraction of the distance walked (1 sigma):
 #: the step-length gain errors eq. 15's scale bounds allow for (0.8-1.25) at about two sigma.
@@ -84,17 +109,29 @@ class LivePositions(FusedTrack):
     Attributes
     ----------
     filtered : ndarray of bool
-        True: the live filter's estimate; False: the heading is not yet
+        True: from the live filter's estimate; False: the heading is not yet
         confident, the row is the PDR from the start fix rotated by the best
         heading so far, with that heading's uncertainty in its covariance.
+    nowcast : ndarray of bool
+        True: a now-cast row (:meth:`StreamingFusion.nowcast`) at a
+        provisional PDR step, carried on from the filter's estimate
+        (``filtered``) or from the provisional stage; it never enters the
+        filters and is superseded by the settled step's row.
     """
 
     filtered: np.ndarray
+    nowcast: np.ndarray
 
     @classmethod
     def empty(cls) -> LivePositions:
         """No rows."""
-        return cls(*(np.empty(0) for _ in range(8)), filtered=np.empty(0, dtype=bool))
+        return cls.of(FusedTrack(*(np.empty(0) for _ in range(8))), filtered=False, nowcast=False)
+
+    @classmethod
+    def of(cls, track: FusedTrack, *, filtered: bool, nowcast: bool) -> LivePositions:
+        """The rows of ``track``, all of one stage."""
+        n = len(track)
+        return cls(**track.columns(), filtered=np.full(n, filtered), nowcast=np.full(n, nowcast))
 
 
 def provisional_covariance_m2(dx_m: np.ndarray, dy_m: np.ndarray, heading_sigma_rad: np.ndarray | float,
@@ -261,6 +298,71 @@ class StreamingFusion:
         self._out = []
         return LivePositions.empty() if not out else _concat_all(out)
 
+    def nowcast(self, provisional: PdrSteps) -> LivePositions:
+        """Positions at the PDR's provisional steps, carried on from the latest estimate (module docstring, 4).
+
+        Once the heading is confident each row is the live filter's estimate
+        at its last epoch plus the PDR's displacement from that epoch's step to
+        the provisional one (the settled steps the filter has not run yet
+        included), turned into ENU by the filter's heading less the PDR's
+        relative heading at that step (the solved initial heading and the
+        offset the filter has found since) and scaled by the filter's speed
+        over the PDR's there (the step-length gain the range has found). The
+        filter's heading rate is left out: over the seconds a now-cast spans
+        it turns the path by far less than the heading's sigma. Covariance:
+        the filter's position covariance plus
+        :func:`provisional_covariance_m2` of the displacement, with the
+        filter's heading sigma (the PF's particles' weighted one, a Kalman
+        filter's ``P``) grown by ``config.heading_drift_radps`` over the time
+        since the epoch. Before, the provisional stage's rows for the steps.
+
+        The filter is only read (its estimate and covariances, no copy); the
+        rows never enter the filters. They are flagged ``nowcast``; a later
+        call's rows replace them (a provisional step may move or vanish), and
+        the settled step's row supersedes them.
+
+        Parameters
+        ----------
+        provisional : PdrSteps
+            The steps after the last settled one (PDR frame, positions
+            continuing from it; times on the range's clock, increasing).
+
+        Returns
+        -------
+        LivePositions
+            One row per provisional step (none for none).
+
+        Raises
+        ------
+        ValueError
+            If their times do not increase past the last settled step's, or after :meth:`finish`.
+        """
+        self._check_open()
+        if not len(provisional):
+            return LivePositions.empty()
+        t = np.asarray(provisional.t_s, dtype=np.float64)
+        last = -np.inf if self._pdr is None else float(self._pdr.t_s[-1])
+        if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0) or t[0] <= last:
+            raise ValueError(f"nowcast: provisional step times must increase past the last settled step ({last} s)")
+        if self.heading is None:
+            return LivePositions.of(self._provisional_track(provisional), filtered=False, nowcast=True)
+        live = self._filters[self.live_filter]
+        state = live.estimate()
+        epoch_s = float(self._epochs.t_s[self._run_epochs - 1])
+        k = int(np.searchsorted(self._pdr.t_s, epoch_s, "right")) - 1   # the step the filter's last epoch holds
+        turn = float(state[HEADING]) - float(self._pdr.heading_rad[k])
+        scale = float(state[SPEED]) / float(self._pdr.speed_mps[k])
+        dx, dy = rotate_pdr(np.asarray(provisional.x_m) - float(self._pdr.x_m[k]),
+                            np.asarray(provisional.y_m) - float(self._pdr.y_m[k]), turn)
+        dx, dy = scale * dx, scale * dy
+        sigma = np.hypot(np.sqrt(_heading_variance_rad2(live)), self.config.heading_drift_radps * (t - epoch_s))
+        cov = live.position_covariance_m2() + provisional_covariance_m2(dx, dy, np.minimum(sigma, np.pi), 0.0)
+        track = FusedTrack(t_s=t, x_m=float(state[X]) + dx, y_m=float(state[Y]) + dy,
+                           heading_rad=(np.asarray(provisional.heading_rad) + turn) % (2.0 * np.pi),
+                           speed_mps=scale * np.asarray(provisional.speed_mps, dtype=np.float64),
+                           var_x_m2=cov[:, 0, 0], var_y_m2=cov[:, 1, 1], cov_xy_m2=cov[:, 0, 1])
+        return LivePositions.of(track, filtered=True, nowcast=True)
+
     def finish(self) -> FusionResult:
         """Aggregate what is left, start the filters if the heading never got confident, and give the tracks.
 
@@ -401,7 +503,8 @@ class StreamingFusion:
                 self._start_filters(solution)
                 return
             self._window_s *= 2.0
-        if complete >= 2 and t[complete - 1] >= self._provisional_at_s + PROVISIONAL_SOLVE_S:
+        interval = max(PROVISIONAL_SOLVE_S, PROVISIONAL_SOLVE_FRACTION * (self._provisional_at_s - t[0]))
+        if complete >= 2 and t[complete - 1] >= self._provisional_at_s + interval:
             self._provisional_at_s = float(t[complete - 1])
             try:
                 self._provisional = self._solve(complete, None)
@@ -409,19 +512,22 @@ class StreamingFusion:
                 self._provisional = None
 
     def _provisional_rows(self, first: int) -> None:
-        """Steps ``first`` on as the PDR from P0 turned by the best heading so far, with its uncertainty."""
-        steps = self._pdr.select(slice(first, None))
+        """Steps ``first`` on as the provisional stage's rows (:meth:`_provisional_track`)."""
+        track = self._provisional_track(self._pdr.select(slice(first, None)))
+        self._out.append(LivePositions.of(track, filtered=False, nowcast=False))
+
+    def _provisional_track(self, steps: PdrSteps) -> FusedTrack:
+        """``steps`` (PDR frame, from P0) turned by the best heading so far, with its uncertainty."""
         heading = 0.0 if self._provisional is None else self._provisional.heading_rad
         dx, dy = rotate_pdr(np.asarray(steps.x_m), np.asarray(steps.y_m), heading)
-        elapsed = np.asarray(steps.t_s) - float(self._pdr.t_s[0])
+        elapsed = np.asarray(steps.t_s) - float((steps if self._pdr is None else self._pdr).t_s[0])
         sigma = np.hypot(provisional_sigma_rad(self._provisional), self.config.heading_drift_radps * elapsed)
         cov = provisional_covariance_m2(dx, dy, np.minimum(sigma, np.pi), self.config.noise.initial_position_m)
-        track = FusedTrack(t_s=np.asarray(steps.t_s, dtype=np.float64), x_m=self.start_xy_m[0] + dx,
-                           y_m=self.start_xy_m[1] + dy,
-                           heading_rad=(np.asarray(steps.heading_rad) + heading) % (2.0 * np.pi),
-                           speed_mps=np.asarray(steps.speed_mps, dtype=np.float64), var_x_m2=cov[:, 0, 0],
-                           var_y_m2=cov[:, 1, 1], cov_xy_m2=cov[:, 0, 1])
-        self._out.append(LivePositions(**track.columns(), filtered=np.zeros(len(track), dtype=bool)))
+        return FusedTrack(t_s=np.asarray(steps.t_s, dtype=np.float64), x_m=self.start_xy_m[0] + dx,
+                          y_m=self.start_xy_m[1] + dy,
+                          heading_rad=(np.asarray(steps.heading_rad) + heading) % (2.0 * np.pi),
+                          speed_mps=np.asarray(steps.speed_mps, dtype=np.float64), var_x_m2=cov[:, 0, 0],
+                          var_y_m2=cov[:, 1, 1], cov_xy_m2=cov[:, 0, 1])
 
     # ---------------------------------------------------------------- filters
 
@@ -463,7 +569,14 @@ class StreamingFusion:
                 live = track
         self._run_epochs = len(epochs_t)
         if len(live):
-            self._out.append(LivePositions(**live.columns(), filtered=np.ones(len(live), dtype=bool)))
+            self._out.append(LivePositions.of(live, filtered=True, nowcast=False))
+
+
+def _heading_variance_rad2(fusion_filter: FusionFilter) -> float:
+    """A streaming filter's heading variance, rad^2: its particles' weighted one (the PF's ``summary``), or its
+    Kalman covariance ``P``'s (the UKF and rank KF)."""
+    covariance = fusion_filter.summary()[1] if hasattr(fusion_filter, "summary") else fusion_filter.P
+    return float(covariance[HEADING, HEADING])
 
 
 def _concat_all(records: list) -> object:
