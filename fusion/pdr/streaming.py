@@ -17,12 +17,18 @@ before the walk), with memory bounded whatever the walk's length:
   carriage-change test and the walking direction's running median read (or, when the
   walker has stopped, ``hold_s`` has passed);
 - the heading of each new step is the last given step's plus the change between the two
-  in the window's run, and the positions continue the given ones.
+  in the window's run (from the yaw over the last given step's samples where the run no
+  longer finds it), and the positions continue the given ones.
+
+Settled steps come out well behind the newest sample (the look-ahead, the bout, the steps a
+heading reads, and up to ``update_s``). :meth:`StreamingPdr.provisional` gives, between two
+settled batches, the steps the last rerun found after the last settled one, up to the newest
+samples: for a live position, to be taken back when the settled steps come.
 
 What the batch decides from the whole walk is decided here from the walk so far, and
 said in :attr:`StreamingPdr.notes`: ``heading_source="auto"`` switches to the walking
-direction at the step where it is decided (the swing so far, or a change of carriage) and
-never back; the carriage (and so a per-carriage Weinberg gain) is that of the steps so far.
+direction at the step where it is decided (the swing so far, or a change of carriage the
+window shows, before or after that step) and never back; the carriage (and so a per-carriage Weinberg gain) is that of the steps so far.
 """
 
 from __future__ import annotations
@@ -39,8 +45,16 @@ from fusion.pdr.attitude import forward_heading, gyro_bias_at_rest, madgwick_att
 from fusion.pdr.dead_reckoning import dead_reckon, mean_heading_over_windows
 from fusion.pdr.pipeline import PdrConfig, check_config, check_imu, has_magnetometer, weinberg_gain
 from fusion.pdr.step_length import frequency_length, weinberg_length
-from fusion.pdr.steps import StepDetectorConfig, bouts, in_bouts, step_candidates, step_windows
-from fusion.pdr.walking_direction import walking_direction
+from fusion.pdr.steps import (
+    DetectedSteps,
+    StepCandidates,
+    StepDetectorConfig,
+    bouts,
+    in_bouts,
+    step_candidates,
+    step_windows,
+)
+from fusion.pdr.walking_direction import vertical_yaw, walking_direction
 
 #: Steps after a step that the carriage-change test reads (the strides either side, and the peak test over 2 more).
 CHANGE_LOOKAHEAD_STEPS = 4
@@ -115,12 +129,14 @@ class StreamingPdr:
         self._q_wxyz = np.zeros(4)
         self._rate_hz = np.nan
         self._last_t = -np.inf  # peak time of the last step given out
+        self._last_start = -np.inf  # start of its window
         self._last_heading = 0.0
         self._x = self._y = 0.0
         self._n_swinging = self._n_steady = 0
         self._walking = config.heading_source == "walking"
         self._notes: list[str] = []
         self._trimmed_prewalk = False
+        self._provisional = _empty_steps()
 
     # ---- what the stream knows so far
     @property
@@ -149,6 +165,28 @@ class StreamingPdr:
     def buffered_samples(self) -> int:
         """IMU samples held (bounded by ``trailing_s``, or ``prewalk_s`` before the walk)."""
         return len(self._t)
+
+    def provisional(self) -> PdrSteps:
+        """The steps after the last settled one, as the last rerun found them; not final.
+
+        What a live position shows between two settled batches. They are the last
+        rerun's candidates after the last step given out by :meth:`add`, up to the
+        newest samples it had, in bouts as the batch keeps them, and the open bout
+        at the window's end whatever its length (it may yet reach
+        ``min_bout_steps``). Positions continue from the last settled step's; the
+        heading is the settled steps' rule (the last settled heading plus the
+        change the rerun sees from that step, from the source :attr:`heading_source`
+        names now), the lengths the same model's. A later call may move, add or take
+        out any of them: the settled steps replace them.
+
+        The newest of them lags the newest sample by up to ``update_s`` (the samples
+        since the last rerun), plus the time until the peak after the newest one
+        stands out (the smoothing's half-window, a sample or two), plus up to a step
+        when the newest peak's neighbourhood is still ambiguous. Empty before the first
+        settled step (the attitude and the heading's reference start there) or after
+        :meth:`finish`. Nothing is computed here: the rerun in :meth:`add` keeps them.
+        """
+        return self._provisional
 
     # ---- input
     def add(self, imu: ImuLog) -> PdrSteps:
@@ -181,6 +219,7 @@ class StreamingPdr:
 
     def finish(self) -> PdrSteps:
         """The steps left at the end of the stream."""
+        self._provisional = _empty_steps()
         if len(self._t) < 2:
             return _empty_steps()
         return self._update(final=True)
@@ -260,10 +299,11 @@ class StreamingPdr:
                 if not self._started:
                     self._start_walk(float(detected.t_s[0]))
                 steps = self._give_out(detected, final)
+        self._provisional = _empty_steps() if final or candidates is None else self._provisional_steps(candidates)
         self._trim()
         return steps
 
-    def _give_out(self, detected, final: bool) -> PdrSteps:
+    def _give_out(self, detected: DetectedSteps, final: bool) -> PdrSteps:
         """The detected steps not given out before whose heading is settled, in the PDR frame."""
         t = self._t
         config = self.config
@@ -296,8 +336,11 @@ class StreamingPdr:
         swinging = walking.swing_rad[new] > np.radians(config.walking.swing_deg)
         self._n_swinging += int(np.count_nonzero(swinging))
         self._n_steady += int(np.count_nonzero(~swinging))
-        if walking.carriage_change[new].any() or (config.heading_source == "auto" and self.carriage == "swinging"):
-            self._switch_to_walking(float(detected.t_s[new[0]]), walking.carriage_change[new].any())
+        # A change the run sees after these steps is one the batch sees: it takes the walking direction
+        # (which holds the heading across the handling) for the whole walk.
+        changed = bool(walking.carriage_change[new[0]:].any())
+        if changed or (config.heading_source == "auto" and self.carriage == "swinging"):
+            self._switch_to_walking(float(detected.t_s[new[0]]), changed)
         for i in new[walking.carriage_change[new]]:
             self._notes.append(f"pdr: the phone changed carriage (its attitude moved by more than "
                                f"{config.walking.change_deg:g} deg) before the step at {detected.t_s[i]:.2f} s: "
@@ -305,26 +348,81 @@ class StreamingPdr:
                                + ("" if self._walking else ", but the heading is the phone's "
                                   "(heading_source='phone'), so it may turn there"))
         heading = walking.heading_rad if self._walking else phone
-        anchor = np.flatnonzero(np.abs(detected.t_s - self._last_t) < half_sample)
         if np.isfinite(self._last_t):
-            # Continue from the last step given out; across a window that lost it, without a turn.
-            base = heading[anchor[0]] if anchor.size else heading[new[0]]
+            base = self._anchor_heading(t, rotation, self._still, detected, heading, int(new[0]))
             step_heading = self._last_heading + heading[new] - base
         else:
             step_heading = heading[new]
-        duration = detected.duration_s[new]
-        if config.step_model == "weinberg":
-            lengths = weinberg_length(detected.acc_max_mps2[new], detected.acc_min_mps2[new],
-                                      weinberg_gain(config, self.carriage))
-        else:
-            lengths = frequency_length(1.0 / duration)
-        out = dead_reckon(detected.t_s[new], detected.start_t_s[new], lengths, step_heading)
-        out.x_m += self._x
-        out.y_m += self._y
+        out = self._continue_track(detected, new, step_heading)
         self._x, self._y = float(out.x_m[-1]), float(out.y_m[-1])
         self._last_t = float(detected.t_s[new[-1]])
+        self._last_start = float(detected.start_t_s[new[-1]])
         self._last_heading = float(step_heading[-1])
         return out
+
+    def _continue_track(self, detected: DetectedSteps, new: np.ndarray, heading_rad: np.ndarray) -> PdrSteps:
+        """The steps ``new`` of ``detected`` with these headings, from the last settled position."""
+        if self.config.step_model == "weinberg":
+            lengths = weinberg_length(detected.acc_max_mps2[new], detected.acc_min_mps2[new],
+                                      weinberg_gain(self.config, self.carriage))
+        else:
+            lengths = frequency_length(1.0 / detected.duration_s[new])
+        out = dead_reckon(detected.t_s[new], detected.start_t_s[new], lengths, heading_rad)
+        out.x_m += self._x
+        out.y_m += self._y
+        return out
+
+    def _provisional_steps(self, candidates: StepCandidates) -> PdrSteps:
+        """The last rerun's steps after the last settled one, up to the newest samples (:meth:`provisional`)."""
+        if not np.isfinite(self._last_t):
+            return _empty_steps()
+        t = self._t
+        config = self.config.steps
+        peaks = candidates.peaks
+        kept = in_bouts(peaks, candidates.period_samples, candidates.periodic, config)
+        strong, bout = bouts(peaks, candidates.period_samples, candidates.periodic, config)
+        if strong.size and t[-1] - t[peaks[strong[-1]]] < config.bout_tolerance * config.max_period_s:
+            kept = np.union1d(kept, peaks[strong[bout == bout[-1]]])  # the open bout may yet be long enough
+        half_sample = 0.5 / self._rate_hz
+        new = np.flatnonzero(t[kept] > self._last_t + half_sample)
+        if new.size == 0:
+            return _empty_steps()
+        detected = step_windows(t, candidates.dyn_mps2, kept, candidates.rate_hz, config)
+        anchor = np.flatnonzero(np.abs(detected.t_s - self._last_t) < half_sample)
+        # The heading's change from the anchor on needs only the strides the running median reads before it.
+        first = max(0, int(anchor[0] if anchor.size else new[0]) - self.config.walking.smoothing_steps // 2)
+        first_sample = int(np.searchsorted(t, min(detected.start_t_s[first], self._last_start)))
+        tail = slice(first_sample, len(t))
+        t_tail, still = t[tail], self._still[tail]
+        rotation = Rotation.from_quat(self._quat[tail])
+        steps = DetectedSteps(*(a[first:] for a in (detected.t_s, detected.start_t_s, detected.acc_max_mps2,
+                                                     detected.acc_min_mps2)))
+        if self._walking:
+            heading = walking_direction(t_tail, self._acc[tail], self._gyro[tail] - self._bias, rotation, still,
+                                        steps.t_s, steps.start_t_s, self._attitude.gain, self.config.walking).heading_rad
+        else:
+            heading = mean_heading_over_windows(t_tail, forward_heading(t_tail, rotation, still), steps.start_t_s,
+                                                steps.t_s)
+        base = self._anchor_heading(t_tail, rotation, still, steps, heading, int(new[0] - first))
+        return self._continue_track(detected, new, self._last_heading + heading[new - first] - base)
+
+    def _anchor_heading(self, t: np.ndarray, rotation: Rotation, still: np.ndarray, detected: DetectedSteps,
+                        heading: np.ndarray, first_new: int) -> float:
+        """The heading this run gives the last step given out, which the new steps' change is counted from, rad.
+
+        A run that no longer finds that step (it lay near the window's start, and the walker stood still
+        long after it) counts from it the change of the heading source's yaw between its window and the
+        first new step's, while its samples are held; without a turn once they are not.
+        """
+        anchor = np.flatnonzero(np.abs(detected.t_s - self._last_t) < 0.5 / self._rate_hz)
+        if anchor.size:
+            return float(heading[anchor[0]])
+        if self._last_start < t[0]:
+            return float(heading[first_new])
+        yaw = vertical_yaw(rotation, np.zeros(0, dtype=int)) if self._walking else forward_heading(t, rotation, still)
+        before, after = mean_heading_over_windows(t, yaw, np.array([self._last_start, detected.start_t_s[first_new]]),
+                                                  np.array([self._last_t, detected.t_s[first_new]]))
+        return float(heading[first_new] - (after - before))
 
     def _switch_to_walking(self, t_s: float, changed: bool) -> None:
         if self._walking or self.config.heading_source != "auto":
