@@ -128,11 +128,8 @@ def test_streamed_steps_are_the_batch_steps(run):
 
 
 def test_provisional_steps_lead_the_settled_ones_to_the_newest_sample(run):
-    """After every chunk: after the last settled step, continuing its track, close to the newest sample.
-
-    Within 1.5 s of the newest sample while walking; 2.5 s in the first 4 s after setting off from
-    the pause, where the detector's periodicity takes a few steps to build up.
-    """
+    """After every chunk: after the last settled step, continuing its track, within 1.5 s of the newest sample
+    while walking (setting off from the pause too), and for the most part as they settle later."""
     settled = run.settled
     half_sample = 0.5 / RATE_HZ
     batch_t = _batch(run.imu).steps.t_s
@@ -144,10 +141,7 @@ def test_provisional_steps_lead_the_settled_ones_to_the_newest_sample(run):
             assert len(steps) == 0  # no attitude, no heading reference yet
             continue
         if np.count_nonzero((batch_t > newest - 1.5) & (batch_t <= newest)) >= 2:  # walking
-            setting_off = np.any((newest - set_off >= 0) & (newest - set_off < 4.0))
-            lag = newest - steps.t_s[-1] if len(steps) else np.inf
-            assert lag <= (2.5 if setting_off else 1.5)
-            lags.append(lag)
+            lags.append(newest - steps.t_s[-1] if len(steps) else np.inf)
         if len(steps) == 0:
             continue
         assert steps.t_s[0] > last + half_sample
@@ -163,7 +157,7 @@ def test_provisional_steps_lead_the_settled_ones_to_the_newest_sample(run):
         matched += np.count_nonzero(same)
         moved.extend(np.hypot(settled["x_m"][nearest] - steps.x_m, settled["y_m"][nearest] - steps.y_m)[same])
         turned.extend(np.angle(np.exp(1j * (settled["heading_rad"][nearest] - steps.heading_rad)))[same])
-    assert len(set_off) == 1 and len(lags) > 25
+    assert len(set_off) == 1 and len(lags) > 25 and max(lags) <= 1.5
     assert matched >= 0.95 * shown
     assert np.degrees(np.abs(turned)).max() <= 2.0
     assert np.percentile(moved, 90) <= 0.05

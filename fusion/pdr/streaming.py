@@ -173,7 +173,9 @@ class StreamingPdr:
         rerun's candidates after the last step given out by :meth:`add`, up to the
         newest samples it had, in bouts as the batch keeps them, and the open bout
         at the window's end whatever its length (it may yet reach
-        ``min_bout_steps``). Positions continue from the last settled step's; the
+        ``min_bout_steps``), its newest candidates taken as periodic while their
+        periodicity window still runs past the newest sample (so that setting off
+        again after a stop shows at once). Positions continue from the last settled step's; the
         heading is the settled steps' rule (the last settled heading plus the
         change the rerun sees from that step, from the source :attr:`heading_source`
         names now), the lengths the same model's. A later call may move, add or take
@@ -379,8 +381,11 @@ class StreamingPdr:
         t = self._t
         config = self.config.steps
         peaks = candidates.peaks
-        kept = in_bouts(peaks, candidates.period_samples, candidates.periodic, config)
-        strong, bout = bouts(peaks, candidates.period_samples, candidates.periodic, config)
+        # The newest candidates' periodicity is measured on windows that run past the newest sample (after
+        # a standstill they hold some of it): taken as periodic until the window is whole.
+        periodic = candidates.periodic | (t[peaks] > t[-1] - 0.5 * config.period_window_s - config.period_hop_s)
+        kept = in_bouts(peaks, candidates.period_samples, periodic, config)
+        strong, bout = bouts(peaks, candidates.period_samples, periodic, config)
         if strong.size and t[-1] - t[peaks[strong[-1]]] < config.bout_tolerance * config.max_period_s:
             kept = np.union1d(kept, peaks[strong[bout == bout[-1]]])  # the open bout may yet be long enough
         half_sample = 0.5 / self._rate_hz
