@@ -25,7 +25,7 @@ from fusion import (
     HEADING_RANGES,
     SI_RANGE_USES,
 )
-from receiver import DEFAULT_STATIC_WINDOW_S
+from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH, DEFAULT_GUARD_SPAN, DEFAULT_STATIC_WINDOW_S
 
 if TYPE_CHECKING:  # imported by the functions that use them, to keep --help instant
     from dtmbnav_core.geodetic import GeodeticPoint
@@ -228,6 +228,58 @@ def add_receiver_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--correct-iq", action=argparse.BooleanOptionalAction, default=True,
                    help="correct the I/Q gain and phase imbalance the receiver estimates from the signal's "
                         "circularity, headers left out (reported either way; default: on)")
+    g.add_argument("--jobs", type=positive_int, default=1, metavar="N",
+                   help="threads for the per-frame work, the next batch's run ahead of the current one's "
+                        "sequential update (default 1); the output is the same for any N")
+    g.add_argument("--doppler-check", action="store_true",
+                   help="move the first path to the Doppler line whose earliest path comes first (off by default: "
+                        "it helped the street walk it was set on and hurt held-out ones; docs/paths.md)")
+    g.add_argument("--clock-path", choices=CLOCK_PATHS, default=DEFAULT_CLOCK_PATH,
+                   help="measure the path ranges' f_s at the standstill on the first path or on the path whose "
+                        f"phase is steadiest there (default {DEFAULT_CLOCK_PATH}; docs/paths.md)")
+    g.add_argument("--guard-span", action=argparse.BooleanOptionalAction, default=DEFAULT_GUARD_SPAN,
+                   help="track paths up to the guard interval either side of the frame timing (55.6 us in PN420, "
+                        "125 us in PN945: the towers of a single-frequency network that far apart), the m-sequence "
+                        "alias resolved, where the header phase rotates; --no-guard-span: the header's cyclic "
+                        "extension only (-11..11 us in PN420, -29..29 us in PN945), faster (default: "
+                        f"{'on' if DEFAULT_GUARD_SPAN else 'off'}; docs/paths.md)")
+
+
+def receiver_config(args: argparse.Namespace):
+    """The receiver's configuration from :func:`add_receiver_options`' flags."""
+    from receiver.delay_doppler import CHECK_FRAMES, DopplerConfig
+    from receiver.paths import PathConfig
+    from receiver.pipeline import ReceiverConfig
+
+    doppler = DopplerConfig(frames=CHECK_FRAMES if args.doppler_check else 0)
+    return ReceiverConfig(pn_mode=args.pn_mode, static_window_s=args.static_window,
+                          clock_offset_hz=args.clock_offset,
+                          iq_orientation="conjugate" if args.conjugate else "auto", jobs=args.jobs,
+                          track_paths=not args.no_paths, paths=PathConfig(doppler=doppler, clock_path=args.clock_path,
+                                                                       guard_span=args.guard_span),
+                          remove_dc=not args.keep_dc, correct_iq=args.correct_iq)
+
+
+def channel_centre(args: argparse.Namespace, source, where: str) -> float:
+    """The DTMB channel's centre, Hz: ``--channel``, else the capture's record of it, else its centre (``where``:
+    the capture as the user named it, for the message).
+
+    A channel whose SI carriers lie outside the recorded band is refused: a
+    usage error for ``--channel``, bad input when the file says so.
+    """
+    from receiver.mixer import check_channel_offset
+
+    channel = args.channel if args.channel is not None else source.channel_hz
+    if channel is None:
+        return source.center_hz
+    try:
+        check_channel_offset(channel - source.center_hz, source.sample_rate_hz)
+    except ValueError as exc:
+        if args.channel is not None:
+            raise UsageError(f"--channel {args.channel:g}: {exc} (capture centre {source.center_hz:g} Hz)") from None
+        raise ValueError(f"{where}: the recorded channel centre {channel:g} Hz: {exc} "
+                         f"(capture centre {source.center_hz:g} Hz)") from None
+    return float(channel)
 
 
 def add_range_use_options(p: argparse.ArgumentParser) -> None:

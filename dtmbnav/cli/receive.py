@@ -10,7 +10,6 @@ from pathlib import Path
 from dtmbnav.cli import options
 from dtmbnav.cli.exits import EXIT_NO_RESULT, EXIT_OK, UsageError
 from dtmbnav.cli.paths import IoPaths, given_paths
-from receiver import CLOCK_PATHS, DEFAULT_CLOCK_PATH, DEFAULT_GUARD_SPAN
 
 
 def add_parser(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
@@ -30,21 +29,6 @@ def add_parser(subparsers: argparse._SubParsersAction, common: argparse.Argument
                    help="UTC time of the capture's first sample, e.g. 2026-12-05T10:00:00.250Z, for a capture "
                         "that does not record it (a raw file): fuse aligns the phone's log with it")
     p.add_argument("--csv", metavar="FILE", help="also write the frame table as CSV ('-' for stdout)")
-    p.add_argument("--jobs", type=options.positive_int, default=1, metavar="N",
-                   help="threads for the per-frame work, the next batch's run ahead of the current one's "
-                        "sequential update (default 1); the output is the same for any N")
-    p.add_argument("--doppler-check", action="store_true",
-                   help="move the first path to the Doppler line whose earliest path comes first (off by default: "
-                        "it helped the street walk it was set on and hurt held-out ones; docs/paths.md)")
-    p.add_argument("--clock-path", choices=CLOCK_PATHS, default=DEFAULT_CLOCK_PATH,
-                   help="measure the path ranges' f_s at the standstill on the first path or on the path whose "
-                        f"phase is steadiest there (default {DEFAULT_CLOCK_PATH}; docs/paths.md)")
-    p.add_argument("--guard-span", action=argparse.BooleanOptionalAction, default=DEFAULT_GUARD_SPAN,
-                   help="track paths up to the guard interval either side of the frame timing (55.6 us in PN420, "
-                        "125 us in PN945: the towers of a single-frequency network that far apart), the m-sequence "
-                        "alias resolved, where the header phase rotates; --no-guard-span: the header's cyclic "
-                        "extension only (-11..11 us in PN420, -29..29 us in PN945), faster (default: "
-                        f"{'on' if DEFAULT_GUARD_SPAN else 'off'}; docs/paths.md)")
     p.add_argument("--dump", metavar="FILE", type=Path,
                    help="also write the stages' intermediate outputs, one row per frame, to an HDF5 file")
     p.add_argument("--dump-stages", metavar="LIST",
@@ -80,8 +64,8 @@ def run(args: argparse.Namespace) -> int:
         if source.start_utc_unix_ns is not None and source.start_utc_unix_ns != args.start_time:
             raise UsageError(f"{args.capture}: the capture says it starts at another time than --start-time")
         source.start_utc_unix_ns = args.start_time
-    config = _receiver_config(args)
-    channel_hz = _channel_centre(args, source)
+    config = options.receiver_config(args)
+    channel_hz = options.channel_centre(args, source, args.capture)
     if channel_hz != source.center_hz:
         config = dataclasses.replace(config, channel_offset_hz=channel_hz - source.center_hz)
     dump = None
@@ -126,41 +110,6 @@ def _warn_outages(args: argparse.Namespace, source) -> None:
                               f"{unfilled / source.sample_rate_hz:.2f} s" if unfilled else ""))
     if source.end_reason:
         options.warn(args, f"the stream ended: {source.end_reason}")
-
-
-def _receiver_config(args: argparse.Namespace):
-    from receiver.delay_doppler import CHECK_FRAMES, DopplerConfig
-    from receiver.paths import PathConfig
-    from receiver.pipeline import ReceiverConfig
-
-    doppler = DopplerConfig(frames=CHECK_FRAMES if args.doppler_check else 0)
-    return ReceiverConfig(pn_mode=args.pn_mode, static_window_s=args.static_window,
-                          clock_offset_hz=args.clock_offset,
-                          iq_orientation="conjugate" if args.conjugate else "auto", jobs=args.jobs,
-                          track_paths=not args.no_paths, paths=PathConfig(doppler=doppler, clock_path=args.clock_path,
-                                                                       guard_span=args.guard_span),
-                          remove_dc=not args.keep_dc, correct_iq=args.correct_iq)
-
-
-def _channel_centre(args: argparse.Namespace, source) -> float:
-    """The DTMB channel's centre, Hz: ``--channel``, else the capture's record of it, else its centre.
-
-    A channel whose SI carriers lie outside the recorded band is refused: a
-    usage error for ``--channel``, bad input when the file says so.
-    """
-    from receiver.mixer import check_channel_offset
-
-    channel = args.channel if args.channel is not None else source.channel_hz
-    if channel is None:
-        return source.center_hz
-    try:
-        check_channel_offset(channel - source.center_hz, source.sample_rate_hz)
-    except ValueError as exc:
-        if args.channel is not None:
-            raise UsageError(f"--channel {args.channel:g}: {exc} (capture centre {source.center_hz:g} Hz)") from None
-        raise ValueError(f"{args.capture}: the recorded channel centre {channel:g} Hz: {exc} "
-                         f"(capture centre {source.center_hz:g} Hz)") from None
-    return float(channel)
 
 
 def io_paths(args: argparse.Namespace) -> IoPaths:
