@@ -8,6 +8,9 @@ importing the numba kernels (the command line's parser uses them).
 #: The fusion filters, in table order ("pf" is the paper's particle filter); ``fusion.run.FILTERS``
 #: maps each to its runner.
 FILTER_NAMES = ("pf", "ukf", "wt-ukf", "adaptive-kf", "rank-kf")
+#: The filters that can be streamed (:mod:`fusion.streaming`): built from the first step alone, each epoch seen
+#: once, in order (the WT-UKF and the adaptive EKF read their whole epoch history when they are built).
+STREAMING_FILTERS = ("pf", "ukf", "rank-kf")
 #: Particle-filter Np unless a caller says otherwise: enough particles that the filter's own random draws
 #: move a walk's error little next to what the ranges and the PDR decide, so that whether a walk ends worse
 #: than its PDR does not turn on the filter's seed (chosen on the tuning walks; docs/decisions.md, D18).

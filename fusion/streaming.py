@@ -60,6 +60,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from dtmbnav_core.records import FusedTrack, PdrSteps, RangeSeries
+from fusion import STREAMING_FILTERS
 from fusion.driver import FusionFilter, step_filter, step_track
 from fusion.heading_init import HEADING_WINDOW_S, MIN_CONFIDENCE, HeadingSolution, rotate_pdr
 from fusion.model import HEADING, SPEED, STATE_SIZE, Geometry, X, Y, wrap_angle
@@ -76,9 +77,6 @@ from fusion.observations import (
     standstill_times,
 )
 from fusion.run import FILTER_BUILDERS, FusionConfig, FusionResult, initial_heading, with_heading_spread
-
-#: The filters that can be streamed: built from the first step alone, each epoch seen once, in order.
-STREAMING_FILTERS = ("pf", "ukf", "rank-kf")
 
 #: How often the provisional heading (eq. 15 over all complete epochs) is re-solved, s of walk, at the least:
 #: each solve costs a grid search and a refinement of every local minimum, and the heading moves little between
@@ -132,6 +130,25 @@ class LivePositions(FusedTrack):
         """The rows of ``track``, all of one stage."""
         n = len(track)
         return cls(**track.columns(), filtered=np.full(n, filtered), nowcast=np.full(n, nowcast))
+
+
+#: The position error a held row adds for a step the PDR may not have seen yet, m (1 sigma per axis): about
+#: one step, the most a walker can have moved within the step detector's look-ahead of the newest sample.
+HOLD_STEP_SIGMA_M = 0.7
+
+
+def hold_position(last: LivePositions, t_s: float) -> LivePositions:
+    """``last``'s final row carried to ``t_s`` unmoved: the answer at the newest sample when no step followed it.
+
+    Where the PDR has found no step since the last position (the walker stands, or a step is still within
+    the detector's look-ahead), the position now is that one, with :data:`HOLD_STEP_SIGMA_M` added on both
+    axes for the step that may be under way. The row is flagged ``nowcast`` (it never enters the filters).
+    """
+    row = last.select(slice(len(last) - 1, len(last)))
+    extra = HOLD_STEP_SIGMA_M**2
+    return LivePositions(t_s=np.array([float(t_s)]), x_m=row.x_m, y_m=row.y_m, heading_rad=row.heading_rad,
+                         speed_mps=np.zeros(1), var_x_m2=row.var_x_m2 + extra, var_y_m2=row.var_y_m2 + extra,
+                         cov_xy_m2=row.cov_xy_m2, filtered=row.filtered, nowcast=np.ones(1, dtype=bool))
 
 
 def provisional_covariance_m2(dx_m: np.ndarray, dy_m: np.ndarray, heading_sigma_rad: np.ndarray | float,
