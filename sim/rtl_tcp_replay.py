@@ -104,8 +104,12 @@ class RtlTcpReplay:
                  loop: bool = False, drop_after_bytes: int | None = None, drop_after_s: float | None = None,
                  outage_s: float = 0.0, greeting: bytes | None = None, host: str = "127.0.0.1",
                  port: int = 0) -> None:
-        data = Path(samples).read_bytes() if isinstance(samples, (str, Path)) else samples
-        self._data = np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data.view(np.uint8).ravel()
+        if isinstance(samples, (str, Path)):   # mapped, not read: a long capture need not fit in memory
+            self._data = np.memmap(samples, np.uint8, "r")
+        elif isinstance(samples, np.ndarray):
+            self._data = samples.view(np.uint8).ravel()
+        else:
+            self._data = np.frombuffer(samples, np.uint8)
         if len(self._data) < 2:
             raise ValueError("rtl_tcp replay: no samples")
         if not pace > 0 or not sample_rate_hz > 0:

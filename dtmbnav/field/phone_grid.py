@@ -19,7 +19,7 @@ import numpy as np
 
 from dtmbnav.field.sensors_import import DEFAULT_RATE_HZ, Gap
 from dtmbnav_core import phone_formats as fmt
-from dtmbnav_core.records import ImuLog
+from dtmbnav_core.records import ColumnRecord, ImuLog
 from dtmbnav_core.resampling import interpolate
 
 #: Longest stretch without samples of a sensor that the grid interpolates across, s: the phone's usual
@@ -35,7 +35,7 @@ MAX_HELD_FIXES = 256
 
 
 @dataclass(frozen=True)
-class LiveFixes:
+class LiveFixes(ColumnRecord):
     """Location fixes that arrived: t_s on the stream's clock; WGS84 deg; height m (NaN: none);
     horizontal accuracy m (Android's 68 % radius; NaN: none); mean C/N0 of the satellites used, dB-Hz (NaN: none)."""
 
