@@ -44,6 +44,7 @@ from dtmbnav.cli import (
     doppler_map,
     evaluate,
     fuse,
+    live,
     pdr,
     receive,
     report,
@@ -68,7 +69,7 @@ __all__ = ["EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "EXIT_NO_RESUL
            "build_parser", "main", "run_command"]
 
 #: The subcommands' modules, in the order of ``--help``.
-COMMANDS = (simulate, receive, pdr, sensors, fuse, towers, run, report, doppler_map, evaluate, bench, results,
+COMMANDS = (simulate, receive, pdr, sensors, fuse, towers, live, run, report, doppler_map, evaluate, bench, results,
             demo)
 
 EXAMPLES = """\
