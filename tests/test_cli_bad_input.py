@@ -201,6 +201,37 @@ def cli_debug_shows_the_traceback(ctx):
                                                                                "internal error"]
 
 
+# ----------------------------------------------------------------------------------------------------- live
+
+def _refused_port() -> int:
+    """A local TCP port nothing listens on (bound, then closed)."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@case(EXIT_BAD_INPUT)
+def live_no_rtl_tcp_server(ctx):
+    towers = _towers(ctx, TOWER_ROW)
+    url = f"rtl_tcp://127.0.0.1:{_refused_port()}"
+    return ["-q", "live", url, "--center", "666e6", "--phone", "sensorlogger:127.0.0.1:0", "--towers", towers,
+            "--weinberg-k", "0.5", "--reconnects", "0", "-o", ctx.o("walk")], [url, "rtl_tcp must be running there"]
+
+
+@case(EXIT_USAGE)
+def live_phone_source_unknown(ctx):
+    return ["-q", "live", "rtl_tcp://127.0.0.1", "--center", "666e6", "--phone", "bluetooth:phone", "--towers",
+            _towers(ctx, TOWER_ROW), "-o", ctx.o("walk")], ["--phone", "sensorlogger:[HOST:]PORT"]
+
+
+@case(EXIT_USAGE)
+def live_not_an_rtl_tcp_url(ctx):
+    return ["-q", "live", "walk.cu8", "--center", "666e6", "--phone", "sensorlogger:8000", "--towers",
+            _towers(ctx, TOWER_ROW), "-o", ctx.o("walk")], ["walk.cu8", "rtl_tcp://HOST[:PORT]"]
+
+
 # -------------------------------------------------------------------------------------------------- receive
 
 @case(EXIT_BAD_INPUT)

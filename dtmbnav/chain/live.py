@@ -293,6 +293,12 @@ class LiveWalk:
         imu = self._bridged(chunk.imu)
         if not len(imu.t_s):
             return
+        if not self._imu and not np.any(imu.mag_ut) and self.setup.pdr.attitude.use_magnetometer:
+            # A stream without a magnetometer gives zeros (the importers' rule): not a field to steer by.
+            self.notes.append("phone: no magnetometer in the stream: the PDR's attitude comes from the gyro and "
+                              "accelerometer alone (its heading drifts with the gyro's bias)")
+            self.pdr = StreamingPdr(dataclasses.replace(self.setup.pdr, attitude=dataclasses.replace(
+                self.setup.pdr.attitude, use_magnetometer=False)))
         self._imu.append(imu)
         self._last_imu = imu
         self.status.walk_s = float(imu.t_s[-1])
@@ -529,7 +535,8 @@ def run_live(source: CaptureSource, phone: PhoneStream, setup: LiveSetup, folder
     the recording (module docstring). ``carrier_hz``: the DTMB channel's centre, Hz.
 
     On SIGINT or SIGTERM the stream ends, the walk is finished and written as at the stream's end, and
-    :class:`~dtmbnav_core.interrupt.Interrupted` is raised after.
+    :class:`~dtmbnav_core.interrupt.Interrupted` is raised after. Open an rtl_tcp source first
+    (``source.open()``) to have no output folder made for a server that does not answer.
     """
     paths = output_paths(folder)
     Path(folder).mkdir(parents=True, exist_ok=True)

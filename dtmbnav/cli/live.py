@@ -108,13 +108,17 @@ def run(args: argparse.Namespace) -> int:
                                  args.channel or args.center)
     if note:
         options.warn(args, note)
-    setup = LiveSetup(towers=towers, filters=args.filters,
-                      fusion=options.fusion_config(args), pdr=options.pdr_config(args),
+    pdr = options.pdr_config(args)
+    if pdr.step_model == "weinberg" and pdr.weinberg_k_m is None:
+        options.warn(args, "no calibrated Weinberg gain (give --walker FILE or --weinberg-k K): step lengths from "
+                           "the step-frequency model")
+        pdr = dataclasses.replace(pdr, step_model="frequency")
+    setup = LiveSetup(towers=towers, filters=args.filters, fusion=options.fusion_config(args), pdr=pdr,
                       time_offset_s=args.time_offset, start=args.start, start_window_s=args.start_window)
-    options.say_pdr_choices(args)
     source = RtlTcpSource(host, port, sample_rate_hz=args.rate, center_hz=args.center, gain_db=args.gain,
                           ppm=args.ppm, channel_hz=args.channel,
                           policy=dataclasses.replace(DEFAULT_POLICY, reconnects=args.reconnects))
+    source.open()   # no output, and no phone server, before the SDR's server answers
     phone = open_phone(args.phone)
     view = LiveView(*args.web) if args.web is not None else None
     try:
