@@ -474,6 +474,7 @@ def section_runners(config: ResultsConfig) -> dict[str, Callable[[], Section]]:
         "frontends": lambda: frontends_section(config),
         "field": lambda: field_section(config),
         "weak-signal": lambda: weak_signal_section(config),
+        "live": lambda: importlib.import_module("dtmbnav.evaluation.live_check").live_section(config),
         "bench": lambda: bench_section(config),
     }
 

@@ -93,6 +93,8 @@ UNCHECKED = {
                    "`python -m dtmbnav.evaluation.weak_signal` exits 1 on it)",
     "steps": "it needs the Oxford step counter data set, which is not part of this repository (rerun "
              "`dtmbnav results --sections steps --step-data DIR` on a checkout of it)",
+    "live": "it is a check of its own (one replayed walk; `python -m dtmbnav.evaluation.live_check` exits 1 when a "
+            "live process fails), and its CPU and timing figures are this machine's",
     "bench": "every figure is a timing of the machine that printed it, which varies from run to run",
 }
 #: Verdicts that fail the check.

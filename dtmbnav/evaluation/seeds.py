@@ -32,7 +32,7 @@ OBS_SEEDS = 50
 CHECK_SEEDS = 3
 #: Every section of ``dtmbnav results``, in the file's order.
 RESULT_SECTIONS = ("fusion-iq", "fusion-obs", "fusion-exact", "receiver", "paths", "frontends", "field", "weak-signal",
-                   "pdr", "steps", "bench")
+                   "pdr", "steps", "live", "bench")
 
 
 def monte_carlo_seed(scenario_seed: int, k: int, first_seed: int = REPORTING_SEEDS.start) -> int:
