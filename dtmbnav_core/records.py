@@ -339,6 +339,37 @@ class GnssLog(ColumnRecord):
     cn0_dbhz: np.ndarray
 
 
+@dataclass
+class GeodeticFixes(ColumnRecord):
+    """Position fixes on WGS84, as a phone reports them (its log, or its live stream).
+
+    Attributes
+    ----------
+    t_s : ndarray
+        Fix time, s, on the clock of whoever hands them on (the simulation's true time, a stream's own).
+    lat_deg, lon_deg : ndarray
+        WGS84 latitude and longitude, deg.
+    height_m : ndarray
+        Height above the WGS84 ellipsoid, m (NaN: none stated).
+    accuracy_m : ndarray
+        Stated horizontal accuracy (Android's 68 % radius), m (NaN: none stated).
+    cn0_dbhz : ndarray
+        Mean C/N0 of the satellites used, dB-Hz (NaN: none stated).
+    """
+
+    t_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    height_m: np.ndarray
+    accuracy_m: np.ndarray
+    cn0_dbhz: np.ndarray
+
+    @classmethod
+    def empty(cls) -> GeodeticFixes:
+        """No fixes."""
+        return cls(*(np.zeros(0) for _ in range(6)))
+
+
 @dataclass(frozen=True)
 class StartFix:
     """The GNSS fix P0 where the PDR starts (the last fix before GNSS is given up).

@@ -188,6 +188,14 @@ def provisional_sigma_rad(heading: HeadingSolution | None) -> float:
     return float(min(sigma, np.pi))
 
 
+def _check_increasing(t_s: np.ndarray, taken, what: str) -> None:
+    """ValueError unless ``t_s`` increases, past the last time of the record ``taken`` (None: nothing yet)."""
+    t = np.asarray(t_s, dtype=np.float64)
+    last = -np.inf if taken is None else float(taken.t_s[-1])
+    if np.any(np.diff(t) <= 0) or t[0] <= last:
+        raise ValueError(f"{what} must increase past {last} s")
+
+
 def _concat(first, second):
     """Two column records of one type, one after the other."""
     if first is None:
@@ -277,10 +285,7 @@ class StreamingFusion:
         self._check_open()
         if not len(steps):
             return
-        t = np.asarray(steps.t_s, dtype=np.float64)
-        last = -np.inf if self._pdr is None else float(self._pdr.t_s[-1])
-        if np.any(np.diff(t) <= 0) or t[0] <= last:
-            raise ValueError(f"add_steps: step times must increase past {last} s")
+        _check_increasing(steps.t_s, self._pdr, "add_steps: step times")
         self._pdr = _concat(self._pdr, steps)
         self._schedule()
         if self.heading is None:
@@ -298,12 +303,9 @@ class StreamingFusion:
         self._check_open()
         if not len(ranges):
             return
-        t = np.asarray(ranges.t_s, dtype=np.float64)
-        last = -np.inf if self._frames is None else float(self._frames.t_s[-1])
-        if np.any(np.diff(t) <= 0) or t[0] <= last:
-            raise ValueError(f"add_ranges: frame times must increase past {last} s")
+        _check_increasing(ranges.t_s, self._frames, "add_ranges: frame times")
         if self._range_start_s is None:
-            self._range_start_s = float(t[0])
+            self._range_start_s = float(ranges.t_s[0])
         self._frames = _concat(self._frames, ranges)
         self._schedule()
         self._advance()

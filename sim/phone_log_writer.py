@@ -78,7 +78,7 @@ from dtmbnav_core.phone_formats import (
     UTC_MILLIS,
     SensorRows,
 )
-from dtmbnav_core.records import GnssLog, ImuLog
+from dtmbnav_core.records import GeodeticFixes, GnssLog, ImuLog
 from sim.gnss import fix_sigma_m
 from sim.scenario import Scenario
 
@@ -103,38 +103,12 @@ SENSOR_LOGGER_IMU_FILES = {TOTAL_ACCELERATION: "acc_mps2", GYROSCOPE: "gyro_radp
 Cells = np.ndarray | Sequence[str] | str | float | int
 
 
-@dataclass(frozen=True)
-class PhoneFixes:
-    """The walk's fixes as the phone reports them.
-
-    Attributes
-    ----------
-    t_s : ndarray
-        Fix time, s since the scenario's start (true time).
-    lat_deg, lon_deg : ndarray
-        WGS84 latitude and longitude, deg.
-    height_m : ndarray
-        Height above the WGS84 ellipsoid, m.
-    accuracy_m : ndarray
-        Stated horizontal accuracy (68 % radius), m.
-    cn0_dbhz : ndarray
-        Mean C/N0 of the satellites used, dB-Hz.
-    """
-
-    t_s: np.ndarray
-    lat_deg: np.ndarray
-    lon_deg: np.ndarray
-    height_m: np.ndarray
-    accuracy_m: np.ndarray
-    cn0_dbhz: np.ndarray
-
-
-def phone_fixes(scenario: Scenario, gnss: GnssLog) -> PhoneFixes:
+def phone_fixes(scenario: Scenario, gnss: GnssLog) -> GeodeticFixes:
     """The simulated fixes on WGS84 about the scenario's origin, at the phone's height (module docstring)."""
     lat, lon, height = to_lat_lon_height(gnss.x_m, gnss.y_m, scenario.channel.antenna_height_m,
                                          scenario.origin.point)
     accuracy = ACCURACY_RADIUS_SIGMAS * fix_sigma_m(scenario.gnss, gnss.cn0_dbhz)
-    return PhoneFixes(t_s=np.asarray(gnss.t_s, dtype=np.float64), lat_deg=lat, lon_deg=lon, height_m=height,
+    return GeodeticFixes(t_s=np.asarray(gnss.t_s, dtype=np.float64), lat_deg=lat, lon_deg=lon, height_m=height,
                       accuracy_m=accuracy, cn0_dbhz=np.asarray(gnss.cn0_dbhz, dtype=np.float64))
 
 
@@ -260,7 +234,7 @@ def sensor_rows(rows: SensorRows, t_s: np.ndarray, values: np.ndarray, clock: Ph
     return elapsed_ns, gnsslogger_rows(rows.row_type, columns)
 
 
-def fix_rows(fixes: PhoneFixes, clock: PhoneClock, start_utc_ns: int,
+def fix_rows(fixes: GeodeticFixes, clock: PhoneClock, start_utc_ns: int,
              provider: str = "GPS") -> tuple[np.ndarray, list[str]]:
     """The ``Fix`` rows of ``fixes`` (speed, bearing and the other accuracies empty): their
     ``elapsedRealtimeNanos`` (ns) and texts."""
@@ -278,7 +252,7 @@ def axis_csv(t_s: np.ndarray, values: np.ndarray, clock: PhoneClock, start_utc_n
         **dict(zip(SENSOR_LOGGER_AXES, values.T))})
 
 
-def location_csv(fixes: PhoneFixes, clock: PhoneClock, start_utc_ns: int) -> str:
+def location_csv(fixes: GeodeticFixes, clock: PhoneClock, start_utc_ns: int) -> str:
     """Sensor Logger's ``Location.csv`` of ``fixes`` (speed, bearing and the other accuracies empty)."""
     return sensor_logger_csv(SENSOR_LOGGER_LOCATION_HEADER, {
         SENSOR_LOGGER_TIME: clock.utc_ns(fixes.t_s, start_utc_ns), SENSOR_LOGGER_ELAPSED: clock.elapsed_s(fixes.t_s),
@@ -302,7 +276,7 @@ def metadata_csv(start_utc_ns: int, intervals_s: Mapping[str, float], platform: 
 
 # --- GnssLogger ------------------------------------------------------------------------------------------
 
-def gnsslogger_log(imu: ImuLog, fixes: PhoneFixes, clock: PhoneClock, start_utc_ns: int) -> str:
+def gnsslogger_log(imu: ImuLog, fixes: GeodeticFixes, clock: PhoneClock, start_utc_ns: int) -> str:
     """The text of a GnssLogger log of the walk (module docstring)."""
     samples = imu_samples(imu)
     blocks = [sensor_rows(GNSSLOGGER_IMU_ROWS[column], *samples[column], clock, start_utc_ns)
@@ -315,7 +289,7 @@ def gnsslogger_log(imu: ImuLog, fixes: PhoneFixes, clock: PhoneClock, start_utc_
     return gnsslogger_text([*blocks, (elapsed_ns, fix_block), (elapsed_ns, status)], GNSSLOGGER_WRITTEN)
 
 
-def write_gnsslogger(out_dir: str | Path, imu: ImuLog, fixes: PhoneFixes, clock: PhoneClock,
+def write_gnsslogger(out_dir: str | Path, imu: ImuLog, fixes: GeodeticFixes, clock: PhoneClock,
                      start_utc_ns: int) -> Path:
     """Write the GnssLogger log into ``out_dir`` (atomically), named by the phone's UTC at its start; its path."""
     path = Path(out_dir) / f"gnss_log_{_date(_start_utc_ns(clock, start_utc_ns)):%Y_%m_%d_%H_%M_%S}.txt"
@@ -326,7 +300,7 @@ def write_gnsslogger(out_dir: str | Path, imu: ImuLog, fixes: PhoneFixes, clock:
 
 # --- Sensor Logger ----------------------------------------------------------------------------------------
 
-def sensor_logger_files(imu: ImuLog, fixes: PhoneFixes, clock: PhoneClock, start_utc_ns: int) -> dict[str, str]:
+def sensor_logger_files(imu: ImuLog, fixes: GeodeticFixes, clock: PhoneClock, start_utc_ns: int) -> dict[str, str]:
     """The files of a Sensor Logger export of the walk, name -> text (module docstring)."""
     files: dict[str, str] = {}
     intervals_s: dict[str, float] = {}  # each file's sample interval, for Metadata.csv
@@ -348,7 +322,7 @@ def sensor_logger_files(imu: ImuLog, fixes: PhoneFixes, clock: PhoneClock, start
     return files
 
 
-def write_sensor_logger(out_dir: str | Path, imu: ImuLog, fixes: PhoneFixes, clock: PhoneClock,
+def write_sensor_logger(out_dir: str | Path, imu: ImuLog, fixes: GeodeticFixes, clock: PhoneClock,
                         start_utc_ns: int) -> Path:
     """Write the Sensor Logger export into a folder of ``out_dir`` named by the phone's UTC at the recording's
     start (atomically: all its files or none); the folder's path."""

@@ -32,9 +32,9 @@ from dtmbnav_core.phone_formats import (
     TOTAL_ACCELERATION,
     UTC_MILLIS,
 )
+from dtmbnav_core.records import GeodeticFixes
 from sim.phone_log_writer import (
     BOOT_ELAPSED_NS,
-    PhoneFixes,
     axis_csv,
     fix_rows,
     gnsslogger_rows,
@@ -76,10 +76,10 @@ class Stream:
 
 
 def fixes_of(t_s: np.ndarray, lat_deg: np.ndarray, lon_deg: np.ndarray, height_m: np.ndarray,
-             accuracy_m: np.ndarray, cn0_dbhz: np.ndarray | None = None) -> PhoneFixes:
+             accuracy_m: np.ndarray, cn0_dbhz: np.ndarray | None = None) -> GeodeticFixes:
     """Fixes at ``t_s`` (s); their mean C/N0 (dB-Hz) 30 + the fix's index unless given."""
     cn0 = 30.0 + np.arange(len(t_s)) if cn0_dbhz is None else cn0_dbhz
-    return PhoneFixes(np.asarray(t_s, dtype=np.float64), lat_deg, lon_deg, height_m, accuracy_m, cn0)
+    return GeodeticFixes(np.asarray(t_s, dtype=np.float64), lat_deg, lon_deg, height_m, accuracy_m, cn0)
 
 
 def elapsed_ns(t_s: float | np.ndarray) -> np.ndarray:
@@ -87,7 +87,7 @@ def elapsed_ns(t_s: float | np.ndarray) -> np.ndarray:
     return gnsslogger_stamps(np.asarray(t_s, dtype=np.float64), CLOCK, GNSSLOGGER_T0_NS)[1]
 
 
-def _status_rows(fixes: PhoneFixes) -> tuple[np.ndarray, list[str]]:
+def _status_rows(fixes: GeodeticFixes) -> tuple[np.ndarray, list[str]]:
     """A ``Status`` row per signal of each fix: those it used (C/N0 about the fix's mean) and one it did not."""
     cn0 = np.column_stack([fixes.cn0_dbhz + spread for spread in USED_CN0_SPREAD] + [np.full(len(fixes.t_s),
                                                                                               UNUSED_CN0)])
@@ -117,7 +117,7 @@ def _unrelated_rows(t_end_s: float) -> list[tuple[np.ndarray, list[str]]]:
                                 "CarrierFrequencyHz": 1176450000, "ConstellationType": 1}))]
 
 
-def gnsslogger_lines(acc: Stream, gyro: Stream, mag: Stream | None, fixes: PhoneFixes,
+def gnsslogger_lines(acc: Stream, gyro: Stream, mag: Stream | None, fixes: GeodeticFixes,
                      row_types: tuple[str, ...] = ROW_TYPES, flp: bool = True) -> list[str]:
     """The lines of a GnssLogger log of these samples (no line endings).
 
@@ -141,7 +141,7 @@ def write_lines(path: Path, lines: list[str], newline: str = "\n") -> Path:
     return path
 
 
-def write_sensor_logger(folder: Path, acc: Stream, gyro: Stream, mag: Stream | None, fixes: PhoneFixes,
+def write_sensor_logger(folder: Path, acc: Stream, gyro: Stream, mag: Stream | None, fixes: GeodeticFixes,
                         gravity_split: bool = False, ios: bool = False, device_name: str = DEVICE_NAME) -> Path:
     """A Sensor Logger export of these samples in ``folder``.
 
@@ -174,7 +174,7 @@ def write_sensor_logger(folder: Path, acc: Stream, gyro: Stream, mag: Stream | N
     return folder
 
 
-def static_log(seconds: float = 2.0, rate_hz: float = 50.0) -> tuple[Stream, Stream, Stream, PhoneFixes]:
+def static_log(seconds: float = 2.0, rate_hz: float = 50.0) -> tuple[Stream, Stream, Stream, GeodeticFixes]:
     """A phone lying still, face up, for ``seconds``: gravity, no rotation, a constant field; a fix a second."""
     t = np.arange(0.0, seconds, 1.0 / rate_hz)
     acc = Stream(t, np.tile([0.01, -0.02, 9.80665], (len(t), 1)))

@@ -508,7 +508,8 @@ def bench_phone_log_import(seconds: float) -> BenchRow:
     from dtmbnav.field.sensors_import import import_phone_log
     from dtmbnav_core.phone import PhoneClock
     from dtmbnav_core.records import ImuLog
-    from sim.phone_log_writer import PhoneFixes, gnsslogger_log
+    from dtmbnav_core.records import GeodeticFixes
+    from sim.phone_log_writer import gnsslogger_log
 
     t = np.arange(0.0, seconds, 0.01)
     rng = np.random.default_rng(1)
@@ -517,7 +518,7 @@ def bench_phone_log_import(seconds: float) -> BenchRow:
                       for mean in ([0.1, 0.2, 9.8], [0.0, 0.0, 0.0], [-18.0, 2.0, -42.0])))
     fix_t = np.arange(0.0, seconds, 1.0)
     n = len(fix_t)
-    fixes = PhoneFixes(fix_t, 30.52 + 1e-5 * np.sin(fix_t / 60.0), 114.36 + 1e-5 * np.cos(fix_t / 60.0),
+    fixes = GeodeticFixes(fix_t, 30.52 + 1e-5 * np.sin(fix_t / 60.0), 114.36 + 1e-5 * np.cos(fix_t / 60.0),
                        np.full(n, 25.0), np.full(n, 3.5), np.full(n, 35.0))
     rows = 3 * len(t) + 2 * n  # a row per sample of each sensor, a Fix and a Status row per fix
     with tempfile.TemporaryDirectory(prefix="dtmbnav-bench-") as tmp:

@@ -19,7 +19,7 @@ import numpy as np
 
 from dtmbnav.field.sensors_import import DEFAULT_RATE_HZ, Gap
 from dtmbnav_core import phone_formats as fmt
-from dtmbnav_core.records import ColumnRecord, ImuLog
+from dtmbnav_core.records import ColumnRecord, GeodeticFixes, ImuLog
 from dtmbnav_core.resampling import interpolate
 
 #: Longest stretch without samples of a sensor that the grid interpolates across, s: the phone's usual
@@ -35,23 +35,6 @@ MAX_HELD_FIXES = 256
 
 
 @dataclass(frozen=True)
-class LiveFixes(ColumnRecord):
-    """Location fixes that arrived: t_s on the stream's clock; WGS84 deg; height m (NaN: none);
-    horizontal accuracy m (Android's 68 % radius; NaN: none); mean C/N0 of the satellites used, dB-Hz (NaN: none)."""
-
-    t_s: np.ndarray
-    lat_deg: np.ndarray
-    lon_deg: np.ndarray
-    height_m: np.ndarray
-    accuracy_m: np.ndarray
-    cn0_dbhz: np.ndarray
-
-    @staticmethod
-    def empty() -> LiveFixes:
-        return LiveFixes(*(np.zeros(0) for _ in range(6)))
-
-
-@dataclass(frozen=True)
 class PhoneChunk:
     """What settled since the last poll.
 
@@ -59,7 +42,7 @@ class PhoneChunk:
     ----------
     imu : ImuLog
         Grid samples (possibly none), t_s s since the stream's ``t0_utc_ns``.
-    fixes : LiveFixes
+    fixes : GeodeticFixes
     gaps : tuple of Gap
         Stretches longer than :data:`MAX_BRIDGE_S` without a sensor's samples, s on the stream's clock.
     notes : tuple of str
@@ -67,7 +50,7 @@ class PhoneChunk:
     """
 
     imu: ImuLog
-    fixes: LiveFixes
+    fixes: GeodeticFixes
     gaps: tuple[Gap, ...] = ()
     notes: tuple[str, ...] = ()
 
@@ -246,12 +229,12 @@ class Collector:
 
     def chunk(self, final: bool = False) -> PhoneChunk | None:
         imu = self.grid.emit(final)
-        fixes = LiveFixes.empty()
+        fixes = GeodeticFixes.empty()
         if self.grid.t0_ns is not None and self._fixes:
             columns = [np.concatenate(c) for c in zip(*self._fixes)]
             order = np.argsort(columns[0], kind="stable")
             t_s = (columns[0][order] - self.grid.t0_ns) / 1e9
-            fixes = LiveFixes(t_s, *(c[order].astype(np.float64) for c in columns[1:]))
+            fixes = GeodeticFixes(t_s, *(c[order].astype(np.float64) for c in columns[1:]))
             self._fixes.clear()
         notes = tuple(self.notes + self.grid.notes)
         gaps = tuple(self.grid.gaps)

@@ -60,15 +60,16 @@ from pathlib import Path
 import numpy as np
 
 from dtmbnav.field import phone_logs
-from dtmbnav.field.phone_grid import Collector, LiveFixes, PhoneChunk, PhoneStream, StreamStats, _Series
+from dtmbnav.field.phone_grid import Collector, PhoneChunk, PhoneStream, StreamStats, _Series
 from dtmbnav.field.platform import ANDROID, IOS
 from dtmbnav.field.sensors_import import DEFAULT_RATE_HZ
 from dtmbnav_core import phone_formats as fmt
 from dtmbnav_core.constants import GRAVITY_MPS2
+from dtmbnav_core.records import GeodeticFixes
 from dtmbnav_core.resampling import interpolate
 from dtmbnav_core.text_tables import Table
 
-__all__ = ["BatchError", "GnssLoggerTail", "LiveFixes", "PhoneChunk", "PhoneStream", "SensorLoggerPush", "StreamStats",
+__all__ = ["BatchError", "GnssLoggerTail", "GeodeticFixes", "PhoneChunk", "PhoneStream", "SensorLoggerPush", "StreamStats",
            "parse_batch"]
 
 #: How long a batch that came before a lower ``messageId`` waits for it (wall clock), s.
@@ -171,7 +172,27 @@ def parse_batch(body: bytes | str) -> Batch:
     return Batch(message_id, session if isinstance(session, str) else None, axes, location)
 
 
-class SensorLoggerPush:
+class _Collected:
+    """What both sources say of the stream they collect (``self._io``, a :class:`Collector`)."""
+
+    _io: Collector
+
+    @property
+    def t0_utc_ns(self) -> int | None:
+        """UTC of chunk time 0, ns since the Unix epoch (None until the grid starts)."""
+        return self._io.t0_utc_ns
+
+    @property
+    def stats(self) -> StreamStats:
+        """What came, was refused, lost or late, so far."""
+        return self._io.stats
+
+    def idle_s(self) -> float:
+        """Host seconds since data last arrived."""
+        return time.monotonic() - self._io.last_data
+
+
+class SensorLoggerPush(_Collected):
     """Sensor Logger's HTTP push received on ``host:port`` (any path); a :class:`PhoneStream`.
 
     Parameters
@@ -216,17 +237,6 @@ class SensorLoggerPush:
     def url(self) -> str:
         host, port = self._server.server_address[:2]
         return f"http://{'127.0.0.1' if host in ('0.0.0.0', '') else host}:{port}/"
-
-    @property
-    def t0_utc_ns(self) -> int | None:
-        return self._io.t0_utc_ns
-
-    @property
-    def stats(self) -> StreamStats:
-        return self._io.stats
-
-    def idle_s(self) -> float:
-        return time.monotonic() - self._io.last_data
 
     def _handler(self) -> type[BaseHTTPRequestHandler]:
         stream = self
@@ -379,7 +389,7 @@ class SensorLoggerPush:
 # --- GnssLogger's growing log --------------------------------------------------------------------------------
 
 
-class GnssLoggerTail:
+class GnssLoggerTail(_Collected):
     """A GnssLogger log read while it grows (the file may not exist yet); a :class:`PhoneStream`."""
 
     def __init__(self, path: str | Path, rate_hz: float = DEFAULT_RATE_HZ) -> None:
@@ -393,17 +403,6 @@ class GnssLoggerTail:
         self._provider: str | None = None
         self._left_out: set[str] = set()
         self._wanted = {*fmt.GNSSLOGGER_SENSOR_ROW_TYPES, "Fix", "Status"}
-
-    @property
-    def t0_utc_ns(self) -> int | None:
-        return self._io.t0_utc_ns
-
-    @property
-    def stats(self) -> StreamStats:
-        return self._io.stats
-
-    def idle_s(self) -> float:
-        return time.monotonic() - self._io.last_data
 
     def _read_lines(self) -> list[str]:
         try:
