@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import socket
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -74,7 +75,7 @@ class RtlTcpReplay:
     sample_rate_hz : float
         The stream's sample rate.
     pace : float
-        Stream seconds sent per second (tests: >> 1).
+        Stream seconds sent per second (tests: >> 1; ``math.inf``: as fast as the client takes them).
     loop : bool
         Start again at the first byte after the last.
     drop_after_bytes, drop_after_s : int or float, optional
@@ -165,6 +166,8 @@ class RtlTcpReplay:
     def _clock_byte(self) -> int:
         """Stream byte the clock says is due now (whole I/Q pairs)."""
         assert self._start_t is not None
+        if math.isinf(self.bytes_per_s):   # pace inf: every byte is due (as fast as the client takes them)
+            return sys.maxsize - 1
         due = int((time.monotonic() - self._start_t) * self.bytes_per_s)
         return due - due % 2
 

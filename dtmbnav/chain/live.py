@@ -38,14 +38,14 @@ import numpy as np
 from dtmbnav.chain.receive import LIVE_CHUNK_SAMPLES
 from dtmbnav.field.live_page import LiveView, ViewRow, ViewScene, ellipse_95
 from dtmbnav.field.live_positions import GeoPositions, LivePositionWriter
-from dtmbnav.field.phone_grid import LiveFixes, PhoneChunk, PhoneStream
+from dtmbnav.field.phone_grid import PhoneChunk, PhoneStream
 from dtmbnav.field.sensors_import import choose_start_fix, walk_start_s
 from dtmbnav.field.towers import Tower, TowerLayout, towers_about
 from dtmbnav_core import schema
 from dtmbnav_core.geodetic import GeodeticPoint, to_enu
 from dtmbnav_core.h5io import atomic_h5, write_columns
 from dtmbnav_core.interrupt import Interrupted
-from dtmbnav_core.records import FrameFlag, GnssLog, ImuLog, PdrSteps, RangeSeries
+from dtmbnav_core.records import FrameFlag, GeodeticFixes, GnssLog, ImuLog, PdrSteps, RangeSeries
 from dtmbnav_core.sensors import write_gnss, write_imu
 from dtmbnav_core.start_fix import CombinedFix
 from fusion.pdr import PdrConfig
@@ -169,6 +169,9 @@ class LiveResult:
     origin : GeodeticPoint or None
     time_offset_s : float or None
         The capture's start on the phone's clock used, s.
+    cpu_s : dict of str to float
+        CPU time of the receiver's thread (``receiver``), the fusion thread (``fusion``) and the whole
+        process (``process``), s: where a live walk's processor goes.
     """
 
     fusion: FusionResult | None
@@ -177,6 +180,7 @@ class LiveResult:
     start_fix: CombinedFix | None
     origin: GeodeticPoint | None
     time_offset_s: float | None
+    cpu_s: dict[str, float] = field(default_factory=dict)
 
 
 class RangeTee(FrameSink):
@@ -229,7 +233,7 @@ class LiveWalk:
         self._held_ranges: list[RangeSeries] = []
         self._held_steps: list[PdrSteps] = []
         self._imu: list[ImuLog] = []
-        self._fixes: list[LiveFixes] = []
+        self._fixes: list[GeodeticFixes] = []
         self._steps: list[PdrSteps] = []
         self._walk_start_s = math.inf
         self._newest_position_s = -math.inf
@@ -270,6 +274,7 @@ class LiveWalk:
                 self._stop.wait(max(self.setup.tick_s - (time.monotonic() - began), 0.0))
             self._tick(self.phone.close())
             self._result = self._finish()
+            self._result.cpu_s["fusion"] = time.thread_time()
         except BaseException as exc:  # handed to the main thread by stop()
             self._error = exc
 
@@ -544,6 +549,7 @@ def run_live(source: CaptureSource, phone: PhoneStream, setup: LiveSetup, folder
     with LivePositionWriter(paths["csv"], paths["geojson"]) as writer:
         walk = LiveWalk(phone, setup, writer, view, progress, capture_start_utc_ns=lambda: source.start_utc_unix_ns)
         walk.start()
+        receiver_cpu_s = time.thread_time()
         try:
             rx = Receiver(source.sample_rate_hz, carrier_hz, receiver_config)
             with contextlib.ExitStack() as stack:
@@ -557,7 +563,9 @@ def run_live(source: CaptureSource, phone: PhoneStream, setup: LiveSetup, folder
         except Interrupted as exc:
             interrupted = exc
         finally:
+            receiver_cpu_s = time.thread_time() - receiver_cpu_s
             result = walk.stop()
+            result.cpu_s.update(receiver=receiver_cpu_s, process=time.process_time())
         walk.write_recording(paths["live"], result)
     if interrupted is not None:
         raise interrupted

@@ -140,7 +140,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"no position; what was received is in {args.output}", file=sys.stderr)
         return EXIT_NO_RESULT
     print(f"initial heading {result.fusion.heading.describe()}", file=sys.stderr)
-    print(f"{result.status.positions} positions -> {args.output}", file=sys.stderr)
+    print(f"{result.status.positions} positions -> {args.output}; CPU: receiver {result.cpu_s['receiver']:.1f} s, "
+          f"fusion {result.cpu_s.get('fusion', float('nan')):.1f} s, the whole process {result.cpu_s['process']:.1f} s",
+          file=sys.stderr)
     return EXIT_OK
 
 

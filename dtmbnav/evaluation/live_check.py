@@ -31,6 +31,7 @@ import csv
 import json
 import math
 import os
+import re
 import resource
 import signal
 import socket
@@ -70,9 +71,9 @@ class LiveRun:
     ----------
     folder : Path
         Its output folder.
-    arrivals : list of (float, float, float, str)
+    arrivals : list of (float, float, float, bool)
         Each new newest-position as followed in ``live.csv``: (host seconds since the replays began, the walk's
-        newest sample then, s, the row's time, s, its stage).
+        newest sample then, s, the row's time, s, whether a filtered row came with it).
     cpu_s : float
         The process's CPU time (user + system), s.
     peak_rss_mb : float
@@ -126,16 +127,15 @@ def _rss_mb(pid: int) -> float:
     return math.nan
 
 
-def _newest_row(csv_path: Path, seen: int) -> tuple[int, float | None, str | None]:
-    """Rows in the file now and the newest row's time and stage (None when no new row)."""
+def _newest_rows(csv_path: Path, seen: int) -> tuple[int, float | None, bool]:
+    """Rows in the file now, the newest row's time (None when no new row) and whether a new row is filtered."""
     if not csv_path.exists():
-        return seen, None, None
-    rows = csv_path.read_text().splitlines()[1:]
-    complete = [r for r in rows if r.count(",") >= 11]
-    if len(complete) <= seen:
-        return seen, None, None
-    last = next(csv.reader([complete[-1]]))
-    return len(complete), float(last[0]), last[3]
+        return seen, None, False
+    rows = [r for r in csv_path.read_text().splitlines()[1:] if r.count(",") >= 11]
+    if len(rows) <= seen:
+        return seen, None, False
+    new = list(csv.reader(rows[seen:]))
+    return len(rows), float(new[-1][0]), any(r[3] == "filtered" for r in new)
 
 
 def run_live(folder: Path, out: Path, pace: float = 1.0, replay_kwargs: dict | None = None,
@@ -170,9 +170,9 @@ def run_live(folder: Path, out: Path, pace: float = 1.0, replay_kwargs: dict | N
         csv_path = output_paths(out)["csv"]
         while child.poll() is None:
             now = time.monotonic() - begun
-            seen, newest, stage = _newest_row(csv_path, seen)
+            seen, newest, filtered = _newest_rows(csv_path, seen)
             if newest is not None:
-                arrivals.append((now, now * pace, newest, stage))
+                arrivals.append((now, now * pace, newest, filtered))
             rss.append((now, _rss_mb(child.pid)))
             if stream_limit_s is not None and server.sent_bytes / 2 / RATE_HZ >= stream_limit_s:
                 child.send_signal(signal.SIGINT)
@@ -218,18 +218,16 @@ def _p95(folder: Path, frame_file: Path, track: Track) -> float:
     return float(np.percentile(position_errors_m(track, moved), 95))
 
 
-def timeliness(run: LiveRun) -> tuple[float, float]:
-    """Longest wait between two new newest-positions (host s) and the largest lag of a position's time behind
-    the walk's newest sample (s), both from the first filtered position on."""
-    arrivals = [a for a in run.arrivals]
-    first = next((i for i, a in enumerate(arrivals) if a[3] in ("filtered", "nowcast") and i and
-                  any(b[3] == "filtered" for b in arrivals[:i + 1])), None)
+def timeliness(run: LiveRun) -> tuple[float, float, float]:
+    """From the first filtered position on: the longest wait between two new newest-positions (host s), and the
+    median and largest lag of the newest position's time behind the walk's newest sample sent (s)."""
+    first = next((i for i, a in enumerate(run.arrivals) if a[3]), None)
     if first is None:
-        return math.nan, math.nan
-    after = arrivals[first:]
+        return math.nan, math.nan, math.nan
+    after = run.arrivals[first:]
     waits = np.diff([a[0] for a in after]) if len(after) > 1 else np.array([math.nan])
-    lags = [a[1] - a[2] for a in after]
-    return float(np.max(waits)), float(np.max(lags))
+    lags = np.array([a[1] - a[2] for a in after])
+    return float(np.max(waits)), float(np.median(lags)), float(np.max(lags))
 
 
 def outage_kept(run: LiveRun) -> dict[str, object]:
@@ -272,15 +270,17 @@ def check(folder: Path, memory_minutes: float = 0.0) -> tuple[str, str, bool]:
     live = run_live(walk, folder / "live")
     batch, _ = batch_p95(walk, _fresh(folder / "batch"))
     live_p95 = _p95(walk, output_paths(live.folder)["live"], _track(output_paths(live.folder)["live"]))
-    wait_s, lag_s = timeliness(live)
+    wait_s, lag_median_s, lag_s = timeliness(live)
     dropped = run_live(walk, folder / "dropped", replay_kwargs={"drop_after_s": DROP_AT_S, "outage_s": OUTAGE_S})
     kept = outage_kept(dropped)
     lines = ["| check | figure |", "|---|---|",
              f"| longest wait between two positions, after the heading is confident | {wait_s:.2f} s |",
-             f"| largest lag of a position behind the walk's newest sample, after it | {lag_s:.2f} s |",
+             f"| lag of the newest position behind the phone's newest sample sent, after it: median / largest | "
+             f"{lag_median_s:.2f} s / {lag_s:.2f} s |",
              f"| final {FILTER.upper()} 95 % error, live / batch | {live_p95:.2f} m / {batch:.2f} m "
              f"({live_p95 / batch - 1:+.1%}) |",
-             f"| live process CPU per second of 2.4 Msps stream (start-up included) | {live.cpu_s / stream_s:.2f} core |",
+             f"| live process CPU per second of 2.4 Msps stream (start-up included) | {live.cpu_s / stream_s:.2f} core "
+             f"({_cpu_split(live.stderr, stream_s)}) |",
              f"| live process peak memory | {live.peak_rss_mb:.0f} MB |",
              f"| dropped connection at {DROP_AT_S:g} s for {OUTAGE_S:g} s | {kept['outages']} outage(s), "
              f"{kept['gap_frames']} GAP frame(s), {kept['frames_after_gap']} frames and {kept['rows_after_gap']} "
@@ -290,6 +290,15 @@ def check(folder: Path, memory_minutes: float = 0.0) -> tuple[str, str, bool]:
     described = (f"Park walk (`{SCENARIO}`, 2.4 Msps cu8, {stream_s:.0f} s) replayed over rtl_tcp and Sensor "
                  "Logger's HTTP push into `dtmbnav live`, against `receive`, `sensors` and `fuse` on the same files")
     return described, "\n".join(lines), live.returncode == 0 and dropped.returncode == 0
+
+
+def _cpu_split(stderr: str, stream_s: float) -> str:
+    """The receiver's and the fusion's shares as the live process's last line states them, per stream second."""
+    match = re.search(r"CPU: receiver ([0-9.]+) s, fusion ([0-9.]+) s", stderr)
+    if match is None:
+        return "split not stated"
+    receiver, fusion = (float(v) / stream_s for v in match.groups())
+    return f"receiver thread {receiver:.2f}, fusion thread {fusion:.2f}"
 
 
 def live_section(config) -> object:
