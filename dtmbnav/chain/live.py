@@ -100,7 +100,7 @@ class LiveSetup:
     time_offset_s: float | None = None
     start: GeodeticPoint | None = None
     start_window_s: float | None = None
-    tick_s: float = 0.25
+    tick_s: float = 0.5
 
 
 @dataclass

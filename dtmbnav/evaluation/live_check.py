@@ -127,15 +127,21 @@ def _rss_mb(pid: int) -> float:
     return math.nan
 
 
-def _newest_rows(csv_path: Path, seen: int) -> tuple[int, float | None, bool]:
-    """Rows in the file now, the newest row's time (None when no new row) and whether a new row is filtered."""
-    if not csv_path.exists():
-        return seen, None, False
-    rows = [r for r in csv_path.read_text().splitlines()[1:] if r.count(",") >= 11]
-    if len(rows) <= seen:
-        return seen, None, False
-    new = list(csv.reader(rows[seen:]))
-    return len(rows), float(new[-1][0]), any(r[3] == "filtered" for r in new)
+class _Follower:
+    """Follows a growing CSV file (``tail -f``): the rows that completed since the last look."""
+
+    def __init__(self, path: Path) -> None:
+        self.path, self._offset, self._partial = path, 0, b""
+
+    def new_rows(self) -> list[list[str]]:
+        if not self.path.exists():
+            return []
+        with self.path.open("rb") as f:
+            f.seek(self._offset)
+            data = self._partial + f.read()
+        self._offset += len(data) - len(self._partial)
+        *lines, self._partial = data.split(b"\n")
+        return [row for row in csv.reader(line.decode() for line in lines) if row and row[0] != "t_s"]
 
 
 def run_live(folder: Path, out: Path, pace: float = 1.0, replay_kwargs: dict | None = None,
@@ -166,13 +172,13 @@ def run_live(folder: Path, out: Path, pace: float = 1.0, replay_kwargs: dict | N
         feed = phone_feed or (lambda url, pace, stop: replay_push([_phone_log(folder)], url, pace, stop=stop))
         pusher = threading.Thread(target=feed, args=(url, pace, stop), daemon=True)
         pusher.start()
-        arrivals, rss, seen = [], [], 0
-        csv_path = output_paths(out)["csv"]
+        arrivals, rss = [], []
+        follower = _Follower(output_paths(out)["csv"])
         while child.poll() is None:
             now = time.monotonic() - begun
-            seen, newest, filtered = _newest_rows(csv_path, seen)
-            if newest is not None:
-                arrivals.append((now, now * pace, newest, filtered))
+            rows = follower.new_rows()
+            if rows:
+                arrivals.append((now, now * pace, float(rows[-1][0]), any(r[3] == "filtered" for r in rows)))
             rss.append((now, _rss_mb(child.pid)))
             if stream_limit_s is not None and server.sent_bytes / 2 / RATE_HZ >= stream_limit_s:
                 child.send_signal(signal.SIGINT)
@@ -218,14 +224,17 @@ def _p95(folder: Path, frame_file: Path, track: Track) -> float:
     return float(np.percentile(position_errors_m(track, moved), 95))
 
 
-def timeliness(run: LiveRun) -> tuple[float, float, float]:
-    """From the first filtered position on: the longest wait between two new newest-positions (host s), and the
-    median and largest lag of the newest position's time behind the walk's newest sample sent (s)."""
+def timeliness(run: LiveRun, walk_s: float) -> tuple[float, float, float]:
+    """From the first filtered position to the end of the phone's log (``walk_s``, s): the longest wait between two
+    new newest-positions (host s), and the median and largest lag of the newest position's time behind the walk's
+    newest sample sent (s)."""
     first = next((i for i, a in enumerate(run.arrivals) if a[3]), None)
     if first is None:
         return math.nan, math.nan, math.nan
-    after = run.arrivals[first:]
-    waits = np.diff([a[0] for a in after]) if len(after) > 1 else np.array([math.nan])
+    after = [a for a in run.arrivals[first:] if a[1] <= walk_s]
+    if len(after) < 2:
+        return math.nan, math.nan, math.nan
+    waits = np.diff([a[0] for a in after])
     lags = np.array([a[1] - a[2] for a in after])
     return float(np.max(waits)), float(np.median(lags)), float(np.max(lags))
 
@@ -270,7 +279,7 @@ def check(folder: Path, memory_minutes: float = 0.0) -> tuple[str, str, bool]:
     live = run_live(walk, folder / "live")
     batch, _ = batch_p95(walk, _fresh(folder / "batch"))
     live_p95 = _p95(walk, output_paths(live.folder)["live"], _track(output_paths(live.folder)["live"]))
-    wait_s, lag_median_s, lag_s = timeliness(live)
+    wait_s, lag_median_s, lag_s = timeliness(live, stream_s)
     dropped = run_live(walk, folder / "dropped", replay_kwargs={"drop_after_s": DROP_AT_S, "outage_s": OUTAGE_S})
     kept = outage_kept(dropped)
     lines = ["| check | figure |", "|---|---|",
