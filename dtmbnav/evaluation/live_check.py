@@ -159,6 +159,7 @@ def run_live(folder: Path, out: Path, pace: float = 1.0, replay_kwargs: dict | N
                    "--weinberg-k", str(_weinberg_k(folder)), "--filters", FILTER, "--reconnects", "2",
                    # The capture starts with the phone log; the source drops its settling samples first.
                    "--time-offset", str(DEFAULT_POLICY.settle_s), "-o", str(out), "-q"]
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)   # earlier children's (the walk's simulation)
         child = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
         url = f"http://127.0.0.1:{push_port}/"
         for _ in range(600):   # the push server is up once it answers (an empty batch is refused: 400)
@@ -187,8 +188,9 @@ def run_live(folder: Path, out: Path, pace: float = 1.0, replay_kwargs: dict | N
         stop.set()
         stderr = child.stderr.read()
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return LiveRun(out, arrivals, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024, rss, child.returncode,
-                   stderr)
+    cpu_s = usage.ru_utime + usage.ru_stime - before.ru_utime - before.ru_stime
+    peak_mb = max((mb for _, mb in rss if np.isfinite(mb)), default=math.nan)
+    return LiveRun(out, arrivals, cpu_s, peak_mb, rss, child.returncode, stderr)
 
 
 def batch_p95(folder: Path, work: Path) -> tuple[float, Track]:
