@@ -113,6 +113,8 @@ class LiveStatus:
         Receiver frames, and those flagged as the first after a loss of lock.
     snr_db : float
         The newest batch's median SI-carrier SNR, dB.
+    clock_offset_hz : float
+        The receiver's oscillator offset f_s, Hz (NaN until measured in the standstill).
     capture_s : float
         Receiver time of the newest frame, s.
     walk_s : float
@@ -123,6 +125,8 @@ class LiveStatus:
         Positions written.
     stage : str
         The newest position's stage.
+    position : str
+        The newest position, latitude and longitude (deg) and its 95 % radius (m), as the status line says it.
     lag_s : float
         The newest phone sample's time minus the newest position's, s of walk (a held position,
         :func:`fusion.streaming.hold_position`, is at the newest sample).
@@ -137,21 +141,24 @@ class LiveStatus:
     frames: int = 0
     gaps: int = 0
     snr_db: float = math.nan
+    clock_offset_hz: float = math.nan
     capture_s: float = math.nan
     walk_s: float = math.nan
     steps: int = 0
     provisional_steps: int = 0
     positions: int = 0
     stage: str = "waiting"
+    position: str = "-"
     lag_s: float = math.nan
     step_lag_s: float = math.nan
     longest_silence_s: float = 0.0
 
     def line(self) -> str:
         """One line for the terminal."""
-        lock = "no lock" if not self.frames else f"{self.frames} frames, SNR {self.snr_db:.1f} dB, {self.gaps} gap(s)"
+        lock = "no lock" if not self.frames else (f"{self.frames} frames, SNR {self.snr_db:.1f} dB, "
+                                                  f"f_s {self.clock_offset_hz:+.1f} Hz, {self.gaps} gap(s)")
         return (f"{lock} | walk {self.walk_s:.1f} s, {self.steps} steps (+{self.provisional_steps}) | "
-                f"{self.positions} positions, {self.stage}, {self.lag_s:.1f} s behind")
+                f"{self.position} ({self.stage}, {self.lag_s:.1f} s behind)")
 
 
 @dataclass
@@ -229,6 +236,8 @@ class LiveWalk:
         self.layout: TowerLayout | None = None
         self.start_fix: CombinedFix | None = None
         self.capture_start_utc_ns = capture_start_utc_ns
+        #: The receiver's f_s once measured (set by :func:`run_live`; read each update).
+        self.receiver_clock_hz: Callable[[], float | None] = lambda: None
         self._frames: queue.Queue[dict[str, np.ndarray]] = queue.Queue()
         self._held_ranges: list[RangeSeries] = []
         self._held_steps: list[PdrSteps] = []
@@ -348,6 +357,8 @@ class LiveWalk:
         self.status.frames += len(ranges)
         self.status.gaps += int(np.count_nonzero(columns["flags"].astype(np.int64) & int(FrameFlag.GAP)))
         self.status.snr_db = float(np.median(ranges.snr_db))
+        clock_hz = self.receiver_clock_hz()
+        self.status.clock_offset_hz = math.nan if clock_hz is None else float(clock_hz)
         self.status.capture_s = float(ranges.t_s[-1])
         if self.fusion is None:   # keep only what a fusion about to start could need
             held = _concat(self._held_ranges)
@@ -436,6 +447,9 @@ class LiveWalk:
             self.writer.write(positions)
             self.status.positions += len(positions.track)
             self.status.stage = str(positions.stage[-1])
+            radius = float(positions.track.accuracy_radius_m()[-1])
+            self.status.position = (f"{positions.lat_deg[-1]:.6f}, {positions.lon_deg[-1]:.6f} +- {radius:.1f} m "
+                                    "(95 %)")
         self._keep_time(max((float(p.track.t_s[-1]) for p in settled + head), default=-math.inf))
         if self.view is not None:
             for positions in settled:
@@ -552,6 +566,7 @@ def run_live(source: CaptureSource, phone: PhoneStream, setup: LiveSetup, folder
         receiver_cpu_s = time.thread_time()
         try:
             rx = Receiver(source.sample_rate_hz, carrier_hz, receiver_config)
+            walk.receiver_clock_hz = lambda: rx.ranging.clock_offset_hz
             with contextlib.ExitStack() as stack:
                 if hasattr(source, "close"):
                     stack.callback(source.close)
