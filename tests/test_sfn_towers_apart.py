@@ -18,7 +18,7 @@ import pytest
 from sfn_twin import TwinCapture
 
 from dtmbnav.cli import build_parser
-from dtmbnav.cli.receive import _receiver_config
+from dtmbnav.cli.options import receiver_config
 from dtmbnav_core.gb20600 import SYMBOL_RATE_HZ, PnMode
 from dtmbnav_core.records import FrameBatch, PathBatch, PathFlag
 from receiver.paths import PathConfig
@@ -73,9 +73,9 @@ def delay_error_s(cap: TwinCapture, rows: PathBatch) -> tuple[np.ndarray, int]:
 
 def test_receive_spans_the_guard_interval_by_default():
     parser = build_parser()
-    defaults = _receiver_config(parser.parse_args(["receive", "x.sigmf-meta", "-o", "rx.h5"]))
+    defaults = receiver_config(parser.parse_args(["receive", "x.sigmf-meta", "-o", "rx.h5"]))
     assert defaults.paths.guard_span and ReceiverConfig().paths == PathConfig() == defaults.paths
-    off = _receiver_config(parser.parse_args(["receive", "x.sigmf-meta", "-o", "rx.h5", "--no-guard-span"]))
+    off = receiver_config(parser.parse_args(["receive", "x.sigmf-meta", "-o", "rx.h5", "--no-guard-span"]))
     assert not off.paths.guard_span
 
 
