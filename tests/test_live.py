@@ -23,7 +23,7 @@ from dtmbnav.field.live_positions import LivePositionWriter
 from dtmbnav.field.phone_stream import SensorLoggerPush
 from dtmbnav.field.towers import read_towers, towers_about
 from dtmbnav.simulation.phone_replay import replay_push
-from dtmbnav_core.records import ELLIPSE_95_CHI2, FrameFlag
+from dtmbnav_core.records import ELLIPSE_95_CHI2, FrameFlag, ImuLog
 from dtmbnav_core.sensors import read_imu, read_walk_truth
 from fusion.metrics import position_errors_m
 from fusion.pdr import PdrConfig, run_pdr
@@ -152,3 +152,21 @@ def test_recording_is_a_walk_fuse_reads(live_run):
     rows = output_paths(out)["csv"].read_text().splitlines()
     stages = {row.split(",")[3] for row in rows[1:]}
     assert stages == {"heading", "filtered", "nowcast"} and len(rows) > 200
+
+
+def test_a_phone_gap_is_bridged_onto_one_grid():
+    """Grid times a phone gap left out (inside a chunk, or between two) are put back, linear across the gap."""
+    def imu(t):
+        t = np.asarray(t, dtype=np.float64)
+        values = np.column_stack([t, 2 * t, -t])
+        return ImuLog(t_s=t, acc_mps2=values, gyro_radps=values.copy(), mag_ut=values.copy())
+
+    live = LiveWalk(None, LiveSetup(towers=(), pdr=PDR), LivePositionWriter(), None, progress=False)
+    first = live._bridged(imu([0.0, 0.01, 0.02, 0.05, 0.06]))
+    np.testing.assert_allclose(first.t_s, np.arange(7) * 0.01)
+    np.testing.assert_allclose(first.acc_mps2[:, 1], 2 * first.t_s)
+    live._last_imu = first
+    second = live._bridged(imu([0.1, 0.11]))
+    np.testing.assert_allclose(second.t_s, [0.07, 0.08, 0.09, 0.1, 0.11])
+    np.testing.assert_allclose(second.gyro_radps[:, 2], -second.t_s)
+    assert live._bridged(imu([0.12, 0.13])).t_s.tolist() == [0.12, 0.13]   # no gap: as it came

@@ -28,7 +28,7 @@ import queue
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -190,6 +190,20 @@ class LiveResult:
     cpu_s: dict[str, float] = field(default_factory=dict)
 
 
+class _UntilFailed(Iterator[np.ndarray]):
+    """An input that ends when the live walk's fusion thread has failed (a stream's read-ahead kept as it is:
+    ``ends_on_stop`` passed on, :class:`dtmbnav_core.interrupt.DeferredStop`)."""
+
+    def __init__(self, chunks: Iterator[np.ndarray], walk: LiveWalk) -> None:
+        self._chunks, self._walk = chunks, walk
+        self.ends_on_stop = getattr(chunks, "ends_on_stop", False)
+
+    def __next__(self) -> np.ndarray:
+        if self._walk.failed:
+            raise StopIteration
+        return next(self._chunks)
+
+
 class RangeTee(FrameSink):
     """A :class:`receiver.writer.FrameSink` that also hands each batch's range rows to a callback."""
 
@@ -264,6 +278,15 @@ class LiveWalk:
         """Start the fusion thread."""
         self._thread.start()
 
+    @property
+    def failed(self) -> bool:
+        """Whether the fusion thread ended on an error (:meth:`stop` raises it)."""
+        return self._error is not None
+
+    def until_failed(self, chunks: Iterator[np.ndarray]) -> Iterator[np.ndarray]:
+        """``chunks`` until the fusion thread fails: the receiver then ends its stream as at its end."""
+        return _UntilFailed(chunks, self)
+
     def stop(self) -> LiveResult:
         """End the walk: the phone's rest, the PDR's last steps, the final tracks; re-raise the thread's error."""
         self._stop.set()
@@ -327,20 +350,24 @@ class LiveWalk:
             self.status.steps += len(steps)
 
     def _bridged(self, imu: ImuLog) -> ImuLog:
-        """``imu`` with the grid times a phone gap left out put back, linearly from the last sample before it."""
+        """``imu`` with the grid times a phone gap left out put back (before it or inside it), linear across the
+        gap as the file importer makes them: the PDR takes one uniform grid."""
         last = self._last_imu
-        if last is None or not len(imu.t_s) or not len(last.t_s):
+        if not len(imu.t_s):
             return imu
-        dt = float(np.median(np.diff(last.t_s))) if len(last.t_s) > 1 else float(np.median(np.diff(imu.t_s)))
-        missing = int(round((imu.t_s[0] - last.t_s[-1]) / dt)) - 1
-        if missing <= 0:
+        known = imu if last is None or not len(last.t_s) else _concat([last.select(slice(-1, None)), imu])
+        steps = np.diff(known.t_s)
+        if not len(steps):
             return imu
-        t = last.t_s[-1] + dt * np.arange(1, missing + 1)
-        fill = {name: np.column_stack([np.interp(t, [last.t_s[-1], imu.t_s[0]], [getattr(last, name)[-1, k],
-                                                                                   getattr(imu, name)[0, k]])
-                                       for k in range(3)])
-                for name in ("acc_mps2", "gyro_radps", "mag_ut")}
-        return _concat([ImuLog(t_s=t, **fill), imu])
+        dt = float(np.median(steps))
+        if np.all(np.abs(steps - dt) <= 0.5 * dt):
+            return imu
+        grid = known.t_s[0] + dt * np.arange(int(round((known.t_s[-1] - known.t_s[0]) / dt)) + 1)
+        if last is not None and len(last.t_s):
+            grid = grid[1:]   # the last sample of the previous chunk was handed on already
+        columns = {name: np.column_stack([np.interp(grid, known.t_s, getattr(known, name)[:, k]) for k in range(3)])
+                   for name in ("acc_mps2", "gyro_radps", "mag_ut")}
+        return ImuLog(t_s=grid, **columns)
 
     def _take_frames(self) -> None:
         batches = []
@@ -570,7 +597,7 @@ def run_live(source: CaptureSource, phone: PhoneStream, setup: LiveSetup, folder
             with contextlib.ExitStack() as stack:
                 if hasattr(source, "close"):
                     stack.callback(source.close)
-                chunks = read_ahead(source.chunks(LIVE_CHUNK_SAMPLES), keep_read_on_stop=True)
+                chunks = walk.until_failed(read_ahead(source.chunks(LIVE_CHUNK_SAMPLES), keep_read_on_stop=True))
                 sink = RangeTee(paths["receiver"], walk.on_frames)
                 receive_into_sink(rx, chunks, sink, source=source.path, progress=False,
                                   attrs=source.attributes() if hasattr(source, "attributes") else None,
