@@ -263,6 +263,7 @@ class LiveWalk:
         self._last_write: float | None = None
         self._last_settled: LivePositions | None = None
         self._last_imu: ImuLog | None = None
+        self._grid_dt: float | None = None
         self._stop = threading.Event()
         self._error: BaseException | None = None
         self._result: LiveResult | None = None
@@ -357,10 +358,10 @@ class LiveWalk:
             return imu
         known = imu if last is None or not len(last.t_s) else _concat([last.select(slice(-1, None)), imu])
         steps = np.diff(known.t_s)
-        if not len(steps):
-            return imu
-        dt = float(np.median(steps))
-        if np.all(np.abs(steps - dt) <= 0.5 * dt):
+        if self._grid_dt is None and len(imu.t_s) > 2:   # the phone grid's spacing, from the first chunk
+            self._grid_dt = float(np.median(np.diff(imu.t_s)))
+        dt = self._grid_dt
+        if dt is None or not len(steps) or np.all(np.abs(steps - dt) <= 0.5 * dt):
             return imu
         grid = known.t_s[0] + dt * np.arange(int(round((known.t_s[-1] - known.t_s[0]) / dt)) + 1)
         if last is not None and len(last.t_s):
