@@ -96,7 +96,7 @@ def test_page_draws_the_track_as_it_grows(tmp_path) -> None:
         later = _browse(view.url, "--dump-dom")
         _browse(view.url, f"--screenshot={tmp_path / 'later.png'}")
         view.add_rows([dataclasses.replace(row, stage="filtered") for row in _rows(50, 55)])
-        revised = _browse(view.url, "--dump-dom")
+        revised = _browse(view.url, "--dump-dom")   # the page takes the whole track again on a revision
     assert re.search(r'id="track"[^>]*data-rows="20"', first)
     assert re.search(r'id="track"[^>]*data-rows="60"', later)
     last = _rows(63, 64)[0]   # the head's end is the newest position

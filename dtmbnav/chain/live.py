@@ -29,18 +29,27 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from dtmbnav.chain.live_records import (
+    PRE_START_FRAMES_S,
+    STAGE_FILTERED,
+    STAGE_HEADING,
+    STAGE_NOWCAST,
+    LiveResult,
+    LiveSetup,
+    LiveStatus,
+    output_paths,
+)
 from dtmbnav.chain.receive import LIVE_CHUNK_SAMPLES
 from dtmbnav.field.live_page import LiveView, ViewRow, ViewScene, ellipse_95
 from dtmbnav.field.live_positions import GeoPositions, LivePositionWriter
 from dtmbnav.field.phone_grid import PhoneChunk, PhoneStream
 from dtmbnav.field.sensors_import import choose_start_fix, walk_start_s
-from dtmbnav.field.towers import Tower, TowerLayout, towers_about
+from dtmbnav.field.towers import TowerLayout, towers_about
 from dtmbnav_core import schema
 from dtmbnav_core.geodetic import GeodeticPoint, to_enu
 from dtmbnav_core.h5io import atomic_h5, write_columns
@@ -48,146 +57,13 @@ from dtmbnav_core.interrupt import Interrupted
 from dtmbnav_core.records import FrameFlag, GeodeticFixes, GnssLog, ImuLog, PdrSteps, RangeSeries
 from dtmbnav_core.sensors import write_gnss, write_imu
 from dtmbnav_core.start_fix import CombinedFix
-from fusion.pdr import PdrConfig
 from fusion.pdr.streaming import StreamingPdr
-from fusion.run import FusionConfig, FusionResult
 from fusion.streaming import LivePositions, StreamingFusion, hold_position
 from receiver.capture import CaptureSource
 from receiver.observables import ranges_from_frames
 from receiver.pipeline import Receiver, ReceiverConfig, receive_into_sink
 from receiver.reader import read_ahead
 from receiver.writer import FrameSink
-
-#: File names in the live command's output folder.
-RECEIVER_NAME = "receiver.h5"
-LIVE_NAME = "live.h5"
-CSV_NAME = "live.csv"
-GEOJSON_NAME = "live.geojsonl"
-#: Receiver frames kept for the fusion before it can start (no start fix or clock offset yet), s: the
-#: fusion needs none from before the walk's first steps, and memory stays bounded however long one waits.
-PRE_START_FRAMES_S = 60.0
-#: Stages of a live position, as the line formats and the page name them.
-STAGE_HEADING, STAGE_FILTERED, STAGE_NOWCAST = "heading", "filtered", "nowcast"
-
-
-@dataclass(frozen=True)
-class LiveSetup:
-    """What a live walk is fused with.
-
-    Attributes
-    ----------
-    towers : tuple of Tower
-        The towers used, the ranging tower first (:func:`dtmbnav.field.towers.choose_towers`).
-    filters : tuple of str
-        Streaming filters (:data:`fusion.streaming.STREAMING_FILTERS`); the first is the live one.
-    fusion : FusionConfig
-    pdr : PdrConfig
-    time_offset_s : float or None
-        Where the capture starts on the phone's clock, s; None: from the two streams' UTC stamps.
-    start : GeodeticPoint or None
-        The start position when given (the walk's frame is then about it and its sigma the filters'
-        default); None: from the phone's fixes.
-    start_window_s : float or None
-        Only the standstill's last seconds make the start fix (``dtmbnav sensors --start-window``).
-    tick_s : float
-        How often the fusion thread polls and writes, s.
-    """
-
-    towers: tuple[Tower, ...]
-    filters: tuple[str, ...] = ("pf",)
-    fusion: FusionConfig = field(default_factory=FusionConfig)
-    pdr: PdrConfig = field(default_factory=PdrConfig)
-    time_offset_s: float | None = None
-    start: GeodeticPoint | None = None
-    start_window_s: float | None = None
-    tick_s: float = 0.5
-
-
-@dataclass
-class LiveStatus:
-    """What the status line and the page say, updated as the streams come.
-
-    Attributes
-    ----------
-    frames, gaps : int
-        Receiver frames, and those flagged as the first after a loss of lock.
-    snr_db : float
-        The newest batch's median SI-carrier SNR, dB.
-    clock_offset_hz : float
-        The receiver's oscillator offset f_s, Hz (NaN until measured in the standstill).
-    capture_s : float
-        Receiver time of the newest frame, s.
-    walk_s : float
-        Phone time of the newest IMU sample, s.
-    steps, provisional_steps : int
-        Settled and provisional PDR steps.
-    positions : int
-        Positions written.
-    stage : str
-        The newest position's stage.
-    position : str
-        The newest position, latitude and longitude (deg) and its 95 % radius (m), as the status line says it.
-    lag_s : float
-        The newest phone sample's time minus the newest position's, s of walk (a held position,
-        :func:`fusion.streaming.hold_position`, is at the newest sample).
-    step_lag_s : float
-        The newest phone sample's time minus the newest PDR step's (settled or provisional), s of walk:
-        how far the motion the position holds trails the samples while walking (it grows in a standstill).
-    longest_silence_s : float
-        The longest wait between two writes of positions since the initial heading became confident,
-        s of the host's clock.
-    """
-
-    frames: int = 0
-    gaps: int = 0
-    snr_db: float = math.nan
-    clock_offset_hz: float = math.nan
-    capture_s: float = math.nan
-    walk_s: float = math.nan
-    steps: int = 0
-    provisional_steps: int = 0
-    positions: int = 0
-    stage: str = "waiting"
-    position: str = "-"
-    lag_s: float = math.nan
-    step_lag_s: float = math.nan
-    longest_silence_s: float = 0.0
-
-    def line(self) -> str:
-        """One line for the terminal."""
-        lock = "no lock" if not self.frames else (f"{self.frames} frames, SNR {self.snr_db:.1f} dB, "
-                                                  f"f_s {self.clock_offset_hz:+.1f} Hz, {self.gaps} gap(s)")
-        return (f"{lock} | walk {self.walk_s:.1f} s, {self.steps} steps (+{self.provisional_steps}) | "
-                f"{self.position} ({self.stage}, {self.lag_s:.1f} s behind)")
-
-
-@dataclass
-class LiveResult:
-    """What a live walk gave.
-
-    Attributes
-    ----------
-    fusion : FusionResult or None
-        The final tracks (None where the walk never got a start fix or two steps).
-    status : LiveStatus
-    notes : list of str
-        What the user should know (no start fix, phone gaps, ...).
-    start_fix : CombinedFix or None
-    origin : GeodeticPoint or None
-    time_offset_s : float or None
-        The capture's start on the phone's clock used, s.
-    cpu_s : dict of str to float
-        CPU time of the receiver's thread (``receiver``), the fusion thread (``fusion``) and the whole
-        process (``process``), s: where a live walk's processor goes.
-    """
-
-    fusion: FusionResult | None
-    status: LiveStatus
-    notes: list[str]
-    start_fix: CombinedFix | None
-    origin: GeodeticPoint | None
-    time_offset_s: float | None
-    cpu_s: dict[str, float] = field(default_factory=dict)
 
 
 class _UntilFailed(Iterator[np.ndarray]):
@@ -363,7 +239,7 @@ class LiveWalk:
         dt = self._grid_dt
         if dt is None or not len(steps) or np.all(np.abs(steps - dt) <= 0.5 * dt):
             return imu
-        grid = known.t_s[0] + dt * np.arange(int(round((known.t_s[-1] - known.t_s[0]) / dt)) + 1)
+        grid = known.t_s[0] + dt * np.arange(round((known.t_s[-1] - known.t_s[0]) / dt) + 1)
         if last is not None and len(last.t_s):
             grid = grid[1:]   # the last sample of the previous chunk was handed on already
         columns = {name: np.column_stack([np.interp(grid, known.t_s, getattr(known, name)[:, k]) for k in range(3)])
@@ -566,13 +442,6 @@ def _view_rows(positions: GeoPositions) -> list[ViewRow]:
         rows.append(ViewRow(float(t.t_s[k]), float(t.x_m[k]), float(t.y_m[k]), float(positions.lat_deg[k]),
                             float(positions.lon_deg[k]), major, minor, angle, str(positions.stage[k])))
     return rows
-
-
-def output_paths(folder: str | os.PathLike) -> dict[str, Path]:
-    """The files ``dtmbnav live`` writes in ``folder``."""
-    folder = Path(folder)
-    return {"receiver": folder / RECEIVER_NAME, "live": folder / LIVE_NAME, "csv": folder / CSV_NAME,
-            "geojson": folder / GEOJSON_NAME}
 
 
 def run_live(source: CaptureSource, phone: PhoneStream, setup: LiveSetup, folder: str | os.PathLike,

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import math
 import os
 import re
@@ -214,8 +213,8 @@ def _track(path: Path) -> Track:
 
 def _p95(folder: Path, frame_file: Path, track: Track) -> float:
     """95 % error of ``track`` (in the frame of ``frame_file``'s origin, the phone's first fix) against the truth."""
-    from dtmbnav_core.geodetic import tower_in_sensors_frame
     from dtmbnav.field.towers import read_towers
+    from dtmbnav_core.geodetic import tower_in_sensors_frame
 
     truth = read_walk_truth(folder / "truth.h5").track
     scenario = load_scenario(SCENARIO)

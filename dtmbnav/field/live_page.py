@@ -206,7 +206,7 @@ def _handler(state: _State, page: bytes) -> type[BaseHTTPRequestHandler]:
     """The request handler class serving ``page`` and ``state``."""
 
     class Handler(BaseHTTPRequestHandler):
-        def do_GET(self) -> None:  # noqa: N802 (the standard library's name)
+        def do_GET(self) -> None:
             url = urlparse(self.path)
             if url.path in ("/", "/index.html"):
                 self._send(page, "text/html; charset=utf-8")
@@ -228,7 +228,7 @@ def _handler(state: _State, page: bytes) -> type[BaseHTTPRequestHandler]:
             self.end_headers()
             self.wfile.write(body)
 
-        def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (the standard library's name)
+        def log_message(self, format: str, *args: Any) -> None:
             """Quiet: the terminal belongs to the live command's progress line."""
 
     return Handler
