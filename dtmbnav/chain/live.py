@@ -140,6 +140,7 @@ class LiveWalk:
         self._last_settled: LivePositions | None = None
         self._last_imu: ImuLog | None = None
         self._grid_dt: float | None = None
+        self._first_frame_cpu_s: float | None = None
         self._stop = threading.Event()
         self._error: BaseException | None = None
         self._result: LiveResult | None = None
@@ -149,6 +150,8 @@ class LiveWalk:
 
     def on_frames(self, columns: dict[str, np.ndarray]) -> None:
         """Take one receiver batch's frame columns (called by :class:`RangeTee`)."""
+        if self._first_frame_cpu_s is None:   # the process's start-up (imports, compiled kernels) is behind it
+            self._first_frame_cpu_s = time.process_time()
         self._frames.put(columns)
 
     def start(self) -> None:
@@ -478,6 +481,8 @@ def run_live(source: CaptureSource, phone: PhoneStream, setup: LiveSetup, folder
             receiver_cpu_s = time.thread_time() - receiver_cpu_s
             result = walk.stop()
             result.cpu_s.update(receiver=receiver_cpu_s, process=time.process_time())
+            if walk._first_frame_cpu_s is not None:
+                result.cpu_s["after_first_frame"] = result.cpu_s["process"] - walk._first_frame_cpu_s
         walk.write_recording(paths["live"], result)
     if interrupted is not None:
         raise interrupted

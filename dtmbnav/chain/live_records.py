@@ -132,8 +132,9 @@ class LiveResult:
     time_offset_s : float or None
         The capture's start on the phone's clock used, s.
     cpu_s : dict of str to float
-        CPU time of the receiver's thread (``receiver``), the fusion thread (``fusion``) and the whole
-        process (``process``), s: where a live walk's processor goes.
+        CPU time of the receiver's thread (``receiver``), the fusion thread (``fusion``), the whole
+        process (``process``) and the process from its first frame on (``after_first_frame``: its
+        start-up left out), s: where a live walk's processor goes.
     """
 
     fusion: FusionResult | None

@@ -141,7 +141,8 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_NO_RESULT
     print(f"initial heading {result.fusion.heading.describe()}", file=sys.stderr)
     print(f"{result.status.positions} positions -> {args.output}; CPU: receiver {result.cpu_s['receiver']:.1f} s, "
-          f"fusion {result.cpu_s.get('fusion', float('nan')):.1f} s, the whole process {result.cpu_s['process']:.1f} s",
+          f"fusion {result.cpu_s.get('fusion', float('nan')):.1f} s, the whole process {result.cpu_s['process']:.1f} s "
+          f"({result.cpu_s.get('after_first_frame', float('nan')):.1f} s from the first frame on)",
           file=sys.stderr)
     return EXIT_OK
 

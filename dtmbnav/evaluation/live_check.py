@@ -303,12 +303,14 @@ def check(folder: Path, memory_minutes: float = 0.0) -> tuple[str, str, bool]:
 
 
 def _cpu_split(stderr: str, stream_s: float) -> str:
-    """The receiver's and the fusion's shares as the live process's last line states them, per stream second."""
-    match = re.search(r"CPU: receiver ([0-9.]+) s, fusion ([0-9.]+) s", stderr)
+    """The process after its start-up, the receiver's and the fusion's shares, as the live process's last line
+    states them, per stream second."""
+    match = re.search(r"CPU: receiver ([0-9.]+) s, fusion ([0-9.]+) s, the whole process [0-9.]+ s \(([0-9.]+) s from "
+                      r"the first frame on\)", stderr)
     if match is None:
         return "split not stated"
-    receiver, fusion = (float(v) / stream_s for v in match.groups())
-    return f"receiver thread {receiver:.2f}, fusion thread {fusion:.2f}"
+    receiver, fusion, running = (float(v) / stream_s for v in match.groups())
+    return f"after start-up {running:.2f}: receiver thread {receiver:.2f}, fusion thread {fusion:.2f}"
 
 
 def live_section(config) -> object:
