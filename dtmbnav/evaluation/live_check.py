@@ -71,8 +71,8 @@ class LiveRun:
     folder : Path
         Its output folder.
     arrivals : list of (float, float, float, bool)
-        Each new newest-position as followed in ``live.csv``: (host seconds since the replays began, the walk's
-        newest sample then, s, the row's time, s, whether a filtered row came with it).
+        Each new newest position as followed in ``live.csv``: (host seconds since the replays began, the walk's
+        newest sample then, s, the newest row time written so far, s, whether a filtered row has come by then).
     cpu_s : float
         The process's CPU time (user + system), s.
     peak_rss_mb : float
@@ -177,8 +177,12 @@ def run_live(folder: Path, out: Path, pace: float = 1.0, replay_kwargs: dict | N
         while child.poll() is None:
             now = time.monotonic() - begun
             rows = follower.new_rows()
-            if rows:
-                arrivals.append((now, now * pace, float(rows[-1][0]), any(r[3] == "filtered" for r in rows)))
+            # The newest position is the latest time written so far (a batch of re-sent, older rows may be read
+            # before the newer rows of the same update are flushed).
+            newest = max((float(r[0]) for r in rows), default=-math.inf)
+            if newest > (arrivals[-1][2] if arrivals else -math.inf):
+                arrivals.append((now, now * pace, newest, any(r[3] == "filtered" for r in rows)
+                                 or bool(arrivals and arrivals[-1][3])))
             rss.append((now, _rss_mb(child.pid)))
             if stream_limit_s is not None and server.sent_bytes / 2 / RATE_HZ >= stream_limit_s:
                 child.send_signal(signal.SIGINT)
