@@ -35,6 +35,11 @@ class ColumnRecord:
         """The rows picked by a slice, index array or boolean mask, as a new record."""
         return type(self)(**{k: v[rows] for k, v in self.columns().items()})
 
+    @classmethod
+    def concatenate(cls, records: list[Self]) -> Self:
+        """The rows of ``records`` (at least one) in order, as one record."""
+        return cls(**{name: np.concatenate([getattr(r, name) for r in records]) for name in records[0].columns()})
+
 
 @dataclass
 class Track(ColumnRecord):

@@ -197,10 +197,8 @@ def _check_increasing(t_s: np.ndarray, taken, what: str) -> None:
 
 
 def _concat(first, second):
-    """Two column records of one type, one after the other."""
-    if first is None:
-        return second
-    return type(first)(**{k: np.concatenate([v, getattr(second, k)]) for k, v in first.columns().items()})
+    """Two column records of one type, one after the other (``first`` None: ``second``)."""
+    return second if first is None else type(first).concatenate([first, second])
 
 
 class StreamingFusion:
@@ -315,7 +313,7 @@ class StreamingFusion:
         """The live filter's positions (or the provisional ones) given since the last poll, in the order given."""
         out = self._out
         self._out = []
-        return LivePositions.empty() if not out else _concat_all(out)
+        return LivePositions.empty() if not out else LivePositions.concatenate(out)
 
     def nowcast(self, provisional: PdrSteps) -> LivePositions:
         """Positions at the PDR's provisional steps, carried on from the latest estimate (module docstring, 4).
@@ -404,7 +402,7 @@ class StreamingFusion:
             self._run_filters()
         self._finished = True
         epochs = build_epochs(self._pdr, self._epochs, self.heading.heading_rad)
-        tracks = {name: _concat_all(rows) for name, rows in self._tracks.items()}
+        tracks = {name: FusedTrack.concatenate(rows) for name, rows in self._tracks.items()}
         smoothed = {}
         if self.config.smooth:
             for name, fusion_filter in self._filters.items():
@@ -597,8 +595,3 @@ def _heading_variance_rad2(fusion_filter: FusionFilter) -> float:
     covariance = fusion_filter.summary()[1] if hasattr(fusion_filter, "summary") else fusion_filter.P
     return float(covariance[HEADING, HEADING])
 
-
-def _concat_all(records: list) -> object:
-    """Column records of one type, one after the other."""
-    return type(records[0])(**{k: np.concatenate([getattr(r, k) for r in records])
-                               for k in records[0].columns()})
