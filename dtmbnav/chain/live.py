@@ -1,7 +1,7 @@
 """``dtmbnav live``'s work: an SDR stream and a phone's sensor stream in, positions as the walk happens.
 
 Two threads share the work. The main thread runs the receiver on the SDR stream
-(:func:`receiver.pipeline.receive_into_sink`: SIGINT and SIGTERM end a stream cleanly, and only the main
+(:func:`dtmbnav.chain.receive.receive_stream`: SIGINT and SIGTERM end a stream cleanly, and only the main
 thread may take signals), writing ``/receiver/frames`` to ``receiver.h5`` as ``dtmbnav receive`` does, and
 hands every batch's SI-carrier range to the fusion thread (:class:`LiveWalk`). The fusion thread polls the
 phone, runs the streaming PDR (:class:`fusion.pdr.streaming.StreamingPdr`), makes the ENU frame (about the
@@ -20,7 +20,6 @@ go to ``live.h5``: with ``receiver.h5`` a recorded walk that ``dtmbnav fuse`` re
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
 import os
@@ -30,7 +29,6 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -44,7 +42,7 @@ from dtmbnav.chain.live_records import (
     LiveStatus,
     output_paths,
 )
-from dtmbnav.chain.receive import LIVE_CHUNK_SAMPLES
+from dtmbnav.chain.receive import receive_stream
 from dtmbnav.field.live_page import LiveView, ViewRow, ViewScene, ellipse_95
 from dtmbnav.field.live_positions import GeoPositions, LivePositionWriter
 from dtmbnav.field.phone_grid import PhoneChunk, PhoneStream
@@ -55,14 +53,15 @@ from dtmbnav_core.geodetic import GeodeticPoint, to_enu
 from dtmbnav_core.h5io import atomic_h5, write_columns
 from dtmbnav_core.interrupt import Interrupted
 from dtmbnav_core.records import FrameFlag, GeodeticFixes, GnssLog, ImuLog, PdrSteps, RangeSeries
+from dtmbnav_core.resampling import interpolate
 from dtmbnav_core.sensors import write_gnss, write_imu
 from dtmbnav_core.start_fix import CombinedFix
+from fusion.pdr.pipeline import has_magnetometer
 from fusion.pdr.streaming import StreamingPdr
 from fusion.streaming import LivePositions, StreamingFusion, hold_position
-from receiver.capture import CaptureSource
 from receiver.observables import ranges_from_frames
-from receiver.pipeline import Receiver, ReceiverConfig, receive_into_sink
-from receiver.reader import read_ahead
+from receiver.pipeline import Receiver, ReceiverConfig
+from receiver.rtl_tcp import RtlTcpSource
 from receiver.writer import FrameSink
 
 
@@ -91,12 +90,6 @@ class RangeTee(FrameSink):
         super().append(batch)
         if len(batch):
             self._on_batch(batch.columns())
-
-
-def _concat(records: list) -> Any:
-    """Column records of one type, one after the other."""
-    first = records[0]
-    return type(first)(**{k: np.concatenate([getattr(r, k) for r in records]) for k in first.columns()})
 
 
 class LiveWalk:
@@ -210,7 +203,7 @@ class LiveWalk:
         imu = self._bridged(chunk.imu)
         if not len(imu.t_s):
             return
-        if not self._imu and not np.any(imu.mag_ut) and self.setup.pdr.attitude.use_magnetometer:
+        if not self._imu and not has_magnetometer(imu) and self.setup.pdr.attitude.use_magnetometer:
             # A stream without a magnetometer gives zeros (the importers' rule): not a field to steer by.
             self.notes.append("phone: no magnetometer in the stream: the PDR's attitude comes from the gyro and "
                               "accelerometer alone (its heading drifts with the gyro's bias)")
@@ -220,7 +213,7 @@ class LiveWalk:
         self._last_imu = imu
         self.status.walk_s = float(imu.t_s[-1])
         if not math.isfinite(self._walk_start_s):
-            everything = _concat(self._imu)
+            everything = ImuLog.concatenate(self._imu)
             rate_hz = (len(everything.t_s) - 1) / max(float(np.ptp(everything.t_s)), 1e-9)
             self._walk_start_s = walk_start_s(everything.t_s, everything.acc_mps2, rate_hz)
         steps = self.pdr.add(imu)
@@ -235,7 +228,7 @@ class LiveWalk:
         last = self._last_imu
         if not len(imu.t_s):
             return imu
-        known = imu if last is None or not len(last.t_s) else _concat([last.select(slice(-1, None)), imu])
+        known = imu if last is None or not len(last.t_s) else ImuLog.concatenate([last.select(slice(-1, None)), imu])
         steps = np.diff(known.t_s)
         if self._grid_dt is None and len(imu.t_s) > 2:   # the phone grid's spacing, from the first chunk
             self._grid_dt = float(np.median(np.diff(imu.t_s)))
@@ -245,9 +238,8 @@ class LiveWalk:
         grid = known.t_s[0] + dt * np.arange(round((known.t_s[-1] - known.t_s[0]) / dt) + 1)
         if last is not None and len(last.t_s):
             grid = grid[1:]   # the last sample of the previous chunk was handed on already
-        columns = {name: np.column_stack([np.interp(grid, known.t_s, getattr(known, name)[:, k]) for k in range(3)])
-                   for name in ("acc_mps2", "gyro_radps", "mag_ut")}
-        return ImuLog(t_s=grid, **columns)
+        return ImuLog(t_s=grid, **{name: interpolate(known.t_s, getattr(known, name), grid)
+                                   for name in ("acc_mps2", "gyro_radps", "mag_ut")})
 
     def _take_frames(self) -> None:
         batches = []
@@ -268,7 +260,7 @@ class LiveWalk:
         self.status.clock_offset_hz = math.nan if clock_hz is None else float(clock_hz)
         self.status.capture_s = float(ranges.t_s[-1])
         if self.fusion is None:   # keep only what a fusion about to start could need
-            held = _concat(self._held_ranges)
+            held = RangeSeries.concatenate(self._held_ranges)
             self._held_ranges = [held.select(held.t_s >= held.t_s[-1] - PRE_START_FRAMES_S)]
 
     def _time_offset_s(self) -> float | None:
@@ -283,7 +275,7 @@ class LiveWalk:
         """Start the fusion once the frame, the start fix and the clock offset are known."""
         if self.fusion is not None or self._time_offset_s() is None or not math.isfinite(self._walk_start_s):
             return
-        fixes = _concat(self._fixes) if self._fixes else None
+        fixes = GeodeticFixes.concatenate(self._fixes) if self._fixes else None
         if self.origin is None:
             if fixes is None:
                 return
@@ -294,10 +286,7 @@ class LiveWalk:
         else:
             if fixes is None or not np.any(fixes.t_s <= self._walk_start_s + 1.0) and not len(self._steps):
                 return   # no fix of the standstill yet: wait for one (or for the walk to settle a step)
-            height = np.where(np.isfinite(fixes.height_m), fixes.height_m, self.origin.height_m)
-            east, north, _ = to_enu(fixes.lat_deg, fixes.lon_deg, height, self.origin)
-            gnss = GnssLog(t_s=fixes.t_s, x_m=east, y_m=north, cn0_dbhz=fixes.cn0_dbhz)
-            self.start_fix = choose_start_fix(gnss, fixes.accuracy_m, self._walk_start_s, "phone stream", self.notes,
+            self.start_fix = choose_start_fix(self._in_frame(fixes), fixes.accuracy_m, self._walk_start_s, "phone stream", self.notes,
                                               self.setup.start_window_s)
             start_xy, start_sigma = (self.start_fix.fix.x_m, self.start_fix.fix.y_m), self.start_fix.fix.sigma_m
         self.layout = towers_about(self.setup.towers, self.origin)
@@ -308,16 +297,23 @@ class LiveWalk:
         if self.view is not None:
             self.view.set_scene(_scene(start_xy, start_sigma, self.layout))
 
+    def _in_frame(self, fixes: GeodeticFixes) -> GnssLog:
+        """``fixes`` in the walk's east/north frame (about :attr:`origin`); a fix without a height at the origin's,
+        as the file importer places it."""
+        height = np.where(np.isfinite(fixes.height_m), fixes.height_m, self.origin.height_m)
+        east, north, _ = to_enu(fixes.lat_deg, fixes.lon_deg, height, self.origin)
+        return GnssLog(t_s=fixes.t_s, x_m=east, y_m=north, cn0_dbhz=fixes.cn0_dbhz)
+
     def _feed(self) -> None:
         if self.fusion is None:
             return
         offset = self._time_offset_s()
         if self._held_ranges:
-            ranges = _concat(self._held_ranges)
+            ranges = RangeSeries.concatenate(self._held_ranges)
             self._held_ranges = []
             self.fusion.add_ranges(dataclasses.replace(ranges, t_s=ranges.t_s + offset))
         if self._held_steps:
-            self.fusion.add_steps(_concat(self._held_steps))
+            self.fusion.add_steps(PdrSteps.concatenate(self._held_steps))
             self._held_steps = []
 
     def _poll_positions(self) -> list[GeoPositions]:
@@ -342,7 +338,7 @@ class LiveWalk:
         rows = self.fusion.nowcast(provisional) if len(provisional) else LivePositions.empty()
         last = rows if len(rows) else self._last_settled
         if last is not None and len(last) and self.status.walk_s > float(last.t_s[-1]):
-            rows = _concat([rows, hold_position(last, self.status.walk_s)]) if len(rows) else \
+            rows = LivePositions.concatenate([rows, hold_position(last, self.status.walk_s)]) if len(rows) else \
                 hold_position(last, self.status.walk_s)
         return [self._geo(rows, np.full(len(rows), STAGE_NOWCAST))] if len(rows) else []
 
@@ -406,13 +402,11 @@ class LiveWalk:
         """``/imu``, ``/gnss`` (and its start fix), ``/pdr`` and ``/fusion/<filter>`` of the walk, to ``path``."""
         with atomic_h5(path) as h5:
             if self._imu:
-                write_imu(h5, _concat(self._imu), {schema.START_UTC_NS_ATTR: np.int64(self.phone.t0_utc_ns),
+                write_imu(h5, ImuLog.concatenate(self._imu), {schema.START_UTC_NS_ATTR: np.int64(self.phone.t0_utc_ns),
                                                   schema.HAS_MAGNETOMETER_ATTR: True, "source": "live phone stream"})
             if self._fixes and self.origin is not None:
-                fixes = _concat(self._fixes)
-                height = np.where(np.isfinite(fixes.height_m), fixes.height_m, self.origin.height_m)
-                east, north, _ = to_enu(fixes.lat_deg, fixes.lon_deg, height, self.origin)
-                write_gnss(h5, GnssLog(t_s=fixes.t_s, x_m=east, y_m=north, cn0_dbhz=fixes.cn0_dbhz),
+                fixes = GeodeticFixes.concatenate(self._fixes)
+                write_gnss(h5, self._in_frame(fixes),
                            self.start_fix.fix if self.start_fix else None,
                            {**dict(zip(schema.ORIGIN_ATTRS, (self.origin.lat_deg, self.origin.lon_deg,
                                                              self.origin.height_m))),
@@ -420,7 +414,7 @@ class LiveWalk:
                            extra_columns={"accuracy_m": fixes.accuracy_m, "lat_deg": fixes.lat_deg,
                                           "lon_deg": fixes.lon_deg})
             if self._steps:
-                write_columns(h5, schema.PDR, _concat(self._steps), {"source": "streaming PDR (settled steps)"})
+                write_columns(h5, schema.PDR, PdrSteps.concatenate(self._steps), {"source": "streaming PDR (settled steps)"})
             if result.fusion is not None:
                 from dtmbnav.chain.fuse import write_fusion
 
@@ -447,7 +441,7 @@ def _view_rows(positions: GeoPositions) -> list[ViewRow]:
     return rows
 
 
-def run_live(source: CaptureSource, phone: PhoneStream, setup: LiveSetup, folder: str | os.PathLike,
+def run_live(source: RtlTcpSource, phone: PhoneStream, setup: LiveSetup, folder: str | os.PathLike,
              receiver_config: ReceiverConfig, carrier_hz: float, view: LiveView | None = None,
              progress: bool = True) -> LiveResult:
     """``dtmbnav live``: receive ``source`` on this thread while :class:`LiveWalk` fuses on its own, then write
@@ -467,14 +461,8 @@ def run_live(source: CaptureSource, phone: PhoneStream, setup: LiveSetup, folder
         try:
             rx = Receiver(source.sample_rate_hz, carrier_hz, receiver_config)
             walk.receiver_clock_hz = lambda: rx.ranging.clock_offset_hz
-            with contextlib.ExitStack() as stack:
-                if hasattr(source, "close"):
-                    stack.callback(source.close)
-                chunks = walk.until_failed(read_ahead(source.chunks(LIVE_CHUNK_SAMPLES), keep_read_on_stop=True))
-                sink = RangeTee(paths["receiver"], walk.on_frames)
-                receive_into_sink(rx, chunks, sink, source=source.path, progress=False,
-                                  attrs=source.attributes() if hasattr(source, "attributes") else None,
-                                  keep_on_input_error=True)
+            receive_stream(source, rx, RangeTee(paths["receiver"], walk.on_frames), progress=False,
+                           until=walk.until_failed)
         except Interrupted as exc:
             interrupted = exc
         finally:

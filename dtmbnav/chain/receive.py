@@ -8,7 +8,11 @@ every run's time.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
 
 from dtmbnav_core.schema import ENDED_EARLY_ATTR
 from receiver.capture import CaptureSource
@@ -81,12 +85,23 @@ def receive_capture(source: CaptureSource, out_path: str | os.PathLike, config: 
 
 def _receive_rtl_tcp(source: RtlTcpSource, out_path: str | os.PathLike, config: ReceiverConfig,
                      csv_path: str | None, progress: bool, carrier_hz: float | None) -> tuple[FrameSink, dict]:
-    """:func:`receiver.pipeline.receive_file` for a live source: its attributes are read after the stream."""
+    """:func:`receiver.pipeline.receive_file` for a live source (:func:`receive_stream`)."""
     carrier = carrier_hz if carrier_hz is not None else source.center_hz + config.channel_offset_hz
-    rx = Receiver(source.sample_rate_hz, carrier, config)
-    with source:
-        chunks = read_ahead(source.chunks(LIVE_CHUNK_SAMPLES))   # connects first: no output without a server
-        sink = FrameSink(out_path, csv_path)
-        attrs = receive_into_sink(rx, chunks, sink, source=source.path, progress=progress,
-                                  attrs=source.attributes(), keep_on_input_error=True)
+    sink = FrameSink(out_path, csv_path)
+    attrs = receive_stream(source, Receiver(source.sample_rate_hz, carrier, config), sink, progress=progress)
     return sink, attrs
+
+
+def receive_stream(source: RtlTcpSource, rx: Receiver, sink: FrameSink, *, progress: bool = True,
+                   until: Callable[[Iterator[np.ndarray]], Iterator[np.ndarray]] | None = None) -> dict[str, Any]:
+    """Receive a live source into ``sink`` as it streams, and close the source.
+
+    Its blocks are read ahead (what was read is received on a stop request), and its attributes are taken
+    after the stream, when its outages and start time are known. ``until`` may end the stream early (a live
+    walk whose fusion failed: :meth:`dtmbnav.chain.live.LiveWalk.until_failed`). Returns the attributes
+    written (:func:`receiver.pipeline.receive_into_sink`).
+    """
+    with source:
+        chunks = read_ahead(source.chunks(LIVE_CHUNK_SAMPLES))
+        return receive_into_sink(rx, chunks if until is None else until(chunks), sink, source=source.path,
+                                 progress=progress, attrs=source.attributes(), keep_on_input_error=True)
