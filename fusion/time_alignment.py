@@ -32,11 +32,35 @@ parabola through the grid's three best points. The information is in the
 changes of velocity (starts, stops, turns): a straight walk at constant
 speed fixes nothing, and its uncertainty says so.
 
+**Which range.** Where the receiver's path tracker holds tower 0's first
+path (:class:`PathRanges`), a window takes that path's range rate: it is the
+direct path whenever the tracker holds it, while the SI carriers' range
+follows whatever arrives strongest, a reflection where buildings block the
+tower, whose rate is the walker's velocity projected on another direction
+and wanders as the reflecting walls change. Windows across a first-path
+origin break (a slip or a change of path), or without a first path, take the
+SI carriers' range rate.
+
 **Uncertainty.** Near its minimum, ``S(tau) ~ S_min + k (tau - tau_hat)^2``;
 the Gauss-Newton covariance of ``tau`` is ``2 s^2 / S''`` with ``s^2`` the
-residual variance. The residuals of box-averaged velocities are correlated
-over a window, so ``s^2`` is taken per independent window (the sample
-variance times the samples per window).
+residual variance per independent sample. The residuals are correlated: the
+PDR's velocity errors last a stride or more, and a reflected range wanders
+for as long as the walker passes one wall. So ``s^2`` is the sample variance
+times the residuals' integrated autocorrelation time in samples (the sum of
+their autocorrelation up to its first zero), not a fixed window. Where the
+motion or the range is poor, ``S(tau)`` is no parabola: it is flat or holds
+further minima (steps repeat every half second), and its curvature at the
+best point says little. The stated sigma is therefore the largest of three
+(:func:`offset_sigma_s`): the curvature's; the half-width of the offsets
+whose ``S`` lies within ``s^2`` of the minimum (the profile's 1-sigma
+interval, which a flat or many-minima curve widens); and the spread of the
+offsets found leaving out one piece of :attr:`AlignmentConfig.piece_s` at a
+time (a delete-one jackknife over pieces long enough to hold a reflection's
+wander). The PDR's own step timing
+(:attr:`AlignmentConfig.step_timing_sigma_s`) is added to it in quadrature:
+a shift of every step's events against the body's motion, which the motion
+cannot reveal. Where the total exceeds :attr:`AlignmentConfig.useful_sigma_s`,
+the walk left too little to align on (:attr:`TimeAlignment.too_little`).
 """
 
 from __future__ import annotations
@@ -45,7 +69,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtmbnav_core.records import RangeSeries, Track
+from dtmbnav_core.records import PathRangeSeries, RangeSeries, Track
 
 
 @dataclass(frozen=True)
@@ -72,6 +96,17 @@ class AlignmentConfig:
         Uncertainty of the coarse offset from the two files' UTC stamps, s:
         a phone's network-set clock and an SDR host's clock each within
         about half a second of UTC.
+    step_timing_sigma_s : float
+        Uncertainty of where the PDR's steps sit in time against the body's
+        motion, s: a step starts and ends at events the step detector finds in
+        the accelerometer, a small fraction of a step from where the foot and
+        the body move, and that shift is the same on every step, so no length
+        of walk averages it out. It is added in quadrature to the motion's sigma.
+    useful_sigma_s : float
+        A fine offset more uncertain than this is too little to align on, s:
+        at walking speed (1.3 m/s) the range moves 0.13 m in it, half the
+        filters' range sigma on a good link
+        (:attr:`fusion.observations.AggregationConfig.base_sigma_m`).
     """
 
     search_s: float = 3.0
@@ -81,6 +116,8 @@ class AlignmentConfig:
     piece_s: float = 20.0
     max_gap_s: float = 0.1
     coarse_sigma_s: float = 1.0
+    step_timing_sigma_s: float = 0.025
+    useful_sigma_s: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -100,6 +137,9 @@ class TimeAlignment:
         The offset from the UTC stamps and its uncertainty, s (NaN without stamps).
     fine_offset_s, fine_sigma_s : float
         The offset from the motion and its uncertainty, s (NaN where not run).
+    too_little : bool
+        The fine offset's uncertainty is over :attr:`AlignmentConfig.useful_sigma_s`:
+        the walk left too little to align on (a blocked direct path, a walk without starts, stops or turns).
     """
 
     offset_s: float
@@ -109,6 +149,7 @@ class TimeAlignment:
     coarse_sigma_s: float = float("nan")
     fine_offset_s: float = float("nan")
     fine_sigma_s: float = float("nan")
+    too_little: bool = False
 
     @property
     def disagrees(self) -> bool:
@@ -124,7 +165,13 @@ class TimeAlignment:
             text += f", +-{1e3 * self.fine_sigma_s:.0f} ms"
         if np.isfinite(self.coarse_offset_s):
             text += f"; UTC stamps say {self.coarse_offset_s:+.3f} s"
-        return text + ")"
+        text += ")"
+        if self.too_little:
+            text += (f"; WARNING: the motion fixes it only to +-{1e3 * self.fine_sigma_s:.0f} ms, too little to align "
+                     "on (a blocked direct path, or a walk without stops and turns)")
+            if self.source != "fine":
+                text += ": the UTC stamps' offset is kept"
+        return text
 
 
 def coarse_offset_s(capture_start_utc_ns: int, imu_start_utc_ns: int) -> float:
@@ -159,8 +206,80 @@ def range_rate(ranges: RangeSeries, grid_s: np.ndarray, config: AlignmentConfig)
     return out
 
 
+def first_path_ranges(first_path: PathRangeSeries) -> RangeSeries:
+    """The first path's range as a :class:`RangeSeries` whose lock segments are its runs between origin breaks
+    (a slip or a change of path: the range goes on from a new origin there, so no window may span one)."""
+    return RangeSeries(t_s=first_path.t_s, range_change_m=first_path.range_change_m, snr_db=first_path.snr_db,
+                       valid=first_path.valid, segment_id=np.cumsum(first_path.slip).astype(np.int32))
+
+
+def correlation_time(residuals: np.ndarray) -> float:
+    """Integrated autocorrelation time of a sequence, in samples: ``1 + 2 sum rho_k`` over the lags ``k >= 1``
+    before its autocorrelation ``rho`` first drops to zero or below (1 for white residuals)."""
+    x = residuals - residuals.mean()
+    n = len(x)
+    spectrum = np.fft.rfft(x, 2 * n)   # zero-padded: a linear, not circular, autocorrelation
+    acf = np.fft.irfft(np.abs(spectrum) ** 2)[:n]
+    if acf[0] <= 0.0:
+        return 1.0
+    rho = acf / acf[0]
+    first_zero = int(np.argmax(rho <= 0.0)) or n
+    return float(1.0 + 2.0 * np.sum(rho[1:first_zero]))
+
+
+def _refined_minimum(lags: np.ndarray, rss: np.ndarray) -> tuple[float, float]:
+    """The offset of least ``S`` refined by a parabola through the grid's three best points, and ``S''`` there
+    (NaN at the edge of the search, where no parabola is fitted), s and m^2/s^4."""
+    best = int(np.argmin(rss))
+    if not 0 < best < len(lags) - 1:
+        return float(lags[best]), float("nan")
+    step = lags[1] - lags[0]
+    left, mid, right = rss[best - 1:best + 2]
+    curvature = (left - 2.0 * mid + right) / step ** 2
+    shift = 0.5 * step * (left - right) / (left - 2.0 * mid + right) if curvature > 0 else 0.0
+    return float(lags[best] + shift), float(curvature)
+
+
+def offset_sigma_s(lags: np.ndarray, rss: np.ndarray, piece_rss: np.ndarray, variance: float) -> float:
+    """1-sigma uncertainty of the offset of least ``S(tau)`` (module docstring, "Uncertainty"), s.
+
+    Parameters
+    ----------
+    lags : ndarray
+        The searched offsets, evenly spaced, s.
+    rss : ndarray
+        ``S`` of (A1) at each offset, m^2/s^2.
+    piece_rss : ndarray, shape (len(lags), pieces)
+        Each piece's share of ``S``, m^2/s^2.
+    variance : float
+        Residual variance per independent sample, m^2/s^2.
+
+    Returns
+    -------
+    float
+        The largest of the curvature's sigma, the profile's half-width and the delete-one-piece jackknife's
+        spread, s; inf where the minimum lies at the edge of the search or ``S`` is not convex there.
+    """
+    offset, curvature = _refined_minimum(lags, rss)
+    if not curvature > 0:
+        return float("inf")
+    curvature_sigma = np.sqrt(2.0 * variance / curvature)
+    # The profile: every offset whose S is within one sigma's worth of the minimum's.
+    within = rss - rss.min() <= variance
+    profile_sigma = float(np.max(np.abs(lags[within] - offset)))
+    # Delete-one-piece jackknife. Each piece has its own a, b, so leaving one out leaves the others' fits as
+    # they are (only c and d would move a little): its S is the walk's less that piece's share.
+    pieces = piece_rss.shape[1]
+    jackknife_sigma = 0.0
+    if pieces >= 2:
+        left_out = np.array([_refined_minimum(lags, rss - piece_rss[:, k])[0] for k in range(pieces)])
+        jackknife_sigma = float(np.sqrt((pieces - 1) / pieces * np.sum((left_out - left_out.mean()) ** 2)))
+    return float(max(curvature_sigma, profile_sigma, jackknife_sigma))
+
+
 def align_range_to_pdr(ranges: RangeSeries, track: Track, coarse_s: float,
-                       config: AlignmentConfig = AlignmentConfig()) -> tuple[float, float]:
+                       config: AlignmentConfig = AlignmentConfig(),
+                       first_path: PathRangeSeries | None = None) -> tuple[float, float]:
     """Fine offset of the receiver's clock on the IMU's, from the motion (eq. A1 of the module docstring).
 
     Parameters
@@ -173,11 +292,16 @@ def align_range_to_pdr(ranges: RangeSeries, track: Track, coarse_s: float,
     coarse_s : float
         The offset searched about, s (the UTC stamps', or 0 without them).
     config : AlignmentConfig
+    first_path : PathRangeSeries, optional
+        Tower 0's first-path range on the same time base as ``ranges``: where it has a window, its range rate
+        is taken in place of the SI carriers' (module docstring, "Which range"). None: the SI carriers' only.
 
     Returns
     -------
     offset_s, sigma_s : float
-        The capture's start on the IMU time base and its 1-sigma uncertainty, s.
+        The capture's start on the IMU time base and its 1-sigma uncertainty, s: :func:`offset_sigma_s` and
+        :attr:`AlignmentConfig.step_timing_sigma_s` in quadrature (inf where the best offset lies at the edge
+        of the search).
 
     Raises
     ------
@@ -191,6 +315,9 @@ def align_range_to_pdr(ranges: RangeSeries, track: Track, coarse_s: float,
     hi = min(ranges.t_s[-1], track.t_s[-1] - lags[-1]) - half
     grid = np.arange(lo, hi, 1.0 / config.grid_rate_hz) if hi > lo else np.zeros(0)
     rdot = range_rate(ranges, grid, config)
+    if first_path is not None:
+        direct = range_rate(first_path_ranges(first_path), grid, config)
+        rdot = np.where(np.isfinite(direct), direct, rdot)
     use = np.isfinite(rdot)
     grid, rdot = grid[use], rdot[use]
     per_window = config.velocity_window_s * config.grid_rate_hz
@@ -200,22 +327,22 @@ def align_range_to_pdr(ranges: RangeSeries, track: Track, coarse_s: float,
                          f"at least {4 * config.velocity_window_s:g} s are needed")
     t_rel = (grid - grid.mean()) / max(np.ptp(grid), 1e-9)
     piece = np.minimum((grid - grid[0]) // config.piece_s, max(np.ptp(grid) // config.piece_s - 1, 0)).astype(int)
-    in_piece = piece[:, None] == np.arange(piece[-1] + 1)   # the last piece takes a short remainder
-    rss = np.empty(len(lags))
-    for i, lag in enumerate(lags):
+    pieces = piece[-1] + 1
+    in_piece = piece[:, None] == np.arange(pieces)   # the last piece takes a short remainder
+
+    def residuals(lag: float) -> np.ndarray:
+        """(A1)'s least-squares residuals at one trial offset, m/s."""
         vx = _window_velocity(track.t_s, track.x_m, grid + lag, config.velocity_window_s)
         vy = _window_velocity(track.t_s, track.y_m, grid + lag, config.velocity_window_s)
         design = np.column_stack([vx[:, None] * in_piece, vy[:, None] * in_piece, np.ones_like(grid), t_rel])
-        coefficients = np.linalg.lstsq(design, rdot, rcond=None)[0]
-        rss[i] = float(np.sum((rdot - design @ coefficients) ** 2))
-    best = int(np.argmin(rss))
-    offset, curvature = float(lags[best]), np.nan
-    if 0 < best < len(lags) - 1:
-        left, mid, right = rss[best - 1:best + 2]
-        curvature = (left - 2.0 * mid + right) / config.step_s ** 2   # S''
-        if curvature > 0:
-            offset += float(0.5 * config.step_s * (left - right) / (left - 2.0 * mid + right))
-    dof = len(grid) - 2 * in_piece.shape[1] - 3   # a and b of each piece, c, d and tau
-    variance = rss[best] / dof * per_window
-    sigma = float(np.sqrt(2.0 * variance / curvature)) if curvature > 0 else float("inf")
-    return offset, sigma
+        # Normal equations: a few dozen columns against thousands of rows, solved hundreds of times.
+        coefficients = np.linalg.lstsq(design.T @ design, design.T @ rdot, rcond=None)[0]
+        return rdot - design @ coefficients
+
+    piece_rss = np.array([np.bincount(piece, residuals(lag) ** 2, minlength=pieces) for lag in lags])
+    rss = piece_rss.sum(axis=1)
+    offset, _ = _refined_minimum(lags, rss)
+    best = residuals(float(lags[np.argmin(rss)]))
+    dof = len(grid) - 2 * pieces - 3   # a and b of each piece, c, d and tau
+    variance = float(np.sum(best ** 2)) / dof * correlation_time(best)
+    return offset, float(np.hypot(offset_sigma_s(lags, rss, piece_rss, variance), config.step_timing_sigma_s))

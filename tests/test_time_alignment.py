@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dtmbnav_core.records import RangeSeries, Track
+from dtmbnav.chain.fuse import fine_time_offset
+from dtmbnav_core.records import PathRangeSeries, RangeSeries, Track
 from fusion.time_alignment import AlignmentConfig, TimeAlignment, align_range_to_pdr, coarse_offset_s, range_rate
 
 TOWER_XY_M = np.array([1500.0, 2500.0])
@@ -58,7 +59,7 @@ def test_fine_alignment_recovers_the_offset_whatever_the_pdr_heading(offset_s, c
     pdr = _pdr_frame(truth, np.radians(-123.0), 1.07)
     found, sigma = align_range_to_pdr(ranges, pdr, offset_s + coarse_error_s)
     assert found == pytest.approx(offset_s, abs=0.005)
-    assert 0.0 < sigma < 0.02
+    assert AlignmentConfig().step_timing_sigma_s <= sigma < 0.03
     assert abs(found - offset_s) < 4 * sigma + 0.002
 
 
@@ -71,6 +72,81 @@ def test_fine_alignment_sigma_grows_when_the_motion_says_little():
     _, sigma_straight = align_range_to_pdr(_ranges(straight, 1.0, 0.005, rng), straight, 1.0)
     _, sigma_turns = align_range_to_pdr(_ranges(_walk(), 1.0, 0.005, rng), _walk(), 1.0)
     assert sigma_straight > 10 * sigma_turns
+
+
+def _wandering_bias(ranges: RangeSeries, rate_sigma_mps: float, correlation_s: float,
+                    rng: np.random.Generator) -> RangeSeries:
+    """The range with a range-rate bias that wanders (first-order Gauss-Markov, ``correlation_s``), as a
+    reflected range's does where the walls the walker passes change, integrated into the range (m)."""
+    t = ranges.t_s[::90]   # 20 Hz
+    keep = np.exp(-np.diff(t, prepend=t[0]) / correlation_s)
+    bias = np.zeros(len(t))
+    kicks = rate_sigma_mps * np.sqrt(1.0 - keep ** 2) * rng.standard_normal(len(t))
+    for i in range(1, len(t)):
+        bias[i] = keep[i] * bias[i - 1] + kicks[i]
+    drift = np.interp(ranges.t_s, t, np.concatenate([[0.0], np.cumsum(0.5 * (bias[1:] + bias[:-1]) * np.diff(t))]))
+    return RangeSeries(t_s=ranges.t_s, range_change_m=ranges.range_change_m + drift, snr_db=ranges.snr_db,
+                       valid=ranges.valid, segment_id=ranges.segment_id)
+
+
+@pytest.mark.parametrize("seed", [0, 2, 3, 6])
+def test_stated_sigma_covers_a_wandering_range_rate_bias(seed):
+    """A range rate biased by 0.3 m/s wandering over 10 s (a street's reflections) moves the offset by far more
+    than its residuals' curvature says: the stated sigma covers the error at 2 sigma, well above a clean walk's."""
+    rng = np.random.default_rng(seed)
+    truth = _walk()
+    ranges = _wandering_bias(_ranges(truth, 2.5, 0.005, rng), 0.3, 10.0, rng)
+    found, sigma = align_range_to_pdr(ranges, _pdr_frame(truth, np.radians(-123.0), 1.07), 2.8)
+    assert abs(found - 2.5) <= 2.0 * sigma
+    assert sigma > 2.0 * AlignmentConfig().step_timing_sigma_s
+
+
+def _first_path(ranges: RangeSeries) -> PathRangeSeries:
+    n = len(ranges.t_s)
+    return PathRangeSeries(t_s=ranges.t_s, range_change_m=ranges.range_change_m, snr_db=ranges.snr_db,
+                           valid=ranges.valid, slip=np.zeros(n, bool), path_age_s=ranges.t_s.copy())
+
+
+def test_the_first_paths_range_rate_is_preferred_to_the_si_carriers():
+    """The SI carriers follow a wandering reflection, the first path the direct path: aligned on the first path,
+    the offset is as good as on a clean walk; where the first path slips, the windows across the slip are left to
+    the SI carriers."""
+    rng = np.random.default_rng(0)
+    truth = _walk()
+    direct = _ranges(truth, 2.5, 0.005, rng)
+    reflected = _wandering_bias(direct, 0.3, 10.0, rng)
+    pdr = _pdr_frame(truth, np.radians(-123.0), 1.07)
+    alone, alone_sigma = align_range_to_pdr(reflected, pdr, 2.8)
+    first_path = _first_path(direct)
+    first_path.slip[len(direct.t_s) // 2] = True
+    found, sigma = align_range_to_pdr(reflected, pdr, 2.8, first_path=first_path)
+    assert abs(alone - 2.5) > 0.05 and alone_sigma > 0.08
+    assert found == pytest.approx(2.5, abs=0.01) and sigma < 0.05
+
+
+def _frames(ranges: RangeSeries) -> dict[str, np.ndarray]:
+    """``/receiver/frames`` columns of a range series (no path tracker)."""
+    return {"t_s": ranges.t_s, "range_change_m": ranges.range_change_m, "flags": np.zeros(len(ranges.t_s), np.int64),
+            "snr_db": ranges.snr_db, "segment_id": ranges.segment_id}
+
+
+def test_fuse_keeps_the_utc_stamps_where_the_motion_says_less_and_warns():
+    """A straight walk at constant speed fixes no offset: fuse keeps the UTC stamps' and its line says why."""
+    rng = np.random.default_rng(8)
+    t = np.arange(0.0, 60.0, 0.01)
+    straight = Track(t_s=t, x_m=1.3 * t, y_m=0.0 * t, heading_rad=np.full_like(t, np.pi / 2),
+                     speed_mps=np.full_like(t, 1.3))
+    config = AlignmentConfig()
+    coarse = TimeAlignment(1.2, config.coarse_sigma_s, "coarse", coarse_offset_s=1.2,
+                           coarse_sigma_s=config.coarse_sigma_s)
+    kept = fine_time_offset(_frames(_ranges(straight, 1.0, 0.005, rng)), straight, coarse, config)
+    assert kept.source == "coarse" and kept.offset_s == 1.2 and kept.too_little
+    assert kept.fine_sigma_s >= config.coarse_sigma_s
+    assert "too little to align on" in kept.describe() and "UTC stamps' offset is kept" in kept.describe()
+    # A walk with stops and turns is aligned, with no warning.
+    fine = fine_time_offset(_frames(_ranges(_walk(), 1.0, 0.005, rng)), _walk(), coarse, config)
+    assert fine.source == "fine" and not fine.too_little and "WARNING" not in fine.describe()
+    assert fine.offset_s == pytest.approx(1.0, abs=0.005)
 
 
 def test_range_rate_leaves_out_windows_across_a_gap():

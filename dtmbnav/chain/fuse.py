@@ -36,7 +36,7 @@ from fusion.pdr import PdrConfig, PdrResult, run_pdr
 from fusion.run import FusionConfig, FusionResult, fuse
 from fusion.time_alignment import AlignmentConfig, TimeAlignment, align_range_to_pdr, coarse_offset_s
 from fusion.transmit_delays import TransmitDelays
-from receiver.observables import observations_from_receiver, ranges_from_frames
+from receiver.observables import observations_from_receiver, paths_from_frames, ranges_from_frames
 
 
 def write_fusion(h5: h5py.File, result: FusionResult) -> None:
@@ -191,7 +191,7 @@ def read_aligned_walk(receiver_path: str | os.PathLike, sensors_path: str | os.P
     if len(pdr.steps) == 0:
         raise NoResult(f"{sensors_path}: /{schema.IMU}: the PDR found no steps; nothing to fuse")
     if alignment is None:
-        alignment = fine_time_offset(frames, pdr.track, coarse, alignment_config)
+        alignment = fine_time_offset(frames, pdr.track, coarse, alignment_config, read_receiver_paths(receiver_path))
         check_same_walk(receiver_path, rx_attrs, frames["t_s"], sensors_path, imu.t_s, alignment.offset_s)
     return AlignedWalk(frames, rx_attrs, pdr, pdr_config, alignment)
 
@@ -220,17 +220,25 @@ def coarse_time_offset(rx_attrs: dict[str, Any], sensors_path: str | os.PathLike
 
 
 def fine_time_offset(frames: dict[str, np.ndarray], pdr_track: Track, coarse: TimeAlignment,
-                     config: AlignmentConfig) -> TimeAlignment:
-    """Refine ``coarse`` from the motion (:func:`fusion.time_alignment.align_range_to_pdr`); ``coarse`` itself
-    where the two records do not overlap enough or the best offset lies at the edge of the search."""
+                     config: AlignmentConfig, path_rows: dict[str, np.ndarray] | None = None) -> TimeAlignment:
+    """Refine ``coarse`` from the motion (:func:`fusion.time_alignment.align_range_to_pdr`), on tower 0's
+    first-path range where the receiver tracked one (``path_rows``: its ``/receiver/paths``, for the slips);
+    ``coarse`` itself where the two records do not overlap enough, the best offset lies at the edge of the
+    search, or the motion's offset is no more certain than ``coarse``'s. A fine offset less certain than
+    :attr:`AlignmentConfig.useful_sigma_s` is marked as too little to align on."""
+    paths = paths_from_frames(frames, path_rows, 1)
+    first_path = None if paths is None else paths.first_path.get(0)
     try:
-        offset, sigma = align_range_to_pdr(ranges_from_frames(frames), pdr_track, coarse.offset_s, config)
+        offset, sigma = align_range_to_pdr(ranges_from_frames(frames), pdr_track, coarse.offset_s, config, first_path)
     except ValueError:
         return coarse
     if not np.isfinite(sigma):
         return coarse
-    return dataclasses.replace(coarse, offset_s=offset, sigma_s=sigma, source="fine", fine_offset_s=offset,
-                               fine_sigma_s=sigma)
+    fine = dataclasses.replace(coarse, fine_offset_s=offset, fine_sigma_s=sigma,
+                               too_little=sigma > config.useful_sigma_s)
+    if sigma >= coarse.sigma_s:   # the UTC stamps say more than the motion: keep them
+        return fine
+    return dataclasses.replace(fine, offset_s=offset, sigma_s=sigma, source="fine")
 
 
 def alignment_attrs(alignment: TimeAlignment) -> dict[str, Any]:
