@@ -5,9 +5,9 @@ This module holds only the names and defaults that callers need without
 importing the numba kernels (the command line's parser uses them).
 """
 
-#: The fusion filters, in table order ("pf" is the paper's particle filter); ``fusion.run.FILTERS``
-#: maps each to its runner.
-FILTER_NAMES = ("pf", "ukf", "wt-ukf", "adaptive-kf", "rank-kf")
+#: The fusion filters, in table order ("pf" is the paper's particle filter, "rb-pf" the marginalised one that
+#: samples only the heading); ``fusion.run.FILTERS`` maps each to its runner.
+FILTER_NAMES = ("pf", "ukf", "wt-ukf", "adaptive-kf", "rank-kf", "rb-pf")
 #: The filters that can be streamed (:mod:`fusion.streaming`): built from the first step alone, each epoch seen
 #: once, in order (the WT-UKF and the adaptive EKF read their whole epoch history when they are built).
 STREAMING_FILTERS = ("pf", "ukf", "rank-kf")
@@ -15,6 +15,9 @@ STREAMING_FILTERS = ("pf", "ukf", "rank-kf")
 #: move a walk's error little next to what the ranges and the PDR decide, so that whether a walk ends worse
 #: than its PDR does not turn on the filter's seed (chosen on the tuning walks; docs/decisions.md, D18).
 DEFAULT_PARTICLES = 40_000
+#: Np of the marginalised particle filter (``fusion.rb_particle_filter``): it samples the heading and its rate
+#: only, position and step-length scale are exact per particle (chosen on the tuning walks; docs/decisions.md, D59).
+DEFAULT_RB_PARTICLES = 4_000
 #: Lag of the particle filter's fixed-lag smoother, epochs (``fusion.particle_filter``): each particle carries
 #: this many of its ancestors' states, so its memory is Np x lag states.
 DEFAULT_SMOOTHING_LAG = 30

@@ -212,6 +212,12 @@ class ModelNoise:
         instead (docs/decisions.md, D19).
     speed_mps : float
         xi5: speed random walk per step, m/s.
+    scale_per_step : float
+        The marginalised particle filter's xi5 (:mod:`fusion.rb_particle_filter`): random walk per step
+        of the step-length scale, the PDR's gain error (a fraction). An honest prior: a gait changes its
+        step length slowly, so the scale a range has shown is kept across a stretch the range does not
+        see. Far below ``speed_mps`` over the PDR speed (which samples a speed cloud wide enough for a
+        particle filter's draws to find a gain error; docs/decisions.md, D59).
     pdr_heading_rad : float
         chi2: PDR heading observation noise, rad. Wide, so that the range
         can pull the heading away from a drifting gyro (the PDR's turns
@@ -276,6 +282,7 @@ class ModelNoise:
     heading_rate_radps: float = np.deg2rad(0.04)
     heading_rad: float = np.deg2rad(0.5)
     speed_mps: float = 0.02
+    scale_per_step: float = 0.0015
     pdr_heading_rad: float = np.deg2rad(40.0)
     pdr_speed_mps: float = 1.0
     range_outlier_probability: float = 0.01

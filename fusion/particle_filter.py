@@ -380,11 +380,7 @@ class ParticleFilter:
         self.weights = np.full(n_particles, 1.0 / n_particles)
         self.ess = float(n_particles)
         self.resample_count = 0
-        #: Each particle's ancestors' states of the last epochs, (lag, Np, STATE_SIZE), a ring over axis 0
-        #: (:meth:`record_history`).
-        self._ancestry: np.ndarray | None = None
-        self._epoch = 0
-        self._smoothed: list[tuple[np.ndarray, np.ndarray]] = []
+        self._smoother: AncestrySmoother | None = None
 
     @property
     def range_offset_m(self) -> np.ndarray:
@@ -505,34 +501,19 @@ class ParticleFilter:
             index = self.kernels.resample(self.weights, self.rng.random())
             self.particles = self.particles[index]
             self.linear = self.linear[index]
-            if self._ancestry is not None:
-                self._ancestry = self._ancestry[:, index]
+            if self._smoother is not None:
+                self._smoother.resample(index)
             self.log_w[:] = -np.log(self.n_particles)
             self.weights[:] = 1.0 / self.n_particles
             self.resample_count += 1
         if self.monitor.config.enabled:
             self.monitor.posterior(*self.summary())
-        if self._ancestry is not None:
-            self._record_epoch()
+        if self._smoother is not None:
+            self._smoother.record(self.particles, self.weights)
 
     def record_history(self) -> None:
         """Smooth from now on with a fixed lag of ``smoothing_lag`` epochs (module docstring; :meth:`smoothed`)."""
-        self._ancestry = np.empty((self.smoothing_lag, self.n_particles, STATE_SIZE), dtype=np.float32)
-        self._epoch = 0
-        self._smoothed = []
-
-    def _record_epoch(self) -> None:
-        """Store this epoch's particles in their ancestry; the epoch ``lag - 1`` back is then final."""
-        lag = len(self._ancestry)
-        self._ancestry[self._epoch % lag] = self.particles
-        self._epoch += 1
-        if self._epoch >= lag:
-            self._smoothed.append(self._ancestor_summary((self._epoch - lag) % lag))
-
-    def _ancestor_summary(self, slot: int) -> tuple[np.ndarray, np.ndarray]:
-        """Weighted mean state and east/north covariance of the current particles' ancestors in ``slot``."""
-        states = self._ancestry[slot].astype(np.float64)
-        return state_mean(states, self.weights), weighted_position_covariance(states, self.weights)
+        self._smoother = AncestrySmoother(self.smoothing_lag, self.n_particles)
 
     def smoothed(self) -> tuple[np.ndarray, np.ndarray]:
         """The fixed-lag smoothed states (N, STATE_SIZE) and east/north covariances (N, 2, 2) of the recorded
@@ -543,12 +524,9 @@ class ParticleFilter:
         ValueError
             If nothing was recorded (:meth:`record_history` not called before the run).
         """
-        if self._ancestry is None or self._epoch == 0:
+        if self._smoother is None:
             raise ValueError("smoothed: no recorded epochs (call record_history before the run)")
-        lag = len(self._ancestry)
-        final = [self._ancestor_summary(k % lag) for k in range(max(self._epoch - lag + 1, 0), self._epoch)]
-        rows = self._smoothed + final
-        return np.array([state for state, _ in rows]), np.array([cov for _, cov in rows])
+        return self._smoother.smoothed(self.weights)
 
     def position_covariance_m2(self) -> np.ndarray:
         """The stated error of the current position: the particles' weighted east/north covariance, m^2."""
@@ -621,6 +599,75 @@ def weighted_position_covariance(states: np.ndarray, weights: np.ndarray) -> np.
     """Weighted east/north covariance of state rows (weights summing to 1), m^2."""
     d = states[:, [X, Y]] - weights @ states[:, [X, Y]]
     return (d * weights[:, None]).T @ d
+
+
+class AncestrySmoother:
+    """The fixed-lag smoother on a particle cloud's ancestry [Kitagawa 1996] (module docstring).
+
+    Each particle carries its ancestors' states of the last ``lag`` epochs,
+    resampled with it; once an epoch is ``lag - 1`` epochs old its smoothed
+    state is the weighted cloud of its descendants' ancestors. A particle
+    that holds a covariance of its own position (a marginalised filter's)
+    hands it in too, and it adds to the cloud's spread.
+
+    Parameters
+    ----------
+    lag : int
+        Epochs each particle remembers.
+    n_particles : int
+        Np.
+    own_covariance : bool
+        Whether each particle's east/north covariance is recorded with its state.
+    """
+
+    def __init__(self, lag: int, n_particles: int, own_covariance: bool = False) -> None:
+        #: Each particle's ancestors' states, (lag, Np, STATE_SIZE), a ring over axis 0 (float32: memory).
+        self._ancestry = np.empty((lag, n_particles, STATE_SIZE), dtype=np.float32)
+        #: Their own east/north covariances (lag, Np, 2, 2), if recorded.
+        self._own = np.empty((lag, n_particles, 2, 2), dtype=np.float32) if own_covariance else None
+        self._epoch = 0
+        self._final: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def resample(self, index: np.ndarray) -> None:
+        """The particles were resampled by ``index``: their ancestries go with them."""
+        self._ancestry = self._ancestry[:, index]
+        if self._own is not None:
+            self._own = self._own[:, index]
+
+    def record(self, states: np.ndarray, weights: np.ndarray, own_covariance_m2: np.ndarray | None = None) -> None:
+        """Store this epoch's particle states (Np, STATE_SIZE) and, if recorded, their own east/north
+        covariances (Np, 2, 2), m^2; the epoch ``lag - 1`` back is then final."""
+        lag = len(self._ancestry)
+        self._ancestry[self._epoch % lag] = states
+        if self._own is not None:
+            self._own[self._epoch % lag] = own_covariance_m2
+        self._epoch += 1
+        if self._epoch >= lag:
+            self._final.append(self._summary((self._epoch - lag) % lag, weights))
+
+    def _summary(self, slot: int, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean state and east/north covariance of the current particles' ancestors in ``slot``."""
+        states = self._ancestry[slot].astype(np.float64)
+        cov = weighted_position_covariance(states, weights)
+        if self._own is not None:
+            cov += np.einsum("n,nij->ij", weights, self._own[slot].astype(np.float64))
+        return state_mean(states, weights), cov
+
+    def smoothed(self, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Smoothed states (N, STATE_SIZE) and east/north covariances (N, 2, 2) of every recorded epoch, the
+        last ``lag - 1`` from the cloud of ``weights``.
+
+        Raises
+        ------
+        ValueError
+            If no epoch was recorded.
+        """
+        if self._epoch == 0:
+            raise ValueError("smoothed: no recorded epochs (call record_history before the run)")
+        lag = len(self._ancestry)
+        final = [self._summary(k % lag, weights) for k in range(max(self._epoch - lag + 1, 0), self._epoch)]
+        rows = self._final + final
+        return np.array([state for state, _ in rows]), np.array([cov for _, cov in rows])
 
 
 def start_particle_filter(epochs: FilterEpochs, geometry: Geometry, noise: ModelNoise = ModelNoise(),

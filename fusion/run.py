@@ -6,7 +6,7 @@ free-running clock also the standstill epochs) and runs the requested
 filters on identical inputs.
 
 Which filter takes which observation: every filter (``pf``, ``ukf``,
-``wt-ukf``, ``adaptive-kf``, ``rank-kf``) takes the SI-carrier range, the
+``wt-ukf``, ``adaptive-kf``, ``rank-kf``, ``rb-pf``) takes the SI-carrier range, the
 first-path range of every tower and the tower differences (the range
 channels of :class:`fusion.model.ObservationLayout`), the PDR heading and
 speed, and with ``clock_model="free-running"`` (or ``clock_state``) carries
@@ -42,6 +42,7 @@ from fusion.observations import AggregationConfig, FilterEpochs, PathAggregation
 from dtmbnav_core.records import PathRanges
 from fusion.particle_filter import start_particle_filter
 from fusion.rank_kf import RangePdrRankKf
+from fusion.rb_particle_filter import start_marginalised_filter
 from fusion.transmit_delays import CodeOffsets, TransmitDelays, tie_code_differences
 from fusion.ukf import RangePdrUkf
 from fusion.wt_ukf import WaveletUkf
@@ -197,6 +198,8 @@ FILTER_BUILDERS: dict[str, FilterBuilder] = {
     "adaptive-kf": lambda e, g, c: AdaptiveEkf(g, c.noise, e, clock=c.clock(), integrity=c.integrity),
     "rank-kf": lambda e, g, c: RangePdrRankKf(g, c.noise, *e.initial_heading_speed(), clock=c.clock(),
                                               integrity=c.integrity),
+    "rb-pf": lambda e, g, c: start_marginalised_filter(e, g, c.noise, seed=c.seed, clock=c.clock(),
+                                                       integrity=c.integrity, smoothing_lag=c.smoothing_lag),
 }
 
 

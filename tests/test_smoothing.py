@@ -145,7 +145,7 @@ def test_fixed_lag_smoother_follows_the_ancestry_through_resampling():
     enough): a resampling that picks one particle leaves only its ancestor."""
     pf, _ = run_small_pf(lag=12, n_epochs=3)
     keep = 7
-    ancestor = pf._ancestry[0, keep].astype(np.float64)
+    ancestor = pf._smoother._ancestry[0, keep].astype(np.float64)
     pf.weights[:] = 0.0
     pf.weights[keep] = 1.0
     states, covariances = pf.smoothed()
