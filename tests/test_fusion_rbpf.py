@@ -27,8 +27,8 @@ def gain_run():
 
 
 def test_the_range_corrects_a_step_length_gain_error(gain_run):
-    """Steps 15 % long: the range brings the track well inside the PDR's error (the particle filter's own bar), and the particles' scale
-    (the PDR's gain error, kept exactly) moves from its prior 1 to the truth's 1 / 1.15."""
+    """Steps 15 % long: the range brings the track well inside the PDR's error (the particle filter's own bar),
+    and the particles' scale (the PDR's gain error, kept exactly) moves from its prior 1 to the truth's 1 / 1.15."""
     walk, rbpf, run, pdr95 = gain_run
     assert _errors(run.track, walk) < 0.6 * pdr95, (_errors(run.track, walk), pdr95)
     scale = float(rbpf.weights @ rbpf.mean[:, LIN_SCALE])
@@ -92,4 +92,5 @@ def test_the_start_covariance_ties_every_single_tower_origin_to_the_position():
     assert np.linalg.eigvalsh(cov).min() > -1e-9
     offsets = rbpf._offsets
     # The SI range's origin and tower 0's first path's are the same range of the same start: fully correlated.
-    assert cov[offsets[0], offsets[1]] == pytest.approx(np.sqrt(cov[offsets[0], offsets[0]] * cov[offsets[1], offsets[1]]))
+    si, first = offsets[0], offsets[1]
+    assert cov[si, first] == pytest.approx(np.sqrt(cov[si, si] * cov[first, first]))

@@ -57,8 +57,9 @@ SFN_DELAY_ROWS = ("sfn-park (delays plan)", "sfn-park (delays surveyed)", "sfn-p
                   "sfn3-park (delays plan)", "sfn3-park (delays surveyed)", "sfn3-park (delays exact)")
 #: Scenarios of the exact-range table (the filters' bound with a perfect single-tower receiver).
 EXACT_SCENARIOS = ("park-loop-cw", "park-loop-ccw")
-#: Kalman-type filters in the order of the table's columns (with their column titles).
-KALMAN_COLUMNS = (("ukf", "UKF"), ("wt-ukf", "WT-UKF"), ("adaptive-kf", "adaptive KF"), ("rank-kf", "rank KF"))
+#: The filters after the PF in the order of the table's columns (with their column titles).
+OTHER_FILTER_COLUMNS = (("ukf", "UKF"), ("wt-ukf", "WT-UKF"), ("adaptive-kf", "adaptive KF"), ("rank-kf", "rank KF"),
+                        ("rb-pf", "RB-PF"))
 #: The PDR baselines (track names and column titles), the first figures of the fusion and the per-walk tables.
 BASELINE_COLUMNS = (("pdr", "PDR"), ("pdr@fix", "PDR@fix"))
 #: Title of the fusion table's PF column: its mean 95 % error, then its reductions in brackets.
@@ -159,23 +160,23 @@ def fusion_table(rows: Sequence, walks: Sequence[dict[str, object]]) -> tuple[Ta
     by_scenario: dict[str, dict[str, object]] = {}
     for r in rows:
         by_scenario.setdefault(r.scenario, {})[r.filter] = r
-    kalman_titles = [title for name, title in KALMAN_COLUMNS]
-    header = ("walk (clock)", "walks", *(title for _, title in BASELINE_COLUMNS), PF_COLUMN, *kalman_titles,
+    other_titles = [title for name, title in OTHER_FILTER_COLUMNS]
+    header = ("walk (clock)", "walks", *(title for _, title in BASELINE_COLUMNS), PF_COLUMN, *other_titles,
               "PF worst@fix",
-              "walks > 5 % worse than PDR@fix (PF, " + ", ".join(kalman_titles) + ")",
+              "walks > 5 % worse than PDR@fix (PF, " + ", ".join(other_titles) + ")",
               "truth in the stated 95 % ellipse, PF / UKF (mean NEES)", "heading error (median)", "paper PF reduction")
     cells, headline = [], []
     for scenario, named in by_scenario.items():
         pdr, at_fix, pf = named["pdr"], named["pdr@fix"], named.get("pf")
         mine = [w for w in walks if w["scenario"] == scenario]
         worse = {name: sum(w["p95_m"][name] > 1.05 * w["p95_m"]["pdr@fix"] for w in mine)
-                 for name in ("pf", *(name for name, _ in KALMAN_COLUMNS)) if name in named}
+                 for name in ("pf", *(name for name, _ in OTHER_FILTER_COLUMNS)) if name in named}
         no_pf = Cell.plain("-")
         cells.append((Cell.plain(f"{scenario} ({_clock_of(scenario)})"), number(pdr.seeds, 0),
                       number(pdr.p95_m, 2, "m"), number(at_fix.p95_m, 2, "m"),
                       join(number(pf.p95_m, 2, "m"), " (", percent(pf.reduction_95), " / ",
                            percent(pf.reduction_95_vs_fix), ")") if pf else no_pf,
-                      *(number(named[name].p95_m, 2, "m") if name in named else no_pf for name, _ in KALMAN_COLUMNS),
+                      *(number(named[n].p95_m, 2, "m") if n in named else no_pf for n, _ in OTHER_FILTER_COLUMNS),
                       percent(pf.worst_vs_fix, 1, signed=True) if pf else no_pf,
                       _separated([number(n, 0) for n in worse.values()]),
                       join(percent(_walk_mean(mine, "in_ellipse_95", "pf"), 0), " / ",

@@ -136,7 +136,7 @@ class FusionFigures:
 
 #: Track names and their column titles in the fusion table, as :func:`dtmbnav.evaluation.results.fusion_table`
 #: writes them.
-FUSION_TRACKS = (*results.BASELINE_COLUMNS, ("pf", results.PF_COLUMN), *results.KALMAN_COLUMNS)
+FUSION_TRACKS = (*results.BASELINE_COLUMNS, ("pf", results.PF_COLUMN), *results.OTHER_FILTER_COLUMNS)
 
 
 def fusion_figures(section: Section) -> FusionFigures | None:
@@ -160,6 +160,8 @@ def fusion_figures(section: Section) -> FusionFigures | None:
             raise ValueError(f"results data: section {section.name}, {scenario}: {count} walks, but the section's "
                              f"walks are {walks.first}-{walks.indices[-1]}")
         for track, title in FUSION_TRACKS:
+            if title not in table.header:   # a table printed before the filter was added
+                continue
             figures = row[table.column(title)].figures
             if figures:
                 means[(scenario, track)] = figures[0]
