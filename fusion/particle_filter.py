@@ -307,7 +307,40 @@ BACKENDS = {
 }
 
 
-class ParticleFilter:
+class RangeChannelUpdate:
+    """The range channels' part of a particle filter's update, the same in both particle filters.
+
+    The integrity monitor decides which channels the epoch uses (and may send the cloud back to
+    its open-loop state); unused channels' origins take a random-walk step; a channel restarting
+    from a new origin is re-anchored (a tower difference on its code where it carries one, and
+    then it weighs too); the others weigh the particles one after the other. The filter provides
+    ``monitor``, ``layout``, ``noise``, ``_origin_from_code`` and the methods ``fall_back``,
+    ``_walk_origins``, ``_anchor_on_code``, ``_reanchor`` and ``_weigh_range``.
+    """
+
+    def _update_range_channels(self, observation: EpochObservation) -> None:
+        z, sigma, new_origin = observation.range_channels(self.layout.n_towers)
+        code_m = observation.code_channels(self.layout.n_towers)
+        use, returning, fallback = self.monitor.assess(z, new_origin, code_m)
+        if fallback is not None:
+            self.fall_back(fallback[0])
+        lost = self._walk_origins(use)
+        reanchor = use & (new_origin | returning | lost)
+        # A channel takes its origin from the code where it has to re-anchor, and where it has one but its
+        # origin has not come from the code yet (its first epochs, a code that failed the gate before).
+        anchors = observation.anchor_channels(self.layout.n_towers)
+        anchor_sigmas = observation.anchor_sigmas(self.noise.difference_code_sigma_m, self.layout.n_towers)
+        on_code = np.zeros(self.layout.n_channels, dtype=bool)   # anchored on its code now: its range still weighs
+        for j in np.flatnonzero(reanchor | (use & ~self._origin_from_code & np.isfinite(anchors))):
+            on_code[j] = self._anchor_on_code(j, z[j], anchors[j], anchor_sigmas[j])
+            if reanchor[j] and not on_code[j]:
+                self._reanchor(j, z[j], sigma[j])
+            self._origin_from_code[j] = on_code[j] or (self._origin_from_code[j] and not reanchor[j])
+        for j in np.flatnonzero(use & (~reanchor | on_code)):
+            self._weigh_range(j, z[j], sigma[j])
+
+
+class ParticleFilter(RangeChannelUpdate):
     """Bootstrap particle filter of Algorithm 1, driven like a filterpy filter.
 
     Parameters
@@ -474,25 +507,7 @@ class ParticleFilter:
         drops a channel the cloud first moves to the monitor's open-loop
         state (:meth:`fall_back`).
         """
-        z, sigma, new_origin = observation.range_channels(self.layout.n_towers)
-        code_m = observation.code_channels(self.layout.n_towers)
-        use, returning, fallback = self.monitor.assess(z, new_origin, code_m)
-        if fallback is not None:
-            self.fall_back(fallback[0])
-        lost = walk_range_origins(self.linear_cov, np.arange(self.layout.n_channels), use, self.noise)
-        reanchor = use & (new_origin | returning | lost)
-        # A channel takes its origin from the code where it has to re-anchor, and where it has one but its
-        # origin has not come from the code yet (its first epochs, a code that failed the gate before).
-        anchors = observation.anchor_channels(self.layout.n_towers)
-        anchor_sigmas = observation.anchor_sigmas(self.noise.difference_code_sigma_m, self.layout.n_towers)
-        on_code = np.zeros(self.layout.n_channels, dtype=bool)   # anchored on its code now: its range still weighs
-        for j in np.flatnonzero(reanchor | (use & ~self._origin_from_code & np.isfinite(anchors))):
-            on_code[j] = self._anchor_on_code(j, z[j], anchors[j], anchor_sigmas[j])
-            if reanchor[j] and not on_code[j]:
-                self._reanchor(j, z[j], sigma[j])
-            self._origin_from_code[j] = on_code[j] or (self._origin_from_code[j] and not reanchor[j])
-        for j in np.flatnonzero(use & (~reanchor | on_code)):
-            self._weigh_range(j, z[j], sigma[j])
+        self._update_range_channels(observation)
         if not np.isnan(observation.pdr_heading_rad):
             self.kernels.pdr_likelihood(self.particles, observation.pdr_heading_rad, observation.pdr_speed_mps,
                                         self.noise.pdr_heading_rad, self.noise.pdr_speed_mps, self.log_w)
@@ -531,6 +546,10 @@ class ParticleFilter:
     def position_covariance_m2(self) -> np.ndarray:
         """The stated error of the current position: the particles' weighted east/north covariance, m^2."""
         return weighted_position_covariance(self.particles, self.weights)
+
+    def _walk_origins(self, use: np.ndarray) -> np.ndarray:
+        """The unused channels' origin random walk; which origins are lost (:func:`fusion.model.walk_range_origins`)."""
+        return walk_range_origins(self.linear_cov, np.arange(self.layout.n_channels), use, self.noise)
 
     def _weigh_range(self, channel: int, z: float, sigma: float) -> None:
         """One range channel's likelihood and Kalman step of the linear state (module docstring)."""

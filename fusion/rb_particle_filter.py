@@ -65,14 +65,15 @@ from fusion.model import (CODE_ANCHOR_GATE_SIGMAS, HEADING, HEADING_RATE, SPEED,
                           EpochObservation, Geometry, ModelNoise, ObservationLayout, StepControl, X, Y,
                           state_mean, state_residual)
 from fusion.observations import FilterEpochs
-from fusion.particle_filter import AncestrySmoother, normalise_kernel, systematic_resample_kernel
+from fusion.particle_filter import (AncestrySmoother, RangeChannelUpdate, normalise_kernel,
+                                    systematic_resample_kernel)
 
 #: Columns of the linear state (module docstring); the range offsets follow, then the clock.
 LIN_X, LIN_Y, LIN_SCALE = 0, 1, 2
 N_MOTION = 3
 
 
-class MarginalisedParticleFilter:
+class MarginalisedParticleFilter(RangeChannelUpdate):
     """Particle filter over headings with an exact Gaussian position and step-length scale per particle.
 
     Parameters
@@ -193,24 +194,9 @@ class MarginalisedParticleFilter:
     # --- the update -----------------------------------------------------------------------------
 
     def update(self, observation: EpochObservation) -> None:
-        """Weigh and correct with the epoch's range channels and PDR; resample on low ESS (eq. 20-23)."""
-        z, sigma, new_origin = observation.range_channels(self.layout.n_towers)
-        code_m = observation.code_channels(self.layout.n_towers)
-        use, returning, fallback = self.monitor.assess(z, new_origin, code_m)
-        if fallback is not None:
-            self.fall_back(fallback[0])
-        lost = self._walk_origins(use)
-        reanchor = use & (new_origin | returning | lost)
-        anchors = observation.anchor_channels(self.layout.n_towers)
-        anchor_sigmas = observation.anchor_sigmas(self.noise.difference_code_sigma_m, self.layout.n_towers)
-        on_code = np.zeros(self.layout.n_channels, dtype=bool)
-        for j in np.flatnonzero(reanchor | (use & ~self._origin_from_code & np.isfinite(anchors))):
-            on_code[j] = self._anchor_on_code(j, anchors[j], z[j], anchor_sigmas[j])
-            if reanchor[j] and not on_code[j]:
-                self._reanchor(j, z[j], sigma[j])
-            self._origin_from_code[j] = on_code[j] or (self._origin_from_code[j] and not reanchor[j])
-        for j in np.flatnonzero(use & (~reanchor | on_code)):
-            self._weigh_range(j, z[j], sigma[j])
+        """Weigh and correct with the epoch's range channels (:class:`fusion.particle_filter.RangeChannelUpdate`)
+        and PDR; resample on low ESS (eq. 20-23)."""
+        self._update_range_channels(observation)
         if not np.isnan(observation.pdr_heading_rad):
             dh = (self.heading - observation.pdr_heading_rad + np.pi) % (2.0 * np.pi) - np.pi
             self.log_w -= 0.5 * (dh / self.noise.pdr_heading_rad) ** 2
@@ -299,7 +285,7 @@ class MarginalisedParticleFilter:
         self.cov[:, :, col] = row
         self.cov[:, col, col] = np.einsum("ni,ni->n", row, t) + sigma**2
 
-    def _anchor_on_code(self, channel: int, code_m: float, z: float, code_sigma: float) -> bool:
+    def _anchor_on_code(self, channel: int, z: float, code_m: float, code_sigma: float) -> bool:
         """A tower difference's origin from its code (``ParticleFilter._anchor_on_code``'s rule)."""
         if not (np.isfinite(code_m) and np.isfinite(code_sigma)):
             return False
