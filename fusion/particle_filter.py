@@ -307,15 +307,20 @@ BACKENDS = {
 }
 
 
-class RangeChannelUpdate:
-    """The range channels' part of a particle filter's update, the same in both particle filters.
+class ParticleUpdate:
+    """The parts of a particle filter's update that both particle filters share.
 
-    The integrity monitor decides which channels the epoch uses (and may send the cloud back to
-    its open-loop state); unused channels' origins take a random-walk step; a channel restarting
-    from a new origin is re-anchored (a tower difference on its code where it carries one, and
-    then it weighs too); the others weigh the particles one after the other. The filter provides
-    ``monitor``, ``layout``, ``noise``, ``_origin_from_code`` and the methods ``fall_back``,
-    ``_walk_origins``, ``_anchor_on_code``, ``_reanchor`` and ``_weigh_range``.
+    The range channels (:meth:`_update_range_channels`): the integrity monitor decides which
+    channels the epoch uses (and may send the cloud back to its open-loop state); unused
+    channels' origins take a random-walk step; a channel restarting from a new origin is
+    re-anchored (a tower difference on its code where it carries one, and then it weighs too);
+    the others weigh the particles one after the other. After the weights
+    (:meth:`_resample_and_record`): systematic resampling on a low ESS (eq. 23), the monitor's
+    posterior, the smoother's record. The filter provides ``monitor``, ``layout``, ``noise``,
+    ``rng``, ``weights``, ``log_w``, ``ess``, ``n_particles``, ``resample_ess_fraction``,
+    ``resample_count``, ``_origin_from_code``, ``_smoother`` and the methods ``fall_back``,
+    ``summary``, ``_walk_origins``, ``_anchor_on_code``, ``_reanchor``, ``_weigh_range``,
+    ``_take`` (keep the particles of an index) and ``_smoother_rows``.
     """
 
     def _update_range_channels(self, observation: EpochObservation) -> None:
@@ -339,8 +344,24 @@ class RangeChannelUpdate:
         for j in np.flatnonzero(use & (~reanchor | on_code)):
             self._weigh_range(j, z[j], sigma[j])
 
+    def _resample_and_record(self, resample: Callable[[np.ndarray, float], np.ndarray]) -> None:
+        """Resample with ``resample(weights, u)`` where the ESS is below the threshold; then the monitor's
+        posterior and the smoother's record."""
+        if self.ess < self.resample_ess_fraction * self.n_particles:
+            index = resample(self.weights, self.rng.random())
+            self._take(index)
+            if self._smoother is not None:
+                self._smoother.resample(index)
+            self.log_w[:] = -np.log(self.n_particles)
+            self.weights[:] = 1.0 / self.n_particles
+            self.resample_count += 1
+        if self.monitor.config.enabled:
+            self.monitor.posterior(*self.summary())
+        if self._smoother is not None:
+            self._smoother.record(*self._smoother_rows())
 
-class ParticleFilter(RangeChannelUpdate):
+
+class ParticleFilter(ParticleUpdate):
     """Bootstrap particle filter of Algorithm 1, driven like a filterpy filter.
 
     Parameters
@@ -512,19 +533,16 @@ class ParticleFilter(RangeChannelUpdate):
             self.kernels.pdr_likelihood(self.particles, observation.pdr_heading_rad, observation.pdr_speed_mps,
                                         self.noise.pdr_heading_rad, self.noise.pdr_speed_mps, self.log_w)
         self.ess = self.kernels.normalise(self.log_w, self.weights)
-        if self.ess < self.resample_ess_fraction * self.n_particles:
-            index = self.kernels.resample(self.weights, self.rng.random())
-            self.particles = self.particles[index]
-            self.linear = self.linear[index]
-            if self._smoother is not None:
-                self._smoother.resample(index)
-            self.log_w[:] = -np.log(self.n_particles)
-            self.weights[:] = 1.0 / self.n_particles
-            self.resample_count += 1
-        if self.monitor.config.enabled:
-            self.monitor.posterior(*self.summary())
-        if self._smoother is not None:
-            self._smoother.record(self.particles, self.weights)
+        self._resample_and_record(self.kernels.resample)
+
+    def _take(self, index: np.ndarray) -> None:
+        """Keep the particles of ``index`` (a resampling)."""
+        self.particles = self.particles[index]
+        self.linear = self.linear[index]
+
+    def _smoother_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """What the smoother records of this epoch: the particles' states and their weights."""
+        return self.particles, self.weights
 
     def record_history(self) -> None:
         """Smooth from now on with a fixed lag of ``smoothing_lag`` epochs (module docstring; :meth:`smoothed`)."""

@@ -65,7 +65,7 @@ from fusion.model import (CODE_ANCHOR_GATE_SIGMAS, HEADING, HEADING_RATE, SPEED,
                           EpochObservation, Geometry, ModelNoise, ObservationLayout, StepControl, X, Y,
                           state_mean, state_residual)
 from fusion.observations import FilterEpochs
-from fusion.particle_filter import (AncestrySmoother, RangeChannelUpdate, normalise_kernel,
+from fusion.particle_filter import (AncestrySmoother, ParticleUpdate, normalise_kernel,
                                     systematic_resample_kernel)
 
 #: Columns of the linear state (module docstring); the range offsets follow, then the clock.
@@ -73,7 +73,7 @@ LIN_X, LIN_Y, LIN_SCALE = 0, 1, 2
 N_MOTION = 3
 
 
-class MarginalisedParticleFilter(RangeChannelUpdate):
+class MarginalisedParticleFilter(ParticleUpdate):
     """Particle filter over headings with an exact Gaussian position and step-length scale per particle.
 
     Parameters
@@ -194,7 +194,7 @@ class MarginalisedParticleFilter(RangeChannelUpdate):
     # --- the update -----------------------------------------------------------------------------
 
     def update(self, observation: EpochObservation) -> None:
-        """Weigh and correct with the epoch's range channels (:class:`fusion.particle_filter.RangeChannelUpdate`)
+        """Weigh and correct with the epoch's range channels (:class:`fusion.particle_filter.ParticleUpdate`)
         and PDR; resample on low ESS (eq. 20-23)."""
         self._update_range_channels(observation)
         if not np.isnan(observation.pdr_heading_rad):
@@ -202,19 +202,16 @@ class MarginalisedParticleFilter(RangeChannelUpdate):
             self.log_w -= 0.5 * (dh / self.noise.pdr_heading_rad) ** 2
             self._weigh_speed(observation.pdr_speed_mps)
         self.ess = normalise_kernel(self.log_w, self.weights)
-        if self.ess < self.resample_ess_fraction * self.n_particles:
-            index = systematic_resample_kernel(self.weights, self.rng.random())
-            self.heading, self.heading_rate = self.heading[index], self.heading_rate[index]
-            self.mean, self.cov = self.mean[index], self.cov[index]
-            if self._smoother is not None:
-                self._smoother.resample(index)
-            self.log_w[:] = -np.log(self.n_particles)
-            self.weights[:] = 1.0 / self.n_particles
-            self.resample_count += 1
-        if self.monitor.config.enabled:
-            self.monitor.posterior(*self.summary())
-        if self._smoother is not None:
-            self._smoother.record(self._particle_states(), self.weights, self.cov[:, :2, :2])
+        self._resample_and_record(systematic_resample_kernel)
+
+    def _take(self, index: np.ndarray) -> None:
+        """Keep the particles of ``index`` (a resampling)."""
+        self.heading, self.heading_rate = self.heading[index], self.heading_rate[index]
+        self.mean, self.cov = self.mean[index], self.cov[index]
+
+    def _smoother_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What the smoother records of this epoch: the particles' states, weights and own position covariances."""
+        return self._particle_states(), self.weights, self.cov[:, :2, :2]
 
     def _channel_gradients(self, xy: np.ndarray) -> np.ndarray:
         """d g_j / d (x, y) of every range channel at positions ``xy`` (N, 2): (N, channels, 2)."""
