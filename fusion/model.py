@@ -180,6 +180,14 @@ class ObservationLayout:
         ranges = np.stack([geometry.range_m(x_m, y_m, k) for k in range(self.n_towers)], axis=-1)
         return np.concatenate([ranges[..., :1], ranges, ranges[..., 1:] - ranges[..., :1]], axis=-1)
 
+    def gradients(self, geometry: Geometry, x_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:
+        """d (each channel's geometric value) / d (x, y) at points, shape (..., n_channels, 2) (unitless)."""
+        ranges = np.stack([geometry.range_m(x_m, y_m, k) for k in range(self.n_towers)], axis=-1)
+        xy = np.stack([np.asarray(x_m, dtype=np.float64), np.asarray(y_m, dtype=np.float64)], axis=-1)
+        unit = (xy[..., None, :] - geometry.towers()[:, :2]) / ranges[..., None]  # d range_k / d (x, y)
+        added, subtracted = self.tower_pairs()
+        return unit[..., added, :] - np.where(subtracted[:, None] >= 0, unit[..., subtracted, :], 0.0)
+
 
 @dataclass(frozen=True)
 class ModelNoise:
@@ -612,14 +620,9 @@ def transition_jacobian(x: np.ndarray, control: StepControl) -> np.ndarray:
 def observation_jacobian(x: np.ndarray, geometry: Geometry) -> np.ndarray:
     """d observe / d x at ``x``: one row per observation-vector component (:class:`ObservationLayout`)."""
     layout = ObservationLayout(geometry.n_towers)
-    towers = geometry.towers()
-    ranges = np.array([geometry.range_m(x[X], x[Y], k) for k in range(geometry.n_towers)])
-    unit = (x[[X, Y]] - towers[:, :2]) / ranges[:, None]  # d range_k / d (x, y)
-    added, subtracted = layout.tower_pairs()
-    d_channels = unit[added] - np.where(subtracted[:, None] >= 0, unit[subtracted], 0.0)
     h = np.zeros((layout.size, len(x)))
     rows = layout.rows()
-    h[rows[:, None], [X, Y]] = d_channels
+    h[rows[:, None], [X, Y]] = layout.gradients(geometry, x[X], x[Y])
     h[HEADING_ROW, HEADING] = 1.0
     h[SPEED_ROW, SPEED] = 1.0
     if len(x) == CLOCK_STATE_SIZE:

@@ -318,10 +318,61 @@ class ParticleUpdate:
     (:meth:`_resample_and_record`): systematic resampling on a low ESS (eq. 23), the monitor's
     posterior, the smoother's record. The filter provides ``monitor``, ``layout``, ``noise``,
     ``rng``, ``weights``, ``log_w``, ``ess``, ``n_particles``, ``resample_ess_fraction``,
-    ``resample_count``, ``_origin_from_code``, ``_smoother`` and the methods ``fall_back``,
-    ``summary``, ``_walk_origins``, ``_anchor_on_code``, ``_reanchor``, ``_weigh_range``,
-    ``_take`` (keep the particles of an index) and ``_smoother_rows``.
+    ``resample_count``, ``_origin_from_code``, ``_smoother`` (all set by :meth:`_set_up`) and the
+    methods ``fall_back``, ``summary``, ``_walk_origins``, ``_anchor_on_code``, ``_reanchor``,
+    ``_weigh_range``, ``_geometric_m`` (a channel's value at each particle's position), ``_take``
+    (keep the particles of an index) and ``_smoother_rows``.
     """
+
+    def _set_up(self, geometry: Geometry, noise: ModelNoise, clock: ClockModel, integrity: IntegrityConfig,
+                n_particles: int, seed: int, resample_ess_fraction: float, smoothing_lag: int) -> None:
+        """Check the arguments both filters take and set what this class reads (uniform weights).
+
+        Raises
+        ------
+        ValueError
+            For fewer than 2 particles, an ESS fraction outside (0, 1], a smoothing lag below 1.
+        """
+        if n_particles < 2:
+            raise ValueError(f"n_particles must be >= 2, got {n_particles}")
+        if not 0.0 < resample_ess_fraction <= 1.0:
+            raise ValueError(f"resample_ess_fraction must be in (0, 1], got {resample_ess_fraction}")
+        if smoothing_lag < 1:
+            raise ValueError(f"smoothing_lag must be >= 1, got {smoothing_lag}")
+        self.smoothing_lag = smoothing_lag
+        self.geometry = geometry
+        self.noise = noise
+        self.clock = clock
+        self.n_particles = n_particles
+        self.resample_ess_fraction = resample_ess_fraction
+        self.rng = np.random.default_rng(seed)
+        self.layout = ObservationLayout(geometry.n_towers)
+        self.monitor = IntegrityMonitor(geometry, noise, clock, integrity)
+        self._towers = geometry.towers()
+        self._added, self._subtracted = self.layout.tower_pairs()
+        #: Per channel, whether its current origin came from its code (:meth:`_code_agrees`).
+        self._origin_from_code = np.zeros(self.layout.n_channels, dtype=bool)
+        self.log_w = np.full(n_particles, -np.log(n_particles))
+        self.weights = np.full(n_particles, 1.0 / n_particles)
+        self.ess = float(n_particles)
+        self.resample_count = 0
+        self._smoother: AncestrySmoother | None = None
+
+    def _code_agrees(self, channel: int, code_m: float, code_sigma: float) -> bool:
+        """Whether ``channel`` may take its origin from its code value ``code_m`` (a tower difference's,
+        :meth:`fusion.model.EpochObservation.anchor_channels`), known to ``code_sigma`` (m;
+        :meth:`fusion.model.EpochObservation.anchor_sigmas`).
+
+        Not (False) without a code value, with an infinite sigma (the transmit delay offsets unknown), or
+        where the code lies outside :data:`fusion.model.CODE_ANCHOR_GATE_SIGMAS` of the cloud's own value (a
+        first path taken from a reflection arrives late): the channel re-anchors on the particles instead.
+        """
+        if not (np.isfinite(code_m) and np.isfinite(code_sigma)):
+            return False
+        geometric = self._geometric_m(channel)
+        mean = float(self.weights @ geometric)
+        spread = float(np.sqrt(max(self.weights @ (geometric - mean) ** 2, 0.0)))
+        return not abs(code_m - mean) > CODE_ANCHOR_GATE_SIGMAS * np.hypot(spread, code_sigma)
 
     def _update_range_channels(self, observation: EpochObservation) -> None:
         z, sigma, new_origin = observation.range_channels(self.layout.n_towers)
@@ -398,26 +449,10 @@ class ParticleFilter(ParticleUpdate):
                  seed: int = 0, resample_ess_fraction: float = 0.5, backend: str = "numba",
                  clock: ClockModel = ClockModel(), integrity: IntegrityConfig = IntegrityConfig(),
                  smoothing_lag: int = DEFAULT_SMOOTHING_LAG) -> None:
-        if n_particles < 2:
-            raise ValueError(f"n_particles must be >= 2, got {n_particles}")
-        if not 0.0 < resample_ess_fraction <= 1.0:
-            raise ValueError(f"resample_ess_fraction must be in (0, 1], got {resample_ess_fraction}")
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {sorted(BACKENDS)}, got {backend!r}")
-        if smoothing_lag < 1:
-            raise ValueError(f"smoothing_lag must be >= 1, got {smoothing_lag}")
-        self.smoothing_lag = smoothing_lag
-        self.geometry = geometry
-        self.noise = noise
-        self.clock = clock
-        self.n_particles = n_particles
-        self.resample_ess_fraction = resample_ess_fraction
+        self._set_up(geometry, noise, clock, integrity, n_particles, seed, resample_ess_fraction, smoothing_lag)
         self.kernels = BACKENDS[backend]
-        self.rng = np.random.default_rng(seed)
-        self.layout = ObservationLayout(geometry.n_towers)
-        self.monitor = IntegrityMonitor(geometry, noise, clock, integrity)
-        self._towers = geometry.towers()
-        self._added, self._subtracted = self.layout.tower_pairs()
         n_channels = self.layout.n_channels
         self._bias, self._rate = n_channels, n_channels + 1
         # Observation rows of the linear state: -1 on the channel's offset, the clock's range where it enters.
@@ -428,13 +463,6 @@ class ParticleFilter(ParticleUpdate):
         self.particles = np.zeros((n_particles, STATE_SIZE))
         self.linear = np.zeros((n_particles, n_channels + 2))
         self.linear_cov = np.zeros((n_channels + 2, n_channels + 2))
-        #: Per channel, whether its current origin came from its code (:meth:`_anchor_on_code`).
-        self._origin_from_code = np.zeros(n_channels, dtype=bool)
-        self.log_w = np.full(n_particles, -np.log(n_particles))
-        self.weights = np.full(n_particles, 1.0 / n_particles)
-        self.ess = float(n_particles)
-        self.resample_count = 0
-        self._smoother: AncestrySmoother | None = None
 
     @property
     def range_offset_m(self) -> np.ndarray:
@@ -604,18 +632,10 @@ class ParticleFilter(ParticleUpdate):
         """Make ``z`` a new origin of ``channel`` taken from its code value ``code_m`` (a tower difference's,
         :meth:`fusion.model.EpochObservation.anchor_channels`): one offset for every particle, known to
         ``code_sigma`` (m; :meth:`fusion.model.EpochObservation.anchor_sigmas`), so that the epoch's range then
-        weighs the particles.
-
-        Not done (False) without a code value, with an infinite sigma (the transmit delay offsets unknown), or
-        where the code lies outside :data:`fusion.model.CODE_ANCHOR_GATE_SIGMAS` of the cloud's own value (a
-        first path taken from a reflection arrives late): the channel re-anchors on the particles instead.
+        weighs the particles. Not done (False) where the code does not agree with the cloud
+        (:meth:`ParticleUpdate._code_agrees`).
         """
-        if not (np.isfinite(code_m) and np.isfinite(code_sigma)):
-            return False
-        geometric = self._geometric_m(channel)
-        mean = float(self.weights @ geometric)
-        spread = float(np.sqrt(max(self.weights @ (geometric - mean) ** 2, 0.0)))
-        if abs(code_m - mean) > CODE_ANCHOR_GATE_SIGMAS * np.hypot(spread, code_sigma):
+        if not self._code_agrees(channel, code_m, code_sigma):
             return False
         self.linear[:, channel] = code_m - z
         self.linear_cov[channel, :] = 0.0

@@ -60,13 +60,12 @@ from __future__ import annotations
 import numpy as np
 
 from fusion import DEFAULT_RB_PARTICLES, DEFAULT_SMOOTHING_LAG
-from fusion.integrity import IntegrityConfig, IntegrityMonitor
-from fusion.model import (CODE_ANCHOR_GATE_SIGMAS, HEADING, HEADING_RATE, SPEED, STATE_SIZE, ClockModel,
-                          EpochObservation, Geometry, ModelNoise, ObservationLayout, StepControl, X, Y,
-                          state_mean, state_residual)
+from fusion.integrity import IntegrityConfig
+from fusion.model import (HEADING, HEADING_RATE, SPEED, STATE_SIZE, ClockModel, EpochObservation, Geometry,
+                          ModelNoise, StepControl, X, Y, state_mean, state_residual, wrap_angle)
 from fusion.observations import FilterEpochs
-from fusion.particle_filter import (AncestrySmoother, ParticleUpdate, normalise_kernel,
-                                    systematic_resample_kernel)
+from fusion.particle_filter import (AncestrySmoother, ParticleUpdate, normalise_kernel, systematic_resample_kernel,
+                                    weighted_position_covariance)
 
 #: Columns of the linear state (module docstring); the range offsets follow, then the clock.
 LIN_X, LIN_Y, LIN_SCALE = 0, 1, 2
@@ -94,20 +93,7 @@ class MarginalisedParticleFilter(ParticleUpdate):
                  n_particles: int = DEFAULT_RB_PARTICLES, seed: int = 0, resample_ess_fraction: float = 0.5,
                  clock: ClockModel = ClockModel(), integrity: IntegrityConfig = IntegrityConfig(),
                  smoothing_lag: int = DEFAULT_SMOOTHING_LAG) -> None:
-        if n_particles < 2:
-            raise ValueError(f"n_particles must be >= 2, got {n_particles}")
-        if not 0.0 < resample_ess_fraction <= 1.0:
-            raise ValueError(f"resample_ess_fraction must be in (0, 1], got {resample_ess_fraction}")
-        self.geometry = geometry
-        self.noise = noise
-        self.clock = clock
-        self.n_particles = n_particles
-        self.resample_ess_fraction = resample_ess_fraction
-        self.rng = np.random.default_rng(seed)
-        self.layout = ObservationLayout(geometry.n_towers)
-        self.monitor = IntegrityMonitor(geometry, noise, clock, integrity)
-        self._towers = geometry.towers()
-        self._added, self._subtracted = self.layout.tower_pairs()
+        self._set_up(geometry, noise, clock, integrity, n_particles, seed, resample_ess_fraction, smoothing_lag)
         n_channels = self.layout.n_channels
         self._offsets = N_MOTION + np.arange(n_channels)
         self._bias, self._rate = N_MOTION + n_channels, N_MOTION + n_channels + 1
@@ -122,14 +108,8 @@ class MarginalisedParticleFilter(ParticleUpdate):
         #: Linear part per particle: means (Np, size) and covariances (Np, size, size).
         self.mean = np.zeros((n_particles, size))
         self.cov = np.zeros((n_particles, size, size))
+        #: The PDR's speed of the latest step, m/s: the scale multiplies it.
         self.pdr_speed_mps = 1.0
-        self._origin_from_code = np.zeros(n_channels, dtype=bool)
-        self.log_w = np.full(n_particles, -np.log(n_particles))
-        self.weights = np.full(n_particles, 1.0 / n_particles)
-        self.ess = float(n_particles)
-        self.resample_count = 0
-        self._smoother: AncestrySmoother | None = None
-        self.smoothing_lag = smoothing_lag
 
     # --- set-up and prediction ------------------------------------------------------------------
 
@@ -146,7 +126,7 @@ class MarginalisedParticleFilter(ParticleUpdate):
         mean[LIN_SCALE] = 1.0
         mean[self._offsets] = self.layout.start_values_m(self.geometry)
         sigma_p2 = self.noise.initial_position_m**2
-        gradient = self._channel_gradients(start[None, :])[0]          # (channels, 2)
+        gradient = self.layout.gradients(self.geometry, start[0], start[1])          # (channels, 2)
         difference = self._subtracted >= 0
         # The start position's error moves the position and every single-tower origin (the walker's own start
         # range) together: both are the linear map `tie` of it. A difference's origin is its value at the fix,
@@ -198,7 +178,7 @@ class MarginalisedParticleFilter(ParticleUpdate):
         and PDR; resample on low ESS (eq. 20-23)."""
         self._update_range_channels(observation)
         if not np.isnan(observation.pdr_heading_rad):
-            dh = (self.heading - observation.pdr_heading_rad + np.pi) % (2.0 * np.pi) - np.pi
+            dh = wrap_angle(self.heading - observation.pdr_heading_rad)
             self.log_w -= 0.5 * (dh / self.noise.pdr_heading_rad) ** 2
             self._weigh_speed(observation.pdr_speed_mps)
         self.ess = normalise_kernel(self.log_w, self.weights)
@@ -213,27 +193,16 @@ class MarginalisedParticleFilter(ParticleUpdate):
         """What the smoother records of this epoch: the particles' states, weights and own position covariances."""
         return self._particle_states(), self.weights, self.cov[:, :2, :2]
 
-    def _channel_gradients(self, xy: np.ndarray) -> np.ndarray:
-        """d g_j / d (x, y) of every range channel at positions ``xy`` (N, 2): (N, channels, 2)."""
-        towers = self._towers
-        delta = xy[:, None, :] - towers[None, :, :2]
-        ranges = np.sqrt(np.sum(delta**2, axis=2) + towers[None, :, 2] ** 2)
-        unit = delta / ranges[:, :, None]
-        grad = unit[:, self._added]
-        has_sub = self._subtracted >= 0
-        grad[:, has_sub] -= unit[:, self._subtracted[has_sub]]
-        return grad
-
-    def _geometric_m(self, channel: int, xy: np.ndarray) -> np.ndarray:
-        """Each row of ``xy``'s geometric value of ``channel`` (its range, or range difference), m."""
-        return self.layout.geometric_m(self.geometry, xy[:, 0], xy[:, 1])[:, channel]
+    def _geometric_m(self, channel: int) -> np.ndarray:
+        """Each particle's geometric value of ``channel`` (its range, or range difference) at its mean, m."""
+        return self.layout.geometric_m(self.geometry, self.mean[:, LIN_X], self.mean[:, LIN_Y])[:, channel]
 
     def _channel_row(self, channel: int) -> tuple[np.ndarray, np.ndarray]:
         """Each particle's linearised observation row of ``channel`` and its predicted value at the means."""
-        xy = self.mean[:, [LIN_X, LIN_Y]]
+        x, y = self.mean[:, LIN_X], self.mean[:, LIN_Y]
         h = np.broadcast_to(self._h_linear[channel], self.mean.shape).copy()
-        h[:, [LIN_X, LIN_Y]] = self._channel_gradients(xy)[:, channel]
-        predicted = self._geometric_m(channel, xy) + self.mean @ self._h_linear[channel]
+        h[:, [LIN_X, LIN_Y]] = self.layout.gradients(self.geometry, x, y)[:, channel]
+        predicted = self._geometric_m(channel) + self.mean @ self._h_linear[channel]
         return h, predicted
 
     def _weigh_range(self, channel: int, z: float, sigma: float) -> None:
@@ -283,13 +252,10 @@ class MarginalisedParticleFilter(ParticleUpdate):
         self.cov[:, col, col] = np.einsum("ni,ni->n", row, t) + sigma**2
 
     def _anchor_on_code(self, channel: int, z: float, code_m: float, code_sigma: float) -> bool:
-        """A tower difference's origin from its code (``ParticleFilter._anchor_on_code``'s rule)."""
-        if not (np.isfinite(code_m) and np.isfinite(code_sigma)):
-            return False
-        geometric = self._geometric_m(channel, self.mean[:, [LIN_X, LIN_Y]])
-        centre = float(self.weights @ geometric)
-        spread = float(np.sqrt(max(self.weights @ (geometric - centre) ** 2, 0.0)))
-        if abs(code_m - centre) > CODE_ANCHOR_GATE_SIGMAS * np.hypot(spread, code_sigma):
+        """A tower difference's origin from its code, one offset for every particle known to ``code_sigma``
+        (``ParticleFilter._anchor_on_code``); False where the code does not agree with the cloud
+        (:meth:`fusion.particle_filter.ParticleUpdate._code_agrees`)."""
+        if not self._code_agrees(channel, code_m, code_sigma):
             return False
         col = self._offsets[channel]
         self.mean[:, col] = code_m - z
@@ -352,10 +318,8 @@ class MarginalisedParticleFilter(ParticleUpdate):
 
     def position_covariance_m2(self) -> np.ndarray:
         """The particles' weighted east/north spread plus their own position covariances, m^2."""
-        xy = self.mean[:, [LIN_X, LIN_Y]]
-        d = xy - self.weights @ xy
         own = np.einsum("n,nij->ij", self.weights, self.cov[:, :2, :2])
-        return (d * self.weights[:, None]).T @ d + own
+        return weighted_position_covariance(self._particle_states(), self.weights) + own
 
     def record_history(self) -> None:
         """Smooth from now on (the fixed-lag ancestry smoother on the particles' means)."""
