@@ -31,7 +31,7 @@ from fusion.run import FusionConfig, fuse
 from sim.scenario import load_scenario
 
 #: Replay pace: the walk's 100 s in about 5 s.
-PACE = 20.0
+PACE = 10.0
 #: The Weinberg gain the simulated walker's calibration walk gives (its truth file's weinberg_k_m).
 PDR = PdrConfig(weinberg_k_m=0.4751489132109989)
 
